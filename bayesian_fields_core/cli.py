@@ -1,0 +1,236 @@
+"""`bfields`: the command line for people.
+
+Local commands run the library in process (`run`, `eval`, `calibrate`, `generate`); client
+commands talk to a running service (`submit`, `status`, `fetch`, `batch`); `serve` starts the API.
+Input errors print one clear line and exit with status 2, never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import logging
+import os
+import sys
+from pathlib import Path
+from typing import Any
+
+from .errors import BayesianFieldsError, InputError
+
+DEFAULT_CACHE_DIR = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "bfields"
+
+
+def _parse_param_overrides(items: list[str]) -> dict[str, Any]:
+    """`--param top_k=3 --param knn_filter=false`: values parsed as YAML scalars."""
+    import yaml
+
+    out: dict[str, Any] = {}
+    for item in items:
+        if "=" not in item:
+            raise InputError(f"expected NAME=VALUE, got {item!r}", source="--param")
+        name, value = item.split("=", 1)
+        out[name.strip()] = yaml.safe_load(value)
+    return out
+
+
+def build_params(params_file: str | None, overrides: list[str]) -> Any:
+    """PipelineParams from an optional YAML file plus --param overrides, validated."""
+    import yaml
+    from pydantic import ValidationError
+
+    from .params import PipelineParams
+
+    raw: dict[str, Any] = {}
+    if params_file:
+        loaded = yaml.safe_load(Path(params_file).read_text())
+        if not isinstance(loaded, dict):
+            raise InputError("expected a mapping of parameter names to values", source=params_file)
+        raw.update(loaded)
+    raw.update(_parse_param_overrides(overrides))
+    try:
+        return PipelineParams.model_validate(raw)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        loc = ".".join(str(p) for p in first["loc"])
+        raise InputError(f"{loc}: {first['msg']}", source="parameters") from None
+
+
+def scene_fingerprint(folder: Path) -> str:
+    """Identify a local scene by its files' names, sizes and modification times.
+
+    Cheap (no hashing of gigabytes) yet changes whenever a file is replaced; it keys the
+    perception cache of `bfields run`.
+    """
+    h = hashlib.sha256(str(folder.resolve()).encode())
+    for path in sorted(p for p in folder.rglob("*") if p.is_file() and ".bfields" not in p.parts):
+        st = path.stat()
+        h.update(f"{path.relative_to(folder)}:{st.st_size}:{st.st_mtime_ns}".encode())
+    return h.hexdigest()[:16]
+
+
+def _resolve_tasks(args: argparse.Namespace, scene_dir: Path) -> list[str]:
+    from .tasks import load_tasks, normalise_tasks
+
+    if args.task:
+        return normalise_tasks(args.task, source="--task")
+    if args.tasks:
+        return load_tasks(args.tasks)
+    default = scene_dir / "tasks.yaml"
+    if default.is_file():
+        return load_tasks(default)
+    raise InputError("no tasks given: pass --tasks FILE or --task TEXT (or put a tasks.yaml in the scene)")
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from rich.console import Console
+
+    from .context import JobContext
+    from .pipeline import load_models, run_job
+    from .progress import StageProgress
+    from .results.reader import read_result
+    from .store import LocalStore
+
+    console = Console(stderr=True)
+    scene_dir = Path(args.scene)
+    if not scene_dir.is_dir():
+        raise InputError("not a folder", source=str(scene_dir))
+    tasks = _resolve_tasks(args, scene_dir)
+    params = build_params(args.params, args.param)
+    models = load_models(args.profile, device=params.device)
+    out = Path(args.out)
+    cache_dir = Path(args.cache_dir) if args.cache_dir else DEFAULT_CACHE_DIR
+    with StageProgress(console, enabled=not args.quiet) as progress:
+        ctx = JobContext(
+            store=LocalStore(out),
+            job_prefix="",
+            tasks=tasks,
+            params=params,
+            models=models,
+            scene_store=LocalStore(cache_dir),
+            scene_prefix=f"scenes/{scene_fingerprint(scene_dir)}/",
+            scene_dir=scene_dir,
+            progress=progress.update,
+        )
+        reports = run_job(ctx, force=True)
+    result = read_result(LocalStore(out), "result/")
+    from .report import print_result
+
+    print_result(result, reports, out, json_output=args.json)
+    return 0
+
+
+def cmd_generate(args: argparse.Namespace) -> int:
+    from .eval.synthetic import main as synthetic_main
+
+    return synthetic_main([args.out, "--seed", str(args.seed), *args.extra])
+
+
+def cmd_eval(args: argparse.Namespace) -> int:
+    from .eval.suite import run_suite
+
+    run_suite(
+        suite_dir=Path(args.suite_dir),
+        out_dir=Path(args.out),
+        n_scenes=args.scenes,
+        profile=args.profile,
+        markdown=args.markdown,
+    )
+    return 0
+
+
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    from .calibrate_cmd import calibrate
+
+    calibrate(args)
+    return 0
+
+
+def cmd_serve(args: argparse.Namespace) -> int:
+    try:
+        import uvicorn
+    except ImportError:
+        raise InputError("the API needs the 'api' extra: pip install 'bayesian-fields[api]'") from None
+    uvicorn.run("services.api.app:app", host=args.host, port=args.port, workers=args.workers)
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="bfields", description="Task-driven semantic maps on Gaussian splats (Bayesian Fields)."
+    )
+    parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    run = sub.add_parser("run", help="run the whole pipeline on a local scene folder")
+    run.add_argument("scene", help="scene folder (splat .ply + cameras + images/)")
+    run.add_argument("--tasks", help="tasks file (.yaml list, .json or one per line); default SCENE/tasks.yaml")
+    run.add_argument("--task", action="append", default=[], help="a task (repeatable); overrides --tasks")
+    run.add_argument("--out", required=True, help="output folder")
+    run.add_argument("--profile", help="model profile YAML (default: bundled classical + tiny CLIP)")
+    run.add_argument("--params", help="YAML file of pipeline parameters")
+    run.add_argument("--param", action="append", default=[], metavar="NAME=VALUE", help="one parameter")
+    run.add_argument("--cache-dir", help=f"perception cache (default {DEFAULT_CACHE_DIR})")
+    run.add_argument("--json", action="store_true", help="print the summary as JSON")
+    run.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
+    run.set_defaults(func=cmd_run)
+
+    gen = sub.add_parser("generate", help="generate a synthetic benchmark scene")
+    gen.add_argument("out")
+    gen.add_argument("--seed", type=int, default=0)
+    gen.add_argument("extra", nargs=argparse.REMAINDER, help="options passed to the generator")
+    gen.set_defaults(func=cmd_generate)
+
+    ev = sub.add_parser("eval", help="evaluate the method, ablations and baselines on the synthetic suite")
+    ev.add_argument("--suite-dir", default="bench/_generated/suite", help="where suite scenes are generated/cached")
+    ev.add_argument("--out", default="bench/_generated/eval", help="where runs are written")
+    ev.add_argument("--scenes", type=int, default=3, help="number of suite scenes")
+    ev.add_argument("--profile", help="model profile YAML")
+    ev.add_argument("--markdown", action="store_true", help="print the table as Markdown")
+    ev.set_defaults(func=cmd_eval)
+
+    cal = sub.add_parser("calibrate", help="fit mu0/mu1/s of the likelihoods and write a calibration file")
+    src = cal.add_mutually_exclusive_group(required=True)
+    src.add_argument("--scores", help="CSV/JSON of (score, label) pairs; label 1 = relevant")
+    src.add_argument("--scene", action="append", help="synthetic scene folder(s) with gt.json (repeatable)")
+    cal.add_argument("--profile", help="model profile YAML (default bundled)")
+    cal.add_argument("--model-id", help="model id recorded in the file (default: the encoder's)")
+    cal.add_argument("--out", required=True, help="calibration JSON to write")
+    cal.set_defaults(func=cmd_calibrate)
+
+    srv = sub.add_parser("serve", help="run the HTTP API (needs the 'api' extra)")
+    srv.add_argument("--host", default="127.0.0.1")
+    srv.add_argument("--port", type=int, default=8000)
+    srv.add_argument("--workers", type=int, default=1)
+    srv.set_defaults(func=cmd_serve)
+
+    try:
+        from services.client.cli import register_client_commands
+    except ImportError:
+        register_client_commands = None
+    if register_client_commands is not None:
+        register_client_commands(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.WARNING, format="%(levelname)s %(message)s")
+    try:
+        return int(args.func(args) or 0)
+    except InputError as exc:
+        print(f"bfields: error: {exc}", file=sys.stderr)
+        return 2
+    except BayesianFieldsError as exc:
+        print(f"bfields: error: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("bfields: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
+
+
+__all__ = ["main", "build_parser", "scene_fingerprint", "build_params"]

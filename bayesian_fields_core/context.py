@@ -1,0 +1,171 @@
+"""What a stage needs to run: where artifacts live, the scene, the models and the callbacks.
+
+The CLI builds one of these around local folders; a Celery worker builds one around the S3
+bucket. The stages see only this object, which is how both run the very same code.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import tempfile
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from .errors import CancelledError, InputError
+from .params import PipelineParams
+from .scene.types import Frame, Scene
+from .store import LocalStore, Store
+
+log = logging.getLogger(__name__)
+
+ProgressFn = Callable[[str, float], None]
+CancelFn = Callable[[], bool]
+
+
+def _no_progress(stage: str, fraction: float) -> None:
+    return None
+
+
+def _never_cancel() -> bool:
+    return False
+
+
+@dataclass
+class Models:
+    """The loaded perception models plus the calibration that belongs to the encoder.
+
+    `fingerprint` identifies segmenter + encoder + their parameters; it keys the perception cache
+    so a cached embedding is only reused with the exact models that produced it.
+    """
+
+    segmenter: Any
+    encoder: Any
+    calibration: Any
+    fingerprint: str
+    profile_name: str = "default"
+
+    @property
+    def model_ids(self) -> dict[str, str]:
+        return {
+            "profile": self.profile_name,
+            "segmenter": getattr(self.segmenter, "name", type(self.segmenter).__name__),
+            "encoder": getattr(self.encoder, "model_id", type(self.encoder).__name__),
+            "calibration": getattr(self.calibration, "model_id", "") or "",
+        }
+
+
+@dataclass
+class JobContext:
+    """Everything a stage reads: stores, key prefixes, tasks, parameters, models, callbacks.
+
+    store / job_prefix: where this job's artifacts go (``stages/<name>.json`` marks a finished
+    stage, ``result/`` holds the result).
+    scene_store / scene_prefix: where the scene's input files (``input/``) and its
+    task-independent caches (``cache/<fingerprint>/``) live; defaults to `store`.
+    scene_dir: a local folder holding the scene; when None the input is fetched from the store.
+    """
+
+    store: Store
+    job_prefix: str
+    tasks: list[str]
+    params: PipelineParams
+    models: Models
+    scene_prefix: str = "scene/"
+    scene_store: Store | None = None
+    scene_dir: Path | None = None
+    work_dir: Path | None = None
+    progress: ProgressFn = _no_progress
+    should_cancel: CancelFn = _never_cancel
+    _scene: Scene | None = field(default=None, repr=False)
+
+    def __post_init__(self) -> None:
+        if self.scene_store is None:
+            self.scene_store = self.store
+        if self.job_prefix and not self.job_prefix.endswith("/"):
+            self.job_prefix += "/"
+        if self.scene_prefix and not self.scene_prefix.endswith("/"):
+            self.scene_prefix += "/"
+        if not self.tasks:
+            raise InputError("the task list is empty", source="tasks")
+        if len(set(self.tasks)) != len(self.tasks):
+            raise InputError("the task list has duplicates", source="tasks")
+
+    # ---- keys ----------------------------------------------------------------------------
+    def job_key(self, name: str) -> str:
+        return self.job_prefix + name
+
+    @property
+    def perception_prefix(self) -> str:
+        return f"{self.scene_prefix}cache/{self.perception_fingerprint}/perception/"
+
+    @property
+    def visibility_prefix(self) -> str:
+        return f"{self.scene_prefix}cache/{self.visibility_fingerprint}/visibility/"
+
+    @property
+    def perception_fingerprint(self) -> str:
+        return _short_hash({"models": self.models.fingerprint})
+
+    @property
+    def visibility_fingerprint(self) -> str:
+        p = self.params
+        return _short_hash(
+            {
+                "perception": self.perception_fingerprint,
+                "depth_source": p.depth_source,
+                "tol": p.depth_tolerance,
+                "rel": p.depth_tolerance_relative,
+            }
+        )
+
+    # ---- scene ---------------------------------------------------------------------------
+    def scene(self) -> Scene:
+        """Load (once) the scene, fetching it from the store into work_dir when not local."""
+        if self._scene is None:
+            from .scene.loader import load_scene
+
+            folder = self.scene_dir if self.scene_dir is not None else self._materialise_scene()
+            self._scene = load_scene(folder)
+        return self._scene
+
+    def selected_frames(self) -> list[tuple[int, Frame]]:
+        """(capture index, frame) pairs after stride and max_frames, in capture order."""
+        frames = list(enumerate(self.scene().frames))[:: self.params.frame_stride]
+        if self.params.max_frames is not None:
+            frames = frames[: self.params.max_frames]
+        if not frames:
+            raise InputError("the scene has no frames", source="cameras")
+        return frames
+
+    def _materialise_scene(self) -> Path:
+        store = self.scene_store
+        assert store is not None
+        if isinstance(store, LocalStore):
+            local = store.root / self.scene_prefix / "input"
+            if local.is_dir():
+                return local
+        prefix = self.scene_prefix + "input/"
+        keys = store.list(prefix)
+        if not keys:
+            raise InputError(f"no scene files under {prefix!r}", source="scene")
+        base = self.work_dir or Path(tempfile.gettempdir()) / "bfields-scenes"
+        target = base / _short_hash({"prefix": self.scene_prefix, "store": repr(store)}) / "input"
+        for key in keys:
+            dest = target / key[len(prefix) :]
+            if dest.is_file() and dest.stat().st_size == store.size(key):
+                continue
+            store.get_file(key, dest)
+        return target
+
+    # ---- callbacks -----------------------------------------------------------------------
+    def check_cancel(self) -> None:
+        if self.should_cancel():
+            raise CancelledError("job cancelled")
+
+
+def _short_hash(obj: Any) -> str:
+    return hashlib.sha256(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()[:16]

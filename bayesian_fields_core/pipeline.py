@@ -1,0 +1,67 @@
+"""Runs the stages `perceive` -> `fuse` -> `cluster` in process, resuming finished ones.
+
+The same `run_stage` is what a Celery task calls; the CLI calls `run_job`. A stage whose marker
+exists is skipped, which is what makes a redelivered or retried task resume from the last
+finished stage.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from .context import JobContext, Models
+from .errors import InputError
+from .stages import cluster, fuse, perceive
+from .stages.markers import STAGES, is_done, read_marker
+
+log = logging.getLogger(__name__)
+
+_STAGE_FUNCTIONS: dict[str, Callable[[JobContext], dict[str, Any]]] = {
+    "perceive": perceive.run,
+    "fuse": fuse.run,
+    "cluster": cluster.run,
+}
+
+
+def run_stage(name: str, ctx: JobContext, *, force: bool = False) -> dict[str, Any]:
+    """Run one stage unless its marker says it already finished; returns the stage report."""
+    if name not in _STAGE_FUNCTIONS:
+        raise InputError(f"unknown stage {name!r}; stages are {', '.join(STAGES)}", source="stage")
+    if not force and is_done(ctx, name):
+        log.info("stage %s already finished for %s; skipping", name, ctx.job_prefix or "<root>")
+        ctx.progress(name, 1.0)
+        return read_marker(ctx, name)
+    return _STAGE_FUNCTIONS[name](ctx)
+
+
+def run_job(ctx: JobContext, *, force: bool = False) -> dict[str, dict[str, Any]]:
+    """Run every stage in order; returns {stage: report}."""
+    return {name: run_stage(name, ctx, force=force) for name in STAGES}
+
+
+def load_models(profile: Any = None, *, device: str = "cpu") -> Models:
+    """Build segmenter, encoder and calibration from a model profile (path, dict or object).
+
+    None loads the bundled default profile (classical segmenter + the project's tiny CLIP).
+    """
+    from .perception import registry
+
+    if profile is None:
+        prof = registry.default_profile()
+    elif isinstance(profile, str | Path | dict):
+        prof = registry.load_profile(profile)
+    else:
+        prof = profile
+    segmenter = registry.build_segmenter(prof.segmenter)
+    encoder = registry.build_encoder(prof.encoder, device=device)
+    calibration = registry.load_profile_calibration(prof)
+    return Models(
+        segmenter=segmenter,
+        encoder=encoder,
+        calibration=calibration,
+        fingerprint=registry.profile_fingerprint(prof),
+        profile_name=prof.name,
+    )

@@ -1,0 +1,33 @@
+"""Stage completion markers: a stage is finished exactly when its marker exists.
+
+Markers are written last, after every artifact of the stage, so a crash mid-stage leaves no
+marker and the stage runs again (skipping the per-frame cache entries already written).
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+from ..context import JobContext
+from ..store import get_json, put_json
+
+STAGES = ("perceive", "fuse", "cluster")
+
+
+def marker_key(ctx: JobContext, stage: str) -> str:
+    return ctx.job_key(f"stages/{stage}.json")
+
+
+def is_done(ctx: JobContext, stage: str) -> bool:
+    return ctx.store.exists(marker_key(ctx, stage))
+
+
+def read_marker(ctx: JobContext, stage: str) -> dict[str, Any]:
+    return get_json(ctx.store, marker_key(ctx, stage))
+
+
+def write_marker(ctx: JobContext, stage: str, report: dict[str, Any]) -> dict[str, Any]:
+    report = {"stage": stage, "finished_at": time.time(), **report}
+    put_json(ctx.store, marker_key(ctx, stage), report)
+    return report

@@ -1,0 +1,73 @@
+"""Stage 1, `perceive`: segment every frame and embed each mask with CLIP (METHOD steps 1-2).
+
+Outputs are task-independent, so they are cached per scene under the perception fingerprint
+(models + parameters): re-running a scene with a new task list skips this stage's work entirely.
+Frames already in the cache are skipped one by one, so a crashed stage resumes where it stopped.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+
+from ..context import JobContext
+from ..perception.crops import embed_masks
+from ..scene.images import load_image
+from ..store import put_arrays
+from .markers import write_marker
+
+
+def frame_key(prefix: str, index: int) -> str:
+    return f"{prefix}frame_{index:05d}.npz"
+
+
+def smallest_label_dtype(n_masks: int) -> np.dtype:
+    """int16 covers every realistic segmenter output; int32 beyond that."""
+    return np.dtype(np.int16) if n_masks < np.iinfo(np.int16).max else np.dtype(np.int32)
+
+
+def run(ctx: JobContext) -> dict[str, Any]:
+    store = ctx.scene_store
+    assert store is not None
+    frames = ctx.selected_frames()
+    segmenter, encoder = ctx.models.segmenter, ctx.models.encoder
+    computed = 0
+    masks_total = 0
+    seg_time = embed_time = 0.0
+    t0 = time.perf_counter()
+    for n, (index, frame) in enumerate(frames):
+        ctx.check_cancel()
+        key = frame_key(ctx.perception_prefix, index)
+        if not store.exists(key):
+            image = load_image(frame)
+            t = time.perf_counter()
+            labels = segmenter.segment(image)
+            seg_time += time.perf_counter() - t
+            t = time.perf_counter()
+            embeddings = embed_masks(encoder, image, labels).astype(np.float32)
+            embed_time += time.perf_counter() - t
+            put_arrays(
+                store,
+                key,
+                labels=labels.astype(smallest_label_dtype(embeddings.shape[0])),
+                embeddings=embeddings,
+            )
+            computed += 1
+            masks_total += int(embeddings.shape[0])
+        ctx.progress("perceive", (n + 1) / len(frames))
+    return write_marker(
+        ctx,
+        "perceive",
+        {
+            "seconds": time.perf_counter() - t0,
+            "frames": len(frames),
+            "frames_computed": computed,
+            "frames_cached": len(frames) - computed,
+            "masks_computed": masks_total,
+            "segment_seconds": seg_time,
+            "embed_seconds": embed_time,
+            "cache_prefix": ctx.perception_prefix,
+        },
+    )

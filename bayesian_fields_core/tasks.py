@@ -1,0 +1,64 @@
+"""Task lists: plain-language tasks such as "get dish soap", read from YAML, JSON or text."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import yaml
+
+from .errors import InputError
+
+MAX_TASKS = 256
+MAX_TASK_CHARS = 200
+
+
+def normalise_tasks(raw: object, *, source: str = "tasks") -> list[str]:
+    """Validate a task list: strings, non-empty, unique, bounded in count and length.
+
+    Accepts a list of strings, a list of {"task": ...} / {"name": ...} entries (the form the
+    synthetic scenes' tasks.yaml uses, which carries extra fields) or {"tasks": [...]}.
+    """
+    if isinstance(raw, dict) and "tasks" in raw:
+        raw = raw["tasks"]
+    if not isinstance(raw, list):
+        raise InputError("expected a list of tasks (or a mapping with a 'tasks' list)", source=source)
+    tasks: list[str] = []
+    for i, item in enumerate(raw):
+        if isinstance(item, dict):
+            item = item.get("task", item.get("name", item.get("text")))
+        if not isinstance(item, str) or not item.strip():
+            raise InputError(f"task #{i + 1} is not a non-empty string", source=source)
+        text = " ".join(item.split())
+        if len(text) > MAX_TASK_CHARS:
+            raise InputError(f"task #{i + 1} is longer than {MAX_TASK_CHARS} characters", source=source)
+        tasks.append(text)
+    if not tasks:
+        raise InputError("the task list is empty", source=source)
+    if len(tasks) > MAX_TASKS:
+        raise InputError(f"{len(tasks)} tasks; at most {MAX_TASKS} are allowed", source=source)
+    duplicates = sorted({t for t in tasks if tasks.count(t) > 1})
+    if duplicates:
+        raise InputError(f"duplicate tasks: {duplicates}", source=source)
+    return tasks
+
+
+def load_tasks(path: str | Path) -> list[str]:
+    """Read tasks from .yaml/.yml, .json, or a text file with one task per line."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise InputError("file not found", source=str(path)) from None
+    except UnicodeDecodeError:
+        raise InputError("not UTF-8 text", source=str(path)) from None
+    try:
+        if path.suffix in (".yaml", ".yml"):
+            raw = yaml.safe_load(text)
+        elif path.suffix == ".json":
+            raw = json.loads(text)
+        else:
+            raw = [line.strip() for line in text.splitlines() if line.strip() and not line.startswith("#")]
+    except (yaml.YAMLError, json.JSONDecodeError) as exc:
+        raise InputError(f"cannot parse: {exc}", source=str(path)) from None
+    return normalise_tasks(raw, source=str(path))

@@ -1,0 +1,2 @@
+"""Objects: primitives from masks, their task probabilities, the overlap graph, AIB clustering,
+pruning and top-k selection, and floater removal (`obb` computes oriented boxes)."""

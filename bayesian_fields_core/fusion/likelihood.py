@@ -1,0 +1,59 @@
+"""The CLIP measurement model: Gaussian likelihoods of a cosine score given relevance.
+
+The paper (Sec. 4.1-4.2) models `p(phi | y=1) = N(mu1, s^2)` and `p(phi | y=0) = N(mu0, s^2)` with a
+shared standard deviation; the white noise `epsilon ~ N(0, s_eps^2)` of the measurement model
+(Eq. 4) adds its variance. Because both classes share one variance, the Gaussian normalisers
+cancel in the likelihood ratio and only the two squared distances remain, which is all the
+Bayesian update needs (it works in log-odds).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from bayesian_fields_core.errors import InputError
+
+
+@dataclass(frozen=True)
+class LikelihoodParams:
+    """Parameters of the two class-conditional score Gaussians.
+
+    mu0: mean cosine score of irrelevant (task, segment) pairs (paper: 0.20 for FastSAM segments).
+    mu1: mean score of relevant pairs (paper: 0.27, tuned).
+    s: standard deviation shared by both classes (paper: 0.035, from COCO positives).
+    s_eps: standard deviation of the extra measurement noise epsilon (default 0: the paper folds
+        it into `s`); the effective variance is `s^2 + s_eps^2`.
+    """
+
+    mu0: float = 0.20
+    mu1: float = 0.27
+    s: float = 0.035
+    s_eps: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name in ("mu0", "mu1", "s", "s_eps"):
+            if not np.isfinite(getattr(self, name)):
+                raise InputError(f"must be finite, got {getattr(self, name)!r}", source=f"likelihood.{name}")
+        if self.s <= 0:
+            raise InputError(f"must be > 0, got {self.s}", source="likelihood.s")
+        if self.s_eps < 0:
+            raise InputError(f"must be >= 0, got {self.s_eps}", source="likelihood.s_eps")
+
+    @property
+    def variance(self) -> float:
+        """Effective variance `s^2 + s_eps^2` of both class-conditional Gaussians."""
+        return self.s**2 + self.s_eps**2
+
+
+def log_likelihood_ratio(phi: np.ndarray, params: LikelihoodParams) -> np.ndarray:
+    """`log p(phi|y=1) - log p(phi|y=0)` for every score, as float32 of the same shape.
+
+    Equal variances make the normalisers cancel:
+    `llr = ((phi - mu0)^2 - (phi - mu1)^2) / (2 sigma^2)`. Computed in float64 and cast once, so the
+    small differences of nearby means are not lost to float32 rounding.
+    """
+    phi64 = np.asarray(phi, dtype=np.float64)
+    llr = ((phi64 - params.mu0) ** 2 - (phi64 - params.mu1) ** 2) / (2.0 * params.variance)
+    return llr.astype(np.float32)

@@ -1,0 +1,75 @@
+"""Task probabilities of primitives, `p(y|x)` over tasks plus a null task (paper Sec. 4.3).
+
+A primitive's task vector is the mean of its Gaussians' probability vectors (Gaussians of one
+primitive were segmented together, so they share a granularity and should share relevance).
+The null task, "relevant to no task", is then appended and the row normalised so the AIB gets a
+distribution over tasks + null. The paper does not say how the null is formed; the choice is
+`null_mode`:
+
+- "product" (default): `prod_y (1 - p_y)`, the probability that no task is relevant when the
+  per-task variables are treated as independent, which is how they are fused.
+- "one_minus_max": `1 - max_y p_y`, optimistic about correlated tasks (ignores all but the best).
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import numpy as np
+import scipy.sparse as sp
+
+from bayesian_fields_core.errors import InputError
+
+NullMode = Literal["product", "one_minus_max"]
+
+
+def null_probability(task_probs: np.ndarray, mode: NullMode = "product") -> np.ndarray:
+    """(P,) null-task probability from unnormalised (P, T) task probabilities."""
+    if mode == "product":
+        return np.prod(1.0 - task_probs, axis=1)
+    if mode == "one_minus_max":
+        return 1.0 - task_probs.max(axis=1, initial=0.0)
+    raise InputError(f"unknown null mode {mode!r}", source="objects.null_mode")
+
+
+def membership_matrix(labels: np.ndarray, num_groups: int) -> sp.csr_matrix:
+    """Sparse (num_groups, n) 0/1 matrix of `labels` (entries < 0 belong to no group).
+
+    Multiplying it with per-item rows sums them per group in one C pass, which beats
+    `np.add.at` by an order of magnitude on millions of rows.
+    """
+    members = np.flatnonzero(labels >= 0)
+    return sp.csr_matrix(
+        (np.ones(members.size, dtype=np.float64), (labels[members].astype(np.int64), members)),
+        shape=(num_groups, labels.size),
+    )
+
+
+def primitive_probabilities(
+    primitive_ids: np.ndarray,
+    gaussian_probs: np.ndarray,
+    *,
+    null_mode: NullMode = "product",
+    num_primitives: int | None = None,
+) -> np.ndarray:
+    """(P, T+1) float64 rows `p(y|x)`: mean Gaussian probabilities, null appended, normalised.
+
+    `primitive_ids` (N,) with -1 for Gaussians in no primitive; `gaussian_probs` (N, T).
+    A primitive without Gaussians (only possible with an explicit larger `num_primitives`) gets
+    zero task mass, hence all its mass on the null task.
+    """
+    primitive_ids = np.asarray(primitive_ids)
+    if gaussian_probs.ndim != 2 or gaussian_probs.shape[0] != primitive_ids.shape[0]:
+        raise InputError(
+            f"expected ({primitive_ids.shape[0]}, T), got {gaussian_probs.shape}",
+            source="objects.gaussian_probs",
+        )
+    if num_primitives is None:
+        num_primitives = int(primitive_ids.max(initial=-1)) + 1
+    members = membership_matrix(primitive_ids, num_primitives)
+    counts = np.asarray(members.sum(axis=1)).reshape(-1)
+    task = (
+        np.asarray(members @ gaussian_probs.astype(np.float64, copy=False)) / np.maximum(counts, 1)[:, None]
+    )
+    rows = np.concatenate([task, null_probability(task, null_mode)[:, None]], axis=1)
+    return rows / rows.sum(axis=1, keepdims=True)

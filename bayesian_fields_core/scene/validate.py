@@ -1,0 +1,47 @@
+"""Whole-folder validation for uploads: everything a job will read, checked before it is queued.
+
+A job that fails on frame 900 because one JPEG is truncated wastes GPU time; so at upload we read
+the full splat (values included: NaNs are caught here) and decode every image and depth map,
+checking each against its camera's size. Costs about one splat load plus one decode per image.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from pathlib import Path
+from typing import Any
+
+from bayesian_fields_core.scene.images import check_image, load_depth
+from bayesian_fields_core.scene.loader import find_splat, load_frames
+from bayesian_fields_core.scene.ply import DEFAULT_MAX_GAUSSIANS, read_ply
+
+
+def validate_scene_folder(
+    folder: str | Path, *, max_gaussians: int = DEFAULT_MAX_GAUSSIANS
+) -> dict[str, Any]:
+    """Validate a scene folder and summarise it; raises InputError on the first problem found.
+
+    Returns {splat, gaussians, sh_degree, camera_format, camera_file, frames, image_size
+    ([w, h] of the most common size), image_sizes (all distinct sizes), distorted_frames,
+    depth_frames}; paths are relative to the folder.
+    """
+    folder = Path(folder)
+    splat = find_splat(folder)
+    gaussians = read_ply(splat, max_gaussians=max_gaussians)
+    kind, camera_path, frames = load_frames(folder)
+    for frame in frames:
+        check_image(frame)
+        load_depth(frame)
+    sizes = Counter((f.width, f.height) for f in frames)
+    return {
+        "splat": splat.relative_to(folder).as_posix(),
+        "gaussians": len(gaussians),
+        "sh_degree": gaussians.sh_degree,
+        "camera_format": kind,
+        "camera_file": camera_path.relative_to(folder).as_posix(),
+        "frames": len(frames),
+        "image_size": list(sizes.most_common(1)[0][0]),
+        "image_sizes": sorted(list(s) for s in sizes),
+        "distorted_frames": sum(1 for f in frames if f.distortion),
+        "depth_frames": sum(1 for f in frames if f.depth_path is not None),
+    }

@@ -1,0 +1,170 @@
+"""Service configuration: one pydantic-settings object read from `BFIELDS_*` environment variables.
+
+The API, the workers and the integration fixtures all build their configuration from the same
+object, so a variable means the same thing in every process and in every deployment (compose,
+Kubernetes, a test subprocess). Every field carries a description; `.env.example` at the repository
+root lists them for operators. Secrets (`s3_secret_access_key`, API keys) are `SecretStr` or live in
+a file named by `api_keys_file`, so they never show up in a repr or a log line.
+"""
+
+from __future__ import annotations
+
+import re
+from functools import lru_cache
+from pathlib import Path
+from typing import Literal
+
+from pydantic import Field, SecretStr, field_validator, model_validator
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+GiB = 1024**3
+MiB = 1024**2
+
+#: Tenant names become storage prefixes (``tenants/<tenant>/``), so they are restricted to a safe set.
+TENANT_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$"
+
+
+class ServiceSettings(BaseSettings):
+    """Every knob of the batch service. Environment variable = ``BFIELDS_`` + upper-case field name;
+    mappings (``api_keys``) are given as JSON."""
+
+    model_config = SettingsConfigDict(
+        env_prefix="BFIELDS_", case_sensitive=False, extra="ignore", validate_default=True
+    )
+
+    # ---- queue ---------------------------------------------------------------------------------
+    redis_url: str = Field(
+        "redis://127.0.0.1:6379/0",
+        description="Redis URL used as the Celery broker, the result backend and the job-state store.",
+    )
+    gpu_queue: str = Field("gpu", description="Celery queue of the GPU stages (perceive, fuse).")
+    cpu_queue: str = Field("cpu", description="Celery queue of the CPU stage (cluster) and housekeeping.")
+    celery_visibility_timeout_s: int = Field(
+        6 * 3600,
+        gt=0,
+        description="Seconds before Redis redelivers an unacknowledged task to another worker. Must exceed "
+        "the longest stage (tasks are acked late so a crashed worker's task is redelivered).",
+    )
+    celery_prefetch_multiplier: int = Field(
+        1, ge=1, description="Tasks a worker process reserves ahead; 1 keeps long GPU stages fair."
+    )
+    worker_device: Literal["auto", "cuda", "cpu"] = Field(
+        "auto", description="Torch device of the GPU-queue worker; 'auto' picks CUDA when available."
+    )
+
+    # ---- object storage ------------------------------------------------------------------------
+    storage_backend: Literal["s3", "local"] = Field(
+        "local", description="'s3' for any S3-compatible store (AWS, MinIO, ...); 'local' for a folder."
+    )
+    local_storage_root: Path = Field(
+        Path("./data/store"), description="Folder of the 'local' backend (shared by API and workers)."
+    )
+    s3_endpoint_url: str | None = Field(
+        None, description="S3 endpoint, e.g. http://minio:9000; unset for AWS S3 in s3_region."
+    )
+    s3_region: str = Field("us-east-1", description="S3 region name (used for request signing).")
+    s3_bucket: str = Field(
+        "bayesian-fields", min_length=3, max_length=63, description="Bucket holding all artifacts."
+    )
+    s3_access_key_id: str | None = Field(
+        None, description="S3 access key id; unset to use the default AWS credential chain (IAM role)."
+    )
+    s3_secret_access_key: SecretStr | None = Field(None, description="S3 secret access key.")
+    s3_addressing_style: Literal["auto", "path", "virtual"] = Field(
+        "path", description="Bucket addressing; 'path' suits MinIO and most self-hosted servers."
+    )
+    s3_multipart_threshold_bytes: int = Field(
+        64 * MiB, ge=5 * MiB, description="Objects at least this large are uploaded in parts."
+    )
+    s3_multipart_chunk_bytes: int = Field(
+        16 * MiB, ge=5 * MiB, description="Part size of multipart uploads (S3's minimum is 5 MiB)."
+    )
+    s3_max_attempts: int = Field(
+        5, ge=1, le=20, description="Attempts per S3 request on transient errors (exponential backoff)."
+    )
+    presign_expiry_s: int = Field(
+        3600, ge=60, le=7 * 24 * 3600, description="Lifetime of presigned upload/download URLs."
+    )
+
+    # ---- authentication ------------------------------------------------------------------------
+    api_keys: dict[str, str] = Field(
+        default_factory=dict,
+        description="JSON object API key -> tenant. A key may be stored as 'sha256:<hex>' of the key.",
+    )
+    api_keys_file: Path | None = Field(
+        None,
+        description="Secret file with more keys: a JSON object like api_keys, or lines '<key> <tenant>' "
+        "('#' starts a comment). Re-read on each lookup, so keys rotate without a restart.",
+    )
+
+    # ---- input limits (checked at the edge, before any work is queued) ---------------------------
+    max_upload_bytes: int = Field(4 * GiB, gt=0, description="Largest single upload (scene archive).")
+    max_archive_members: int = Field(50_000, gt=0, description="Most files a scene archive may contain.")
+    max_archive_uncompressed_bytes: int = Field(
+        16 * GiB, gt=0, description="Largest total uncompressed size of a scene archive (zip-bomb guard)."
+    )
+    max_gaussians: int = Field(20_000_000, gt=0, description="Most Gaussians a splat may contain.")
+    max_frames: int = Field(10_000, gt=0, description="Most posed images a scene may contain.")
+    max_tasks: int = Field(256, gt=0, description="Most task prompts in one job.")
+    max_task_chars: int = Field(200, gt=0, description="Longest task prompt, in characters.")
+    max_batch_jobs: int = Field(500, gt=0, description="Most jobs in one batch submission.")
+
+    # ---- jobs ------------------------------------------------------------------------------------
+    model_profile: Path | None = Field(
+        None, description="Model profile YAML (segmenter, encoder, calibration); unset = built-in default."
+    )
+    job_soft_time_limit_s: int = Field(
+        4 * 3600, gt=0, description="Per-stage soft time limit: the stage is cancelled cleanly."
+    )
+    job_time_limit_s: int = Field(
+        4 * 3600 + 300, gt=0, description="Per-stage hard time limit: the worker process is killed."
+    )
+    job_max_retries: int = Field(
+        3, ge=0, description="Redeliveries of a stage after a worker crash or a transient error."
+    )
+    max_active_jobs_per_tenant: int = Field(
+        16, gt=0, description="Queued + running jobs a tenant may have; more are refused with 429."
+    )
+    job_retention_days: int = Field(30, gt=0, description="Days finished jobs and results are kept.")
+
+    # ---- misc ------------------------------------------------------------------------------------
+    log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = Field("INFO", description="Log level.")
+
+    @field_validator("redis_url")
+    @classmethod
+    def _check_redis_url(cls, v: str) -> str:
+        if not v.startswith(("redis://", "rediss://", "unix://")):
+            raise ValueError("BFIELDS_REDIS_URL must start with redis://, rediss:// or unix://")
+        return v
+
+    @field_validator("api_keys")
+    @classmethod
+    def _check_tenants(cls, v: dict[str, str]) -> dict[str, str]:
+        for key, tenant in v.items():
+            if not key:
+                raise ValueError("BFIELDS_API_KEYS: empty key")
+            if not re.match(TENANT_PATTERN, tenant):
+                raise ValueError(
+                    f"BFIELDS_API_KEYS: invalid tenant name {tenant!r} (allowed {TENANT_PATTERN})"
+                )
+        return v
+
+    @model_validator(mode="after")
+    def _check_consistency(self) -> ServiceSettings:
+        if self.job_time_limit_s < self.job_soft_time_limit_s:
+            raise ValueError("BFIELDS_JOB_TIME_LIMIT_S must be >= BFIELDS_JOB_SOFT_TIME_LIMIT_S")
+        if self.celery_visibility_timeout_s < self.job_time_limit_s:
+            raise ValueError(
+                "BFIELDS_CELERY_VISIBILITY_TIMEOUT_S must be >= BFIELDS_JOB_TIME_LIMIT_S, otherwise Redis "
+                "redelivers a task that is still running"
+            )
+        if (self.s3_access_key_id is None) != (self.s3_secret_access_key is None):
+            raise ValueError("set both BFIELDS_S3_ACCESS_KEY_ID and BFIELDS_S3_SECRET_ACCESS_KEY, or neither")
+        return self
+
+
+@lru_cache(maxsize=1)
+def get_settings() -> ServiceSettings:
+    """The process-wide settings, read once from the environment (`get_settings.cache_clear()` to
+    re-read, e.g. in tests)."""
+    return ServiceSettings()

@@ -276,17 +276,21 @@ def read_colmap(
 
 
 def _camera_record(frame: Frame) -> tuple[str, list[float]]:
-    """(model, params): PINHOLE, or OPENCV when the frame carries k1/k2/p1/p2 distortion."""
+    """(model, params): the simplest COLMAP model that holds the frame's K and distortion."""
     K = frame.K
     if abs(K[0, 1]) > 1e-12:
         raise InputError("COLMAP cameras cannot express a skewed K", source=frame.name)
     fx, fy, cx, cy = float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2])
-    if not frame.distortion:
+    d = {k: float(v) for k, v in (frame.distortion or {}).items() if v != 0.0}
+    if not d:
         return "PINHOLE", [fx, fy, cx, cy]
-    d = frame.distortion
-    if d.get("k3", 0.0) != 0.0:
-        raise InputError("COLMAP OPENCV cameras have no k3 coefficient", source=frame.name)
-    return "OPENCV", [fx, fy, cx, cy] + [float(d.get(k, 0.0)) for k in ("k1", "k2", "p1", "p2")]
+    if "k3" in d:
+        raise InputError("COLMAP's supported models have no k3 coefficient", source=frame.name)
+    if fx == fy and set(d) == {"k1"}:
+        return "SIMPLE_RADIAL", [fx, cx, cy, d["k1"]]
+    if fx == fy and set(d) <= {"k1", "k2"}:
+        return "RADIAL", [fx, cx, cy, d.get("k1", 0.0), d["k2"]]
+    return "OPENCV", [fx, fy, cx, cy] + [d.get(k, 0.0) for k in ("k1", "k2", "p1", "p2")]
 
 
 def _records(frames: Sequence[Frame]):

@@ -21,6 +21,7 @@ __all__ = [
     "filter_small_labels",
     "label_areas",
     "label_boxes",
+    "resize_masks",
 ]
 
 
@@ -127,3 +128,30 @@ def label_boxes(labels: np.ndarray, num_labels: int | None = None) -> tuple[np.n
         )
         boxes[present] = spans
     return boxes, label_areas(labels, n)
+
+
+def resize_masks(
+    probs: np.ndarray, height: int, width: int, *, threshold: float = 0.5, chunk: int = 16
+) -> np.ndarray:
+    """Soft masks ``(M, h, w)`` (probabilities) -> ``(M, height, width)`` bool.
+
+    Bilinear interpolation of the probabilities, then the threshold: smoother boundaries than
+    thresholding first and upsampling the bits. Done in chunks of ``chunk`` masks so the float
+    buffer stays small for large frames (the bool result is 1 byte per pixel per mask).
+    """
+    import torch
+    import torch.nn.functional as F
+
+    probs = np.asarray(probs, dtype=np.float32)
+    m = probs.shape[0]
+    out = np.empty((m, height, width), dtype=bool)
+    if probs.shape[1:] == (height, width):
+        np.greater(probs, threshold, out=out)
+        return out
+    src = torch.from_numpy(np.ascontiguousarray(probs))
+    for start in range(0, m, chunk):
+        part = F.interpolate(
+            src[start : start + chunk, None], size=(height, width), mode="bilinear", align_corners=False
+        )
+        out[start : start + chunk] = (part[:, 0] > threshold).numpy()
+    return out

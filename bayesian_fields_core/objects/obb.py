@@ -1,0 +1,290 @@
+"""Oriented bounding boxes and an approximate minimum-volume box of a point set.
+
+The Clio evaluation protocol (and our result summary) describes every object by its minimum
+oriented bounding box, so the box has to be tight: a loose box inflates IoU denominators and
+swallows neighbouring centroids. The exact minimum-volume box (O'Rourke 1985) is cubic in the
+hull size and fiddly; the search below is exact over a large, well-motivated family of boxes and
+cheap enough to run on every selected object.
+
+Algorithm (`minimum_obb`)
+1. Convex hull of the points (scipy `ConvexHull`); only hull vertices matter for any box.
+2. ε-kernel: map the hull vertices to the unit cube of their PCA box (an affine normalisation that
+   makes the set "fat"), and keep the extreme vertex in each of `kernel_directions` directions
+   spread evenly on the sphere. Extents of the kept set approximate the extents of the full set in
+   *every* direction (Agarwal, Har-Peled & Varadarajan's directional-width kernel), so box volumes
+   measured on it rank orientations almost exactly as the full set would.
+3. Candidate orientations, all evaluated at once as one batched matrix product:
+   every hull face normal `n` of the kernel, paired with every kernel hull edge direction `d`
+   projected onto the plane orthogonal to `n` (frame `n`, `u = normalise(d - (d.n)n)`, `n x u`).
+   In 2D the minimum-area rectangle has a side collinear with a hull edge (Freeman & Shapira,
+   rotating calipers), and the 2D hull of a projection consists of projected hull edges, so this
+   family contains the optimum among all boxes with a face flush with a hull face. The PCA box and
+   the axis-aligned box are candidates too.
+4. The winning rotation is re-measured on *all* hull vertices, so the box always contains every
+   point.
+
+Guarantees: the box contains all points (within float rounding); its volume is >= the hull volume
+and <= that of both the PCA box and the axis-aligned box; it is the optimum over the face-flush
+family of the kernel. It is not guaranteed globally minimal (O'Rourke shows the optimum may only
+have two adjacent faces flush with hull *edges*), but on real object point sets the gap is a few
+per cent.
+
+Degenerate inputs (fewer than 4 points, coplanar or collinear sets) fall back to the plane of the
+PCA: a coplanar set gets the exact minimum-area rectangle in its plane (same candidate search with
+the PCA normal as the only face normal), a collinear or single-point set gets its PCA box. Every
+extent is at least `min_thickness` so a flat object still has a volume for IoU.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from scipy.spatial import ConvexHull, QhullError
+
+from ..errors import InputError
+
+DEFAULT_MIN_THICKNESS = 1e-3
+"""Smallest extent (scene units, metres for metric captures) of a returned box."""
+
+DEFAULT_KERNEL_DIRECTIONS = 64
+"""Directions of the ε-kernel: more is tighter and slower (candidates grow ~ cubically)."""
+
+_CANDIDATE_BLOCK = 1_000_000  # floats per (faces x edges x vertices) block of the batched search
+
+
+@dataclass(frozen=True)
+class OrientedBox:
+    """A box: `center` (3,), `rotation` (3, 3) whose columns are the box axes (a proper rotation),
+    `extents` (3,) full side lengths along those axes."""
+
+    center: np.ndarray
+    rotation: np.ndarray
+    extents: np.ndarray
+
+    def __post_init__(self) -> None:
+        center = np.asarray(self.center, dtype=np.float64).reshape(-1)
+        rotation = np.asarray(self.rotation, dtype=np.float64)
+        extents = np.asarray(self.extents, dtype=np.float64).reshape(-1)
+        if center.shape != (3,) or rotation.shape != (3, 3) or extents.shape != (3,):
+            raise InputError(
+                f"oriented box: expected center (3,), rotation (3,3), extents (3,); got "
+                f"{center.shape}, {rotation.shape}, {extents.shape}"
+            )
+        if not (np.isfinite(center).all() and np.isfinite(rotation).all() and np.isfinite(extents).all()):
+            raise InputError("oriented box: non-finite center, rotation or extents")
+        if (extents < 0).any():
+            raise InputError(f"oriented box: negative extents {extents.tolist()}")
+        if not np.allclose(rotation.T @ rotation, np.eye(3), atol=1e-6):
+            raise InputError("oriented box: rotation is not orthonormal")
+        object.__setattr__(self, "center", center)
+        object.__setattr__(self, "rotation", rotation)
+        object.__setattr__(self, "extents", extents)
+
+    @property
+    def volume(self) -> float:
+        return float(np.prod(self.extents))
+
+    @property
+    def half_extents(self) -> np.ndarray:
+        return self.extents / 2.0
+
+    def to_local(self, points: np.ndarray) -> np.ndarray:
+        """Coordinates of world points along the box axes, relative to the centre."""
+        return (np.asarray(points, dtype=np.float64) - self.center) @ self.rotation
+
+    def corners(self) -> np.ndarray:
+        """The 8 corners (8, 3), in binary order of the sign pattern (-,-,-), (-,-,+), ..."""
+        signs = np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1], indexing="ij")).reshape(3, -1).T
+        return self.center + (signs * self.half_extents) @ self.rotation.T
+
+    def contains(self, points: np.ndarray, tol: float = 1e-9) -> np.ndarray | bool:
+        """Whether each point lies inside the box, `tol` (absolute) allowed beyond each face.
+
+        A single point (3,) gives a bool, a set (n, 3) a boolean array.
+        """
+        pts = np.asarray(points, dtype=np.float64)
+        inside = (np.abs(self.to_local(pts.reshape(-1, 3))) <= self.half_extents + tol).all(axis=1)
+        return bool(inside[0]) if pts.ndim == 1 else inside
+
+    def to_dict(self) -> dict[str, list]:
+        return {
+            "center": self.center.tolist(),
+            "rotation": self.rotation.tolist(),
+            "extents": self.extents.tolist(),
+        }
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> OrientedBox:
+        try:
+            return cls(data["center"], data["rotation"], data["extents"])
+        except KeyError as exc:
+            raise InputError(f"oriented box: missing field {exc.args[0]!r}") from None
+        except (TypeError, ValueError) as exc:
+            if isinstance(exc, InputError):
+                raise
+            raise InputError(f"oriented box: malformed field ({exc})") from None
+
+
+def _canonical(rotation: np.ndarray, lo: np.ndarray, hi: np.ndarray, min_thickness: float) -> OrientedBox:
+    """Box from a frame and the min/max of the points along its axes, in a canonical form:
+    axes sorted by decreasing extent, each axis's largest component positive, det = +1."""
+    extents = hi - lo
+    center = rotation @ ((lo + hi) / 2.0)
+    order = np.argsort(-extents, kind="stable")
+    rot = rotation[:, order]
+    extents = extents[order]
+    flip = np.sign(rot[np.abs(rot).argmax(axis=0), np.arange(3)])
+    rot = rot * np.where(flip == 0, 1.0, flip)
+    if np.linalg.det(rot) < 0:
+        rot[:, 2] = -rot[:, 2]
+    return OrientedBox(center, rot, np.maximum(extents, min_thickness))
+
+
+def _box_in_frame(points: np.ndarray, rotation: np.ndarray, min_thickness: float) -> OrientedBox:
+    local = points @ rotation
+    return _canonical(rotation, local.min(axis=0), local.max(axis=0), min_thickness)
+
+
+def _pca_frame(points: np.ndarray) -> np.ndarray:
+    centred = points - points.mean(axis=0)
+    _, vecs = np.linalg.eigh(centred.T @ centred)  # ascending eigenvalues
+    rot = vecs[:, ::-1].copy()  # principal axis first, the plane normal last
+    if np.linalg.det(rot) < 0:
+        rot[:, 2] = -rot[:, 2]
+    return rot
+
+
+def _fibonacci_sphere(n: int) -> np.ndarray:
+    """n nearly uniform unit vectors (a golden-angle spiral)."""
+    i = np.arange(n) + 0.5
+    z = 1.0 - 2.0 * i / n
+    r = np.sqrt(np.maximum(0.0, 1.0 - z * z))
+    phi = np.pi * (3.0 - np.sqrt(5.0)) * i
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+
+
+def _unique_directions(vectors: np.ndarray, decimals: int = 9) -> np.ndarray:
+    """Unit vectors with duplicates removed, `v` and `-v` counted as one."""
+    norms = np.linalg.norm(vectors, axis=1)
+    vecs = vectors[norms > 1e-12] / norms[norms > 1e-12, None]
+    lead = np.abs(vecs).argmax(axis=1)
+    vecs = vecs * np.sign(vecs[np.arange(len(vecs)), lead])[:, None]
+    _, idx = np.unique(np.round(vecs, decimals), axis=0, return_index=True)
+    return vecs[np.sort(idx)]
+
+
+def _best_rotation(
+    points: np.ndarray, normals: np.ndarray, edges: np.ndarray, floor: float
+) -> np.ndarray | None:
+    """Minimum-volume frame among (n, normalise(d - (d.n)n), n x d') for every normal/edge pair,
+    evaluated in blocks of faces as batched products over the points. Every side is measured as
+    at least `floor`, as the returned box will be (so flat sets are ranked by area). None if no
+    pair is valid."""
+    proj_n = points @ normals.T  # (V, F)
+    range_n = np.maximum(np.ptp(proj_n, axis=0), floor)
+    proj_d = points @ edges.T  # (V, E)
+    dots = normals @ edges.T  # (F, E)
+    sines = np.sqrt(np.maximum(0.0, 1.0 - dots**2))
+    valid = sines > 1e-6
+    cross = np.cross(normals[:, None, :], edges[None, :, :])  # (F, E, 3), length = sine
+    best = (np.inf, -1, -1)
+    block = max(1, _CANDIDATE_BLOCK // max(1, edges.shape[0] * points.shape[0]))
+    for f0 in range(0, normals.shape[0], block):
+        f1 = min(f0 + block, normals.shape[0])
+        s = np.where(valid[f0:f1], sines[f0:f1], 1.0)
+        # u.x = (d.x - (d.n)(n.x)) / sine ; w.x = ((n x d).x) / sine   -> shape (V, f, E)
+        pu = (proj_d[:, None, :] - dots[f0:f1][None] * proj_n[:, f0:f1, None]) / s[None]
+        pw = np.einsum("vk,fek->vfe", points, cross[f0:f1]) / s[None]
+        vol = (
+            range_n[f0:f1, None]
+            * np.maximum(np.ptp(pu, axis=0), floor)
+            * np.maximum(np.ptp(pw, axis=0), floor)
+        )
+        vol = np.where(valid[f0:f1], vol, np.inf)
+        fi, ei = np.unravel_index(np.argmin(vol), vol.shape)
+        if vol[fi, ei] < best[0]:
+            best = (float(vol[fi, ei]), f0 + int(fi), int(ei))
+    if not np.isfinite(best[0]):
+        return None
+    n, d = normals[best[1]], edges[best[2]]
+    u = d - (d @ n) * n
+    u /= np.linalg.norm(u)
+    return np.stack([n, u, np.cross(n, u)], axis=1)
+
+
+def _kernel(vertices: np.ndarray, directions: int) -> np.ndarray:
+    """Extreme vertices in evenly spread directions after normalising the PCA box to a cube."""
+    if len(vertices) <= directions:
+        return vertices
+    rot = _pca_frame(vertices)
+    local = vertices @ rot
+    span = np.maximum(np.ptp(local, axis=0), 1e-12)
+    fat = (local - local.min(axis=0)) / span
+    extreme = np.argmax(fat @ _fibonacci_sphere(directions).T, axis=0)
+    return vertices[np.unique(extreme)]
+
+
+def _hull_normals_edges(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    hull = ConvexHull(points)
+    normals = _unique_directions(hull.equations[:, :3])
+    simplices = hull.simplices
+    pairs = np.concatenate([simplices[:, [0, 1]], simplices[:, [1, 2]], simplices[:, [2, 0]]])
+    edges = _unique_directions(points[pairs[:, 1]] - points[pairs[:, 0]])
+    return normals, edges
+
+
+def _planar_box(points: np.ndarray, min_thickness: float) -> OrientedBox:
+    """Box of a (near) coplanar or collinear set: exact minimum rectangle in the PCA plane."""
+    pca = _pca_frame(points)
+    normal = pca[:, 2]
+    try:
+        hull2 = ConvexHull(points @ pca[:, :2])
+    except (QhullError, ValueError):
+        return _box_in_frame(points, pca, min_thickness)
+    ring = hull2.vertices
+    edges3 = (points[np.roll(ring, -1)] - points[ring]) @ pca[:, :2] @ pca[:, :2].T
+    rot = _best_rotation(points, normal[None, :], _unique_directions(edges3), min_thickness)
+    return _box_in_frame(points, pca if rot is None else rot, min_thickness)
+
+
+def minimum_obb(
+    points: np.ndarray,
+    *,
+    min_thickness: float = DEFAULT_MIN_THICKNESS,
+    kernel_directions: int = DEFAULT_KERNEL_DIRECTIONS,
+) -> OrientedBox:
+    """An approximate minimum-volume oriented bounding box of `points` (n, 3); see the module
+    docstring for the algorithm and its guarantees."""
+    pts = np.asarray(points, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3 or pts.shape[0] == 0:
+        raise InputError(f"minimum_obb: expected a non-empty (n, 3) point array, got shape {pts.shape}")
+    if not np.isfinite(pts).all():
+        raise InputError("minimum_obb: points contain NaN or infinity")
+    origin = pts.mean(axis=0)
+    centred = pts - origin  # conditioning: qhull and the products work near the origin
+    try:
+        if len(centred) < 4:
+            raise QhullError("too few points for a 3D hull")
+        hull = ConvexHull(centred)
+        if hull.volume <= 1e-15 * max(np.ptp(centred, axis=0).max(), 1e-300) ** 3:
+            raise QhullError("flat hull")
+    except QhullError:
+        box = _planar_box(centred, min_thickness)
+        return OrientedBox(box.center + origin, box.rotation, box.extents)
+
+    vertices = centred[hull.vertices]
+    kernel = _kernel(vertices, kernel_directions)
+    candidates = [np.eye(3), _pca_frame(vertices)]
+    try:
+        normals, edges = _hull_normals_edges(kernel)
+        rot = _best_rotation(kernel, normals, edges, min_thickness)
+        if rot is not None:
+            candidates.append(rot)
+    except QhullError:
+        pass  # a degenerate kernel: the PCA and axis-aligned candidates remain
+    boxes = [_box_in_frame(vertices, r, min_thickness) for r in candidates]
+    box = min(boxes, key=lambda b: b.volume)
+    return OrientedBox(box.center + origin, box.rotation, box.extents)

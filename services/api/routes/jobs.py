@@ -1,0 +1,287 @@
+"""Job routes: submit (idempotent), status, result links, cancel, list; plus batches of jobs."""
+
+from __future__ import annotations
+
+from pathlib import PurePosixPath
+from typing import Annotated, Any
+
+from fastapi import APIRouter, Depends, Header, HTTPException, Query, Response, status
+from fastapi.responses import FileResponse
+from pydantic import ValidationError
+
+from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.params import PipelineParams
+from bayesian_fields_core.store import ArtifactNotFound, LocalStore, get_json, validate_key
+from bayesian_fields_core.tasks import normalise_tasks
+from services.common.auth import require_tenant
+from services.common.jobs import BatchRecord, JobRecord, JobState, new_id
+
+from ..schemas import (
+    Artifact,
+    BatchJob,
+    BatchRequest,
+    BatchStatus,
+    JobAccepted,
+    JobList,
+    JobRequest,
+    JobResult,
+    Problem,
+)
+from ..state import AppState, check_id, get_state, not_found
+from .scenes import ERRORS, _load_scene
+
+router = APIRouter(prefix="/v1", tags=["jobs"])
+Tenant = Annotated[str, Depends(require_tenant)]
+State = Annotated[AppState, Depends(get_state)]
+
+#: Model profiles a job may name. The workers map "default" to BFIELDS_MODEL_PROFILE.
+MODEL_PROFILES = ("default",)
+
+
+def _load_job(state: AppState, tenant: str, job_id: str) -> JobRecord:
+    check_id("job", job_id, "j_")
+    record = state.jobs.get(tenant, job_id)
+    if record is None:
+        raise not_found("job", job_id)
+    return record
+
+
+def _build_job(state: AppState, tenant: str, scene_id: str, tasks: list[str], parameters: dict[str, Any],
+               model_profile: str, batch_id: str | None = None, idem: str | None = None) -> JobRecord:  # fmt: skip
+    """Validate a job request against the scene, tasks, parameters and tenant quota."""
+    scene = _load_scene(state, tenant, scene_id)
+    if scene.state.value != "ready":
+        raise HTTPException(
+            status.HTTP_409_CONFLICT, f"scene {scene_id!r} is not ready (upload not completed)"
+        )
+    s = state.settings
+    try:
+        tasks = normalise_tasks(tasks, source="tasks")
+        if len(tasks) > s.max_tasks or any(len(t) > s.max_task_chars for t in tasks):
+            raise InputError(
+                f"at most {s.max_tasks} tasks of at most {s.max_task_chars} characters", source="tasks"
+            )
+        params = PipelineParams.model_validate(parameters).model_dump(mode="json", exclude_unset=True)
+    except InputError as exc:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_ENTITY, str(exc)) from None
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        where = ".".join(str(p) for p in first["loc"])
+        raise HTTPException(
+            status.HTTP_422_UNPROCESSABLE_ENTITY, f"parameters.{where}: {first['msg']}"
+        ) from None
+    if model_profile not in MODEL_PROFILES:
+        raise HTTPException(
+            status.HTTP_422_UNPROCESSABLE_ENTITY,
+            f"model_profile {model_profile!r} is unknown; available: {', '.join(MODEL_PROFILES)}",
+        )
+    return JobRecord(
+        id=new_id("j_"), tenant=tenant, scene_id=scene_id, tasks=tasks, parameters=params,
+        model_profile=model_profile, batch_id=batch_id, idempotency_key=idem,
+    )  # fmt: skip
+
+
+def _check_quota(state: AppState, tenant: str, new_jobs: int) -> None:
+    active = sum(1 for t, _ in state.jobs.active_jobs() if t == tenant)
+    limit = state.settings.max_active_jobs_per_tenant
+    if active + new_jobs > limit:
+        raise HTTPException(
+            status.HTTP_429_TOO_MANY_REQUESTS,
+            f"{active} jobs are queued or running; at most {limit} are allowed per tenant",
+        )
+
+
+def _submit(state: AppState, record: JobRecord) -> None:
+    state.jobs.create(record)
+    state.enqueue(record)
+
+
+@router.post(
+    "/jobs",
+    status_code=status.HTTP_202_ACCEPTED,
+    response_model=JobAccepted,
+    summary="Submit a job",
+    responses={**ERRORS, 409: {"model": Problem}, 429: {"model": Problem}},
+)
+def submit_job(
+    body: JobRequest,
+    tenant: Tenant,
+    state: State,
+    response: Response,
+    idempotency_key: Annotated[
+        str | None,
+        Header(
+            max_length=200, description="Retries with the same key return the first job instead of a new one."
+        ),
+    ] = None,
+) -> JobAccepted:
+    if idempotency_key:
+        # A short Redis lock serialises concurrent retries carrying the same key.
+        with state.redis.lock(f"bf:idem:{tenant}:{idempotency_key}", timeout=30, blocking_timeout=30):
+            existing = state.jobs.idempotent_job(tenant, idempotency_key)
+            if existing is not None and (record := state.jobs.get(tenant, existing)) is not None:
+                response.status_code = status.HTTP_200_OK
+                return JobAccepted(id=record.id, state=record.state, created=False)
+            record = _build_job(state, tenant, body.scene_id, body.tasks, body.parameters, body.model_profile,
+                                idem=idempotency_key)  # fmt: skip
+            _check_quota(state, tenant, 1)
+            _submit(state, record)
+            state.jobs.remember_idempotent(tenant, idempotency_key, record.id)
+    else:
+        record = _build_job(state, tenant, body.scene_id, body.tasks, body.parameters, body.model_profile)
+        _check_quota(state, tenant, 1)
+        _submit(state, record)
+    return JobAccepted(id=record.id, state=record.state, created=True)
+
+
+@router.get(
+    "/jobs/{job_id}",
+    response_model=JobRecord,
+    summary="Job state, stage, progress, timings",
+    responses=ERRORS,
+)
+def get_job(job_id: str, tenant: Tenant, state: State) -> JobRecord:
+    return _load_job(state, tenant, job_id)
+
+
+@router.get("/jobs", response_model=JobList, summary="List jobs, newest first", responses=ERRORS)
+def list_jobs(
+    tenant: Tenant,
+    state: State,
+    job_state: Annotated[JobState | None, Query(alias="state")] = None,
+    scene_id: str | None = None,
+    limit: Annotated[int, Query(ge=1, le=500)] = 50,
+    cursor: Annotated[str | None, Query(description="next_cursor of the previous page")] = None,
+) -> JobList:
+    items, next_cursor = state.jobs.list(
+        tenant, state=job_state, scene_id=scene_id, limit=limit, cursor=cursor
+    )
+    return JobList(items=items, next_cursor=next_cursor)
+
+
+@router.get(
+    "/jobs/{job_id}/result",
+    response_model=JobResult,
+    summary="Result summary and download links of every artifact",
+    responses={**ERRORS, 409: {"model": Problem}},
+)
+def get_result(job_id: str, tenant: Tenant, state: State) -> JobResult:
+    record = _load_job(state, tenant, job_id)
+    if record.state != JobState.succeeded:
+        raise HTTPException(
+            status.HTTP_409_CONFLICT, f"job {job_id!r} is {record.state.value}, not succeeded"
+        )
+    ts = state.tenant(tenant)
+    prefix = f"{record.job_prefix}result/"
+    try:
+        summary = get_json(ts, prefix + "summary.json")
+    except ArtifactNotFound:
+        summary = {}
+    artifacts = []
+    for key in ts.list(prefix):
+        rel = key[len(record.job_prefix) :]
+        if state.can_presign():
+            url = state.presigned_get(tenant, key, filename=PurePosixPath(key).name)
+        else:
+            url = f"/v1/jobs/{job_id}/artifacts/{rel}"
+        artifacts.append(Artifact(path=rel, size=ts.size(key), url=url))
+    return JobResult(id=job_id, state=record.state, summary=summary, artifacts=artifacts,
+                     expires_in_s=state.settings.presign_expiry_s)  # fmt: skip
+
+
+@router.get(
+    "/jobs/{job_id}/artifacts/{path:path}",
+    response_class=FileResponse,
+    summary="Download one artifact (only for storage backends that cannot presign)",
+    responses=ERRORS,
+)
+def get_artifact(job_id: str, path: str, tenant: Tenant, state: State) -> FileResponse:
+    record = _load_job(state, tenant, job_id)
+    try:
+        key = record.job_prefix + validate_key(path)
+    except InputError:
+        raise not_found("artifact", path) from None
+    if not path.startswith("result/") or not isinstance(state.store, LocalStore):
+        raise not_found("artifact", path)
+    file = state.store.root / state.tenant(tenant).prefix / key
+    if not file.is_file():
+        raise not_found("artifact", path)
+    return FileResponse(file, filename=file.name)
+
+
+@router.delete(
+    "/jobs/{job_id}",
+    response_model=JobRecord,
+    status_code=status.HTTP_202_ACCEPTED,
+    summary="Cancel a job (a running stage stops at its next frame)",
+    responses=ERRORS,
+)
+def cancel_job(job_id: str, tenant: Tenant, state: State) -> JobRecord:
+    _load_job(state, tenant, job_id)
+    record = state.jobs.request_cancel(tenant, job_id)
+    assert record is not None
+    return record
+
+
+@router.post(
+    "/batches",
+    status_code=status.HTTP_202_ACCEPTED,
+    response_model=BatchStatus,
+    summary="Submit many jobs at once (items, or scenes x task lists)",
+    tags=["batches"],
+    responses={**ERRORS, 409: {"model": Problem}, 429: {"model": Problem}},
+)
+def submit_batch(body: BatchRequest, tenant: Tenant, state: State) -> BatchStatus:
+    pairs = [(i.scene_id, i.tasks) for i in body.items]
+    pairs += [(s, t) for s in body.scene_ids for t in body.task_lists]
+    if not pairs:
+        raise HTTPException(
+            status.HTTP_422_UNPROCESSABLE_ENTITY, "the batch is empty: give items or scene_ids x task_lists"
+        )
+    if len(pairs) > state.settings.max_batch_jobs:
+        raise HTTPException(
+            status.HTTP_422_UNPROCESSABLE_ENTITY,
+            f"{len(pairs)} jobs; at most {state.settings.max_batch_jobs} per batch (BFIELDS_MAX_BATCH_JOBS)",
+        )
+    batch_id = new_id("b_")
+    # Validate every job before submitting any, so a bad item never leaves half a batch queued.
+    records = [
+        _build_job(state, tenant, s, t, body.parameters, body.model_profile, batch_id=batch_id)
+        for s, t in pairs
+    ]
+    _check_quota(state, tenant, len(records))
+    batch = BatchRecord(id=batch_id, tenant=tenant, job_ids=[r.id for r in records])
+    state.jobs.save_batch(batch)
+    for record in records:
+        _submit(state, record)
+    return _batch_status(state, batch)
+
+
+def _batch_status(state: AppState, batch: BatchRecord) -> BatchStatus:
+    jobs = [state.jobs.get(batch.tenant, j) for j in batch.job_ids]
+    present = [j for j in jobs if j is not None]
+    counts: dict[str, int] = {}
+    for j in present:
+        counts[j.state.value] = counts.get(j.state.value, 0) + 1
+    progress = sum(100.0 if j.state.terminal else j.progress for j in present) / max(len(present), 1)
+    return BatchStatus(
+        id=batch.id, created_at=batch.created_at, progress=round(progress, 2), counts=counts,
+        finished=all(j.state.terminal for j in present),
+        jobs=[BatchJob(id=j.id, scene_id=j.scene_id, tasks=j.tasks, state=j.state, stage=j.stage,
+                       progress=j.progress, error=j.error) for j in present],
+    )  # fmt: skip
+
+
+@router.get(
+    "/batches/{batch_id}",
+    response_model=BatchStatus,
+    summary="Aggregated progress and per-job states of a batch",
+    tags=["batches"],
+    responses=ERRORS,
+)
+def get_batch(batch_id: str, tenant: Tenant, state: State) -> BatchStatus:
+    check_id("batch", batch_id, "b_")
+    batch = state.jobs.load_batch(tenant, batch_id)
+    if batch is None:
+        raise not_found("batch", batch_id)
+    return _batch_status(state, batch)

@@ -1,0 +1,286 @@
+"""Scene routes: upload (one multipart request, or presigned multipart uploads), get, list, delete."""
+
+from __future__ import annotations
+
+import shutil
+import tempfile
+from pathlib import Path
+from typing import Annotated
+
+from fastapi import APIRouter, Body, Depends, HTTPException, Query, Request, Response, status
+from fastapi.concurrency import run_in_threadpool
+
+from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.store import ArtifactNotFound, get_json, put_json
+from services.common.auth import require_tenant
+from services.common.jobs import JobState, new_id, utcnow
+
+from ..archives import ArchiveLimits
+from ..multipart import clean_filename, receive_multipart
+from ..scene_intake import UploadedFile, assemble_scene, upload_scene_folder, validate_scene
+from ..schemas import (
+    CompleteRequest,
+    PresignedUpload,
+    Problem,
+    SceneList,
+    SceneRecord,
+    SceneState,
+    UploadPlan,
+    UploadRequest,
+)
+from ..state import AppState, check_id, get_state, not_found
+
+router = APIRouter(prefix="/v1/scenes", tags=["scenes"])
+Tenant = Annotated[str, Depends(require_tenant)]
+State = Annotated[AppState, Depends(get_state)]
+
+ERRORS = {401: {"model": Problem}, 404: {"model": Problem}, 422: {"model": Problem}}
+
+_MULTIPART_SCHEMA = {
+    "requestBody": {
+        "required": True,
+        "content": {
+            "multipart/form-data": {
+                "schema": {
+                    "type": "object",
+                    "required": ["splat", "cameras", "images"],
+                    "properties": {
+                        "name": {"type": "string", "description": "Optional scene name."},
+                        "splat": {"type": "string", "format": "binary", "description": "The splat .ply."},
+                        "cameras": {
+                            "type": "array",
+                            "items": {"type": "string", "format": "binary"},
+                            "description": "transforms.json, cameras.json, or COLMAP cameras + images "
+                            "(.txt or .bin, points3D optional).",
+                        },
+                        "images": {
+                            "type": "array",
+                            "items": {"type": "string", "format": "binary"},
+                            "description": "The images as files, or ONE .zip/.tar(.gz) archive of them.",
+                        },
+                    },
+                }
+            }
+        },
+    }
+}
+
+
+def _scene_key(scene_id: str) -> str:
+    return f"scenes/{scene_id}/scene.json"
+
+
+def _load_scene(state: AppState, tenant: str, scene_id: str) -> SceneRecord:
+    check_id("scene", scene_id, "s_")
+    try:
+        return SceneRecord.model_validate(get_json(state.tenant(tenant), _scene_key(scene_id)))
+    except ArtifactNotFound:
+        raise not_found("scene", scene_id) from None
+
+
+def _save_scene(state: AppState, record: SceneRecord) -> None:
+    put_json(state.tenant(record.tenant), _scene_key(record.id), record.model_dump(mode="json"))
+
+
+def _limits(state: AppState) -> ArchiveLimits:
+    s = state.settings
+    return ArchiveLimits(max_members=s.max_archive_members, max_bytes=s.max_archive_uncompressed_bytes)
+
+
+def _ingest(
+    state: AppState, tenant: str, scene_id: str, files: list[UploadedFile], work: Path
+) -> tuple[int, int, dict]:
+    """Assemble + validate in `work`, then upload to ``scenes/<id>/input/`` (blocking; threadpool)."""
+    scene_dir = work / "scene"
+    assemble_scene(files, scene_dir, _limits(state))
+    summary = validate_scene(
+        scene_dir, max_gaussians=state.settings.max_gaussians, max_frames=state.settings.max_frames
+    )
+    n, size = upload_scene_folder(state.tenant(tenant), scene_dir, f"scenes/{scene_id}/input/")
+    return n, size, summary
+
+
+def _unprocessable(exc: InputError) -> HTTPException:
+    return HTTPException(status.HTTP_422_UNPROCESSABLE_ENTITY, str(exc))
+
+
+@router.post(
+    "",
+    status_code=status.HTTP_201_CREATED,
+    response_model=SceneRecord,
+    summary="Upload a scene in one multipart request",
+    openapi_extra=_MULTIPART_SCHEMA,
+    responses={**ERRORS, 413: {"model": Problem}, 415: {"model": Problem}},
+)
+async def upload_scene(request: Request, tenant: Tenant, state: State) -> SceneRecord:
+    """Stream the form to a temp folder (413 past BFIELDS_MAX_UPLOAD_BYTES), extract an image
+    archive safely, validate everything, then store it. Nothing is stored when any check fails."""
+    work = Path(tempfile.mkdtemp(prefix="bfields-upload-"))
+    try:
+        try:
+            form = await receive_multipart(request, work / "parts", max_bytes=state.settings.max_upload_bytes)
+            files = [UploadedFile(f.field, f.filename, f.path) for f in form.files]
+            scene_id = new_id("s_")
+            n, size, summary = await run_in_threadpool(_ingest, state, tenant, scene_id, files, work)
+        except InputError as exc:
+            raise _unprocessable(exc) from None
+        now = utcnow()
+        record = SceneRecord(
+            id=scene_id, tenant=tenant, name=form.fields.get("name") or None, files=n, bytes=size,
+            summary=summary, created_at=now, updated_at=now,
+        )  # fmt: skip
+        _save_scene(state, record)
+        state.tenant(tenant).put_bytes(f"index/scenes/{scene_id}", b"")
+        return record
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+@router.post(
+    "/uploads",
+    status_code=status.HTTP_201_CREATED,
+    response_model=UploadPlan,
+    summary="Start a presigned upload (large captures go straight to the bucket)",
+    responses={**ERRORS, 413: {"model": Problem}, 501: {"model": Problem}},
+)
+def start_upload(body: UploadRequest, tenant: Tenant, state: State) -> UploadPlan:
+    """Returns presigned multipart PUT URLs per file; then call POST /v1/scenes/{id}/complete."""
+    from services.common.s3_store import plan_parts
+
+    if not state.can_presign():
+        raise HTTPException(status.HTTP_501_NOT_IMPLEMENTED, "the storage backend cannot presign URLs")
+    total = sum(f.size for f in body.files)
+    if total > state.settings.max_upload_bytes:
+        raise HTTPException(
+            status.HTTP_413_REQUEST_ENTITY_TOO_LARGE,
+            f"upload of {total} bytes exceeds the limit of {state.settings.max_upload_bytes} bytes",
+        )
+    scene_id = new_id("s_")
+    ts = state.tenant(tenant)
+    part_size = state.settings.s3_multipart_chunk_bytes
+    uploads, pending = [], []
+    try:
+        for spec in body.files:
+            name = clean_filename(spec.name, field_name=spec.field)
+            key = f"scenes/{scene_id}/staging/{spec.field}/{name}"
+            parts = plan_parts(spec.size, part_size)
+            upload_id = state.store.create_multipart_upload(ts.prefix + key)  # type: ignore[attr-defined]
+            urls = [
+                state.store.presigned_upload_part(  # type: ignore[attr-defined]
+                    ts.prefix + key, upload_id, p.part_number, state.settings.presign_expiry_s
+                )
+                for p in parts
+            ]
+            uploads.append(
+                PresignedUpload(
+                    field=spec.field, name=name, upload_id=upload_id, part_size=part_size, part_urls=urls
+                )
+            )
+            pending.append(
+                {"field": spec.field, "name": name, "key": key, "upload_id": upload_id, "size": spec.size}
+            )
+    except InputError as exc:
+        raise _unprocessable(exc) from None
+    now = utcnow()
+    record = SceneRecord(
+        id=scene_id, tenant=tenant, name=body.name, state=SceneState.uploading,
+        pending_uploads=pending, created_at=now, updated_at=now,
+    )  # fmt: skip
+    _save_scene(state, record)
+    ts.put_bytes(f"index/scenes/{scene_id}", b"")
+    return UploadPlan(scene_id=scene_id, uploads=uploads, expires_in_s=state.settings.presign_expiry_s)
+
+
+@router.post(
+    "/{scene_id}/complete",
+    response_model=SceneRecord,
+    summary="Finish a presigned upload: assemble, validate, mark the scene ready",
+    responses={**ERRORS, 409: {"model": Problem}, 413: {"model": Problem}},
+)
+def complete_upload(
+    scene_id: str, tenant: Tenant, state: State, body: Annotated[CompleteRequest | None, Body()] = None
+) -> SceneRecord:
+    record = _load_scene(state, tenant, scene_id)
+    if record.state != SceneState.uploading:
+        raise HTTPException(status.HTTP_409_CONFLICT, f"scene {scene_id!r} is already {record.state.value}")
+    ts = state.tenant(tenant)
+    work = Path(tempfile.mkdtemp(prefix="bfields-complete-"))
+    try:
+        files = []
+        for i, up in enumerate(record.pending_uploads):
+            parts = None
+            if body is not None and body.parts is not None and up["name"] in body.parts:
+                parts = [p.model_dump() for p in body.parts[up["name"]]]
+            try:
+                state.store.complete_multipart_upload(ts.prefix + up["key"], up["upload_id"], parts)  # type: ignore[attr-defined]
+            except InputError as exc:
+                raise _unprocessable(exc) from None
+            actual = ts.size(up["key"])
+            if actual != up["size"]:
+                raise _unprocessable(
+                    InputError(f"uploaded {actual} bytes, announced {up['size']}", source=up["name"])
+                )
+            local = work / "parts" / f"part-{i:05d}"
+            ts.get_file(up["key"], local)
+            files.append(UploadedFile(up["field"], up["name"], local))
+        try:
+            n, size, summary = _ingest(state, tenant, scene_id, files, work)
+        except InputError as exc:
+            raise _unprocessable(exc) from None
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    ts.delete_prefix(f"scenes/{scene_id}/staging/")
+    record = record.model_copy(
+        update={"state": SceneState.ready, "files": n, "bytes": size, "summary": summary,
+                "pending_uploads": [], "updated_at": utcnow()}
+    )  # fmt: skip
+    _save_scene(state, record)
+    return record
+
+
+@router.get("/{scene_id}", response_model=SceneRecord, summary="Get a scene", responses=ERRORS)
+def get_scene(scene_id: str, tenant: Tenant, state: State) -> SceneRecord:
+    return _load_scene(state, tenant, scene_id)
+
+
+@router.get("", response_model=SceneList, summary="List scenes, newest first", responses=ERRORS)
+def list_scenes(
+    tenant: Tenant,
+    state: State,
+    limit: Annotated[int, Query(ge=1, le=500)] = 50,
+    cursor: Annotated[str | None, Query(description="next_cursor of the previous page")] = None,
+) -> SceneList:
+    prefix = "index/scenes/"
+    ids = sorted((k[len(prefix) :] for k in state.tenant(tenant).list(prefix)), reverse=True)
+    ids = [i for i in ids if cursor is None or i < cursor]
+    page = ids[:limit]
+    items = []
+    for scene_id in page:
+        try:
+            items.append(_load_scene(state, tenant, scene_id))
+        except HTTPException:
+            continue
+    return SceneList(items=items, next_cursor=page[-1] if len(ids) > limit else None)
+
+
+@router.delete(
+    "/{scene_id}",
+    status_code=status.HTTP_204_NO_CONTENT,
+    response_class=Response,
+    summary="Delete a scene (refused while jobs on it are queued or running)",
+    responses={**ERRORS, 409: {"model": Problem}},
+)
+def delete_scene(scene_id: str, tenant: Tenant, state: State) -> Response:
+    record = _load_scene(state, tenant, scene_id)
+    for job_state in (JobState.queued, JobState.running):
+        active, _ = state.jobs.list(tenant, state=job_state, scene_id=scene_id, limit=1)
+        if active:
+            raise HTTPException(
+                status.HTTP_409_CONFLICT, f"scene {scene_id!r} has {job_state.value} job {active[0].id}"
+            )
+    ts = state.tenant(tenant)
+    for up in record.pending_uploads:
+        state.store.abort_multipart_upload(ts.prefix + up["key"], up["upload_id"])  # type: ignore[attr-defined]
+    ts.delete(f"index/scenes/{scene_id}")
+    ts.delete_prefix(f"scenes/{scene_id}/")
+    return Response(status_code=status.HTTP_204_NO_CONTENT)

@@ -1,0 +1,136 @@
+"""Turn uploaded files into a validated scene folder, then copy it into the tenant's bucket prefix.
+
+Both upload paths (one multipart request, or presigned multipart uploads straight to the bucket)
+end here with a list of (role, file name, local path). The files are laid out as a scene folder
+the core loader understands, checked by `validate_scene_folder` (PLY header and counts, camera
+file parses, every image decodes and matches its camera), and only then uploaded under
+``scenes/<id>/input/``. Validation happens before the first byte is stored, so a bad upload
+never touches data that is already there.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.store import Store
+
+from .archives import ArchiveLimits, extract_archive, is_archive_name
+
+#: Camera files by name -> the folder they go to inside the scene (COLMAP's usual layout).
+CAMERA_FILES: dict[str, str] = {
+    "transforms.json": "",
+    "cameras.json": "",
+    "cameras.txt": "sparse/0/",
+    "images.txt": "sparse/0/",
+    "points3D.txt": "sparse/0/",
+    "cameras.bin": "sparse/0/",
+    "images.bin": "sparse/0/",
+    "points3D.bin": "sparse/0/",
+}
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp")
+
+
+@dataclass(frozen=True)
+class UploadedFile:
+    role: str  # "splat" | "cameras" | "images"
+    name: str  # client file name (already reduced to a base name)
+    path: Path
+
+
+def _one_splat(files: Sequence[UploadedFile]) -> UploadedFile:
+    splats = [f for f in files if f.role == "splat"]
+    if len(splats) != 1:
+        raise InputError(f"expected exactly one splat file, got {len(splats)}", source="splat")
+    if not splats[0].name.lower().endswith(".ply"):
+        raise InputError(f"{splats[0].name!r} is not a .ply file", source="splat")
+    return splats[0]
+
+
+def _camera_files(files: Sequence[UploadedFile]) -> list[UploadedFile]:
+    cams = [f for f in files if f.role == "cameras"]
+    if not cams:
+        raise InputError(
+            "no camera file; send transforms.json, cameras.json or COLMAP cameras/images (.txt or .bin)",
+            source="cameras",
+        )
+    for cam in cams:
+        if cam.name not in CAMERA_FILES:
+            raise InputError(
+                f"{cam.name!r} is not a supported camera file; expected one of {', '.join(CAMERA_FILES)}",
+                source="cameras",
+            )
+    return cams
+
+
+def assemble_scene(files: Sequence[UploadedFile], scene_dir: Path, limits: ArchiveLimits) -> None:
+    """Lay the uploaded files out as a scene folder (files are moved, archives extracted)."""
+    splat = _one_splat(files)
+    cams = _camera_files(files)
+    images = [f for f in files if f.role == "images"]
+    unknown = [f for f in files if f.role not in ("splat", "cameras", "images")]
+    if unknown:
+        raise InputError(
+            f"unexpected form field {unknown[0].role!r}; use splat, cameras, images", source="form"
+        )
+    scene_dir.mkdir(parents=True, exist_ok=True)
+    splat.path.replace(scene_dir / splat.name)
+    for cam in cams:
+        dest = scene_dir / CAMERA_FILES[cam.name] / cam.name
+        if dest.exists():
+            raise InputError(f"camera file {cam.name!r} sent twice", source="cameras")
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        cam.path.replace(dest)
+    image_dir = scene_dir / "images"
+    archives = [f for f in images if is_archive_name(f.name)]
+    if archives:
+        if len(images) != 1:
+            raise InputError("send either one image archive or image files, not both", source="images")
+        extract_archive(archives[0].path, image_dir, limits, source=archives[0].name)
+        return
+    if not images:
+        raise InputError("no images; send image files or one zip/tar archive as 'images'", source="images")
+    image_dir.mkdir(parents=True, exist_ok=True)
+    for img in images:
+        if not img.name.lower().endswith(IMAGE_SUFFIXES):
+            raise InputError(f"{img.name!r} is not an image ({', '.join(IMAGE_SUFFIXES)})", source="images")
+        dest = image_dir / img.name
+        if dest.exists():
+            raise InputError(f"image {img.name!r} sent twice", source="images")
+        img.path.replace(dest)
+
+
+def validate_scene(scene_dir: Path, *, max_gaussians: int, max_frames: int) -> dict[str, Any]:
+    """Run the core validator and the service's size limits; returns the validation summary.
+
+    Messages name files relative to the scene folder, never the API's temp paths."""
+    from bayesian_fields_core.scene.validate import validate_scene_folder
+
+    try:
+        summary = validate_scene_folder(scene_dir, max_gaussians=max_gaussians)
+    except InputError as exc:
+        raise InputError(str(exc).replace(f"{scene_dir}/", "").replace(str(scene_dir), "<scene>")) from None
+    gaussians = summary.get("gaussians", summary.get("num_gaussians"))
+    if isinstance(gaussians, int) and gaussians > max_gaussians:
+        raise InputError(f"{gaussians} Gaussians; at most {max_gaussians} are allowed", source="splat")
+    frames = summary.get("frames", summary.get("num_frames"))
+    if isinstance(frames, int) and frames > max_frames:
+        raise InputError(f"{frames} frames; at most {max_frames} are allowed", source="cameras")
+    return summary
+
+
+def upload_scene_folder(store: Store, scene_dir: Path, prefix: str) -> tuple[int, int]:
+    """Copy every file of `scene_dir` under `prefix` (deleting what was written on failure).
+
+    Returns (files, bytes)."""
+    paths = sorted(p for p in scene_dir.rglob("*") if p.is_file())
+    try:
+        for path in paths:
+            store.put_file(prefix + path.relative_to(scene_dir).as_posix(), path)
+    except BaseException:
+        store.delete_prefix(prefix)
+        raise
+    return len(paths), sum(p.stat().st_size for p in paths)

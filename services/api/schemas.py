@@ -1,0 +1,195 @@
+"""Request and response bodies of the HTTP API (pydantic), with examples for the OpenAPI page."""
+
+from __future__ import annotations
+
+from datetime import datetime
+from enum import StrEnum
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from services.common.jobs import JobRecord, JobState
+
+SCENE_EXAMPLE_ID = "s_0192f3a1b2c3aa55bb66cc"
+JOB_EXAMPLE_ID = "j_0192f3a1b2c3d4e5f6a7b8"
+
+
+class Problem(BaseModel):
+    """Error body of every 4xx/5xx answer."""
+
+    detail: str = Field(examples=["images/frame_0003.png: image is 640x480 but its camera says 320x240"])
+
+
+class SceneState(StrEnum):
+    uploading = "uploading"
+    ready = "ready"
+
+
+class SceneRecord(BaseModel):
+    """A scene as stored in ``scenes/<id>/scene.json``."""
+
+    id: str = Field(examples=[SCENE_EXAMPLE_ID])
+    tenant: str = Field(examples=["acme"])
+    name: str | None = Field(None, examples=["kitchen-2024-05-01"])
+    state: SceneState = SceneState.ready
+    files: int = Field(0, description="Files stored under the scene's input/ folder.")
+    bytes: int = Field(0, description="Total size of the stored input files.")
+    summary: dict[str, Any] = Field(
+        default_factory=dict,
+        description="What validation found (Gaussian count, frames, camera format, image sizes).",
+        examples=[{"gaussians": 12000, "frames": 24, "camera_format": "transforms.json"}],
+    )
+    pending_uploads: list[dict[str, Any]] = Field(
+        default_factory=list, description="Presigned multipart uploads not yet completed."
+    )
+    created_at: datetime
+    updated_at: datetime
+
+
+class SceneList(BaseModel):
+    items: list[SceneRecord]
+    next_cursor: str | None = Field(None, description="Pass as `cursor` to get the next page.")
+
+
+class UploadFileSpec(BaseModel):
+    """One file the client will upload straight to the bucket."""
+
+    model_config = ConfigDict(extra="forbid")
+    field: Literal["splat", "cameras", "images"] = Field(
+        examples=["images"], description="Same roles as the multipart form fields of POST /v1/scenes."
+    )
+    name: str = Field(examples=["images.zip"], min_length=1, max_length=255)
+    size: int = Field(gt=0, examples=[734003200], description="Exact size in bytes.")
+
+
+class UploadRequest(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    name: str | None = Field(None, max_length=200, examples=["kitchen-2024-05-01"])
+    files: list[UploadFileSpec] = Field(min_length=1, max_length=64)
+
+
+class PresignedUpload(BaseModel):
+    field: str
+    name: str
+    upload_id: str
+    part_size: int = Field(description="Every part but the last has exactly this many bytes.")
+    part_urls: list[str] = Field(description="PUT part i+1 to part_urls[i]; keep each response's ETag.")
+
+
+class UploadPlan(BaseModel):
+    scene_id: str = Field(examples=[SCENE_EXAMPLE_ID])
+    uploads: list[PresignedUpload]
+    expires_in_s: int
+
+
+class CompletedPart(BaseModel):
+    PartNumber: int = Field(ge=1, le=10000)
+    ETag: str
+
+
+class CompleteRequest(BaseModel):
+    """Part ETags per file name; omit to let the server list the uploaded parts itself."""
+
+    model_config = ConfigDict(extra="forbid")
+    parts: dict[str, list[CompletedPart]] | None = None
+
+
+class JobRequest(BaseModel):
+    """A job: run the pipeline on a stored scene for a task list."""
+
+    model_config = ConfigDict(
+        extra="forbid",
+        json_schema_extra={
+            "examples": [
+                {
+                    "scene_id": SCENE_EXAMPLE_ID,
+                    "tasks": ["get dish soap", "move hats and gloves"],
+                    "parameters": {"max_frames": 40, "top_k": 3},
+                    "model_profile": "default",
+                }
+            ]
+        },
+    )
+    scene_id: str
+    tasks: list[str] = Field(min_length=1)
+    parameters: dict[str, Any] = Field(
+        default_factory=dict, description="`PipelineParams` fields; unknown fields are refused."
+    )
+    model_profile: str = Field("default", description="Name of a model profile configured on the workers.")
+
+
+class JobAccepted(BaseModel):
+    id: str = Field(examples=[JOB_EXAMPLE_ID])
+    state: JobState = Field(examples=["queued"])
+    created: bool = Field(description="False when an Idempotency-Key matched an earlier job.")
+
+
+class JobList(BaseModel):
+    items: list[JobRecord]
+    next_cursor: str | None = None
+
+
+class Artifact(BaseModel):
+    path: str = Field(examples=["result/summary.json"], description="Relative to the job folder.")
+    size: int
+    url: str = Field(description="Presigned GET URL (or an API URL when storage cannot presign).")
+
+
+class JobResult(BaseModel):
+    id: str
+    state: JobState
+    summary: dict[str, Any] = Field(description="Contents of result/summary.json.")
+    artifacts: list[Artifact]
+    expires_in_s: int
+
+
+class BatchItem(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    scene_id: str
+    tasks: list[str] = Field(min_length=1)
+
+
+class BatchRequest(BaseModel):
+    """Either explicit items, or every scene crossed with every task list (or both)."""
+
+    model_config = ConfigDict(
+        extra="forbid",
+        json_schema_extra={
+            "examples": [
+                {
+                    "scene_ids": [SCENE_EXAMPLE_ID],
+                    "task_lists": [["get dish soap"], ["move hats and gloves", "water the plant"]],
+                    "parameters": {"max_frames": 40},
+                }
+            ]
+        },
+    )
+    items: list[BatchItem] = Field(default_factory=list)
+    scene_ids: list[str] = Field(default_factory=list)
+    task_lists: list[list[str]] = Field(default_factory=list)
+    parameters: dict[str, Any] = Field(default_factory=dict)
+    model_profile: str = "default"
+
+
+class BatchJob(BaseModel):
+    id: str
+    scene_id: str
+    tasks: list[str]
+    state: JobState
+    stage: str | None
+    progress: float
+    error: str | None = None
+
+
+class BatchStatus(BaseModel):
+    id: str
+    created_at: datetime
+    progress: float = Field(description="Mean progress of the jobs, percent.")
+    counts: dict[str, int] = Field(description="Jobs per state.", examples=[{"running": 2, "queued": 6}])
+    finished: bool
+    jobs: list[BatchJob]
+
+
+class Health(BaseModel):
+    status: Literal["ok", "degraded"]
+    checks: dict[str, str] = Field(default_factory=dict, examples=[{"redis": "ok", "storage": "ok"}])

@@ -1,0 +1,328 @@
+"""Job records: the manifest in the bucket is the truth, Redis holds only live progress.
+
+Why two places: the bucket survives everything (a Redis restart, a redeploy), so a job is never
+lost, while stage/progress updates arrive many times a second and belong in Redis. A read merges
+the two: the manifest gives the record, the Redis hash overlays the live stage and progress while
+the job is active. Terminal states are sticky: once a manifest says succeeded/failed/cancelled no
+later write (a late worker, a duplicate delivery) turns it back into an active one.
+
+Layout (keys of the tenant's store, i.e. under ``tenants/<tenant>/``):
+  jobs/<id>/manifest.json          the `JobRecord`
+  jobs/<id>/stages/, jobs/<id>/result/   written by the pipeline (job_prefix = ``jobs/<id>/``)
+  index/jobs/<id>                  empty marker, so listing jobs never walks result files
+  idempotency/<sha256(key)>.json   Idempotency-Key -> job id (survives Redis restarts)
+  batches/<id>.json                a `BatchRecord`
+and in the global store ``active/<tenant>/<id>`` markers for queued/running jobs, which the
+worker's recovery scan reads to re-enqueue jobs a Redis restart dropped.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import secrets
+import time
+from collections.abc import Iterable
+from datetime import UTC, datetime
+from enum import StrEnum
+from typing import Any
+
+import redis
+from pydantic import BaseModel, Field
+
+from bayesian_fields_core.store import ArtifactNotFound, Store, get_json, put_json
+
+from .storage import tenant_store
+
+#: Relative cost of each stage, used to turn (stage, fraction) into one overall percentage.
+STAGE_WEIGHTS: dict[str, float] = {"perceive": 0.6, "fuse": 0.25, "cluster": 0.15}
+STAGES: tuple[str, ...] = tuple(STAGE_WEIGHTS)
+
+#: Seconds a finished job's live Redis hash is kept (the manifest stays for good).
+FINISHED_HASH_TTL_S = 24 * 3600
+
+
+class JobState(StrEnum):
+    queued = "queued"
+    running = "running"
+    succeeded = "succeeded"
+    failed = "failed"
+    cancelled = "cancelled"
+
+    @property
+    def terminal(self) -> bool:
+        return self in (JobState.succeeded, JobState.failed, JobState.cancelled)
+
+
+def utcnow() -> datetime:
+    return datetime.now(UTC)
+
+
+def new_id(prefix: str) -> str:
+    """A time-ordered id (ms timestamp in hex, then randomness): listing sorts by creation."""
+    return f"{prefix}{int(time.time() * 1000):012x}{secrets.token_hex(5)}"
+
+
+class JobRecord(BaseModel):
+    """One job as stored in ``jobs/<id>/manifest.json`` (and returned by the API)."""
+
+    id: str = Field(examples=["j_0192f3a1b2c3d4e5f6a7b8"])
+    tenant: str = Field(examples=["acme"])
+    scene_id: str = Field(examples=["s_0192f3a1b2c3aa55bb66cc"])
+    tasks: list[str] = Field(examples=[["get dish soap", "move hats and gloves"]])
+    parameters: dict[str, Any] = Field(default_factory=dict, examples=[{"max_frames": 40}])
+    model_profile: str = Field("default", examples=["default"])
+    state: JobState = JobState.queued
+    stage: str | None = Field(None, description="Stage running now (or the last one that ran).")
+    progress: float = Field(0.0, ge=0, le=100, description="Overall progress in percent.")
+    stages_done: list[str] = Field(default_factory=list)
+    timings: dict[str, float] = Field(default_factory=dict, description="Seconds per finished stage.")
+    stage_reports: dict[str, dict[str, Any]] = Field(default_factory=dict)
+    error: str | None = None
+    cancel_requested: bool = False
+    attempts: int = Field(0, description="Stage task executions (retries and redeliveries included).")
+    created_at: datetime = Field(default_factory=utcnow)
+    updated_at: datetime = Field(default_factory=utcnow)
+    started_at: datetime | None = None
+    finished_at: datetime | None = None
+    idempotency_key: str | None = None
+    batch_id: str | None = None
+
+    @property
+    def job_prefix(self) -> str:
+        return f"jobs/{self.id}/"
+
+    @property
+    def scene_prefix(self) -> str:
+        return f"scenes/{self.scene_id}/"
+
+    def remaining_stages(self) -> list[str]:
+        return [s for s in STAGES if s not in self.stages_done]
+
+
+class BatchRecord(BaseModel):
+    """A group of jobs submitted together (``batches/<id>.json``)."""
+
+    id: str
+    tenant: str
+    job_ids: list[str]
+    created_at: datetime = Field(default_factory=utcnow)
+
+
+def overall_progress(stages_done: Iterable[str], stage: str | None, fraction: float) -> float:
+    """Percent complete from finished stages plus the fraction of the running one."""
+    done = set(stages_done)
+    pct = sum(STAGE_WEIGHTS[s] for s in STAGES if s in done)
+    if stage in STAGE_WEIGHTS and stage not in done:
+        pct += STAGE_WEIGHTS[stage] * min(max(fraction, 0.0), 1.0)
+    return round(100.0 * min(pct, 1.0), 2)
+
+
+def _merge(old: JobRecord, new: JobRecord) -> JobRecord:
+    """Combine a concurrent writer's record with the stored one: terminal states and cancel
+    requests win, finished stages accumulate."""
+    if old.state.terminal and not new.state.terminal:
+        new = new.model_copy(update={"state": old.state, "error": old.error, "finished_at": old.finished_at})
+    stages = [s for s in STAGES if s in set(old.stages_done) | set(new.stages_done)]
+    return new.model_copy(
+        update={
+            "cancel_requested": old.cancel_requested or new.cancel_requested,
+            "stages_done": stages,
+            "timings": {**old.timings, **new.timings},
+            "stage_reports": {**old.stage_reports, **new.stage_reports},
+        }
+    )
+
+
+class JobStore:
+    """Reads and writes job records (bucket manifests + Redis live state + cancel flags)."""
+
+    def __init__(self, store: Store, redis_client: redis.Redis) -> None:
+        self.store = store
+        self.redis = redis_client
+
+    # ---- keys ----------------------------------------------------------------------------------
+    @staticmethod
+    def manifest_key(job_id: str) -> str:
+        return f"jobs/{job_id}/manifest.json"
+
+    @staticmethod
+    def live_key(tenant: str, job_id: str) -> str:
+        return f"bf:job:{tenant}:{job_id}"
+
+    @staticmethod
+    def cancel_key(tenant: str, job_id: str) -> str:
+        return f"bf:cancel:{tenant}:{job_id}"
+
+    @staticmethod
+    def active_key(tenant: str, job_id: str) -> str:
+        return f"active/{tenant}/{job_id}"
+
+    def tenant(self, tenant: str) -> Store:
+        return tenant_store(self.store, tenant)
+
+    # ---- manifests -----------------------------------------------------------------------------
+    def load(self, tenant: str, job_id: str) -> JobRecord | None:
+        """The stored manifest (no live overlay), or None."""
+        try:
+            data = get_json(self.tenant(tenant), self.manifest_key(job_id))
+        except ArtifactNotFound:
+            return None
+        return JobRecord.model_validate(data)
+
+    def _write(self, record: JobRecord) -> None:
+        put_json(self.tenant(record.tenant), self.manifest_key(record.id), record.model_dump(mode="json"))
+
+    def create(self, record: JobRecord) -> None:
+        """Persist a new job: manifest, listing index, active marker, live hash."""
+        ts = self.tenant(record.tenant)
+        self._write(record)
+        ts.put_bytes(f"index/jobs/{record.id}", b"")
+        self.store.put_bytes(self.active_key(record.tenant, record.id), b"")
+        self.touch_live(record)
+
+    def save(self, record: JobRecord) -> JobRecord:
+        """Write `record`, merged with what is stored (see `_merge`) under a short Redis lock so the
+        API's cancel and a worker's stage update never lose each other's fields."""
+        with self.redis.lock(f"bf:mlock:{record.tenant}:{record.id}", timeout=30, blocking_timeout=30):
+            old = self.load(record.tenant, record.id)
+            merged = _merge(old, record) if old is not None else record
+            merged.updated_at = utcnow()
+            self._write(merged)
+        if merged.state.terminal:
+            self.store.delete(self.active_key(merged.tenant, merged.id))
+        self.touch_live(merged)
+        return merged
+
+    def touch_live(self, record: JobRecord) -> None:
+        """Mirror the record's state into its live Redis hash (the 'job is known to Redis' mark)."""
+        key = self.live_key(record.tenant, record.id)
+        pipe = self.redis.pipeline()
+        pipe.hset(
+            key,
+            mapping={
+                "state": record.state.value,
+                "stage": record.stage or "",
+                "progress": record.progress,
+                "updated": time.time(),
+            },
+        )
+        if record.state.terminal:
+            pipe.expire(key, FINISHED_HASH_TTL_S)
+        else:
+            pipe.persist(key)
+        pipe.execute()
+
+    def set_progress(self, record: JobRecord, stage: str, fraction: float) -> None:
+        """Live progress of a running stage (Redis only; cheap enough to call per frame)."""
+        pct = overall_progress(record.stages_done, stage, fraction)
+        self.redis.hset(
+            self.live_key(record.tenant, record.id),
+            mapping={
+                "state": JobState.running.value,
+                "stage": stage,
+                "progress": pct,
+                "updated": time.time(),
+            },
+        )
+
+    def has_live_entry(self, tenant: str, job_id: str) -> bool:
+        return bool(self.redis.exists(self.live_key(tenant, job_id)))
+
+    def get(self, tenant: str, job_id: str) -> JobRecord | None:
+        """The manifest with the live stage/progress overlaid while the job is active."""
+        record = self.load(tenant, job_id)
+        if record is None or record.state.terminal:
+            return record
+        live = self.redis.hgetall(self.live_key(tenant, job_id))
+        if live:
+            state = JobState(live.get(b"state", record.state.value.encode()).decode())
+            update: dict[str, Any] = {"progress": max(record.progress, float(live.get(b"progress", 0)))}
+            if not state.terminal:
+                update["state"] = state
+            if live.get(b"stage"):
+                update["stage"] = live[b"stage"].decode()
+            record = record.model_copy(update=update)
+        return record
+
+    # ---- cancellation --------------------------------------------------------------------------
+    def request_cancel(self, tenant: str, job_id: str) -> JobRecord | None:
+        """Flag the job for cancellation; a job no worker has started is cancelled at once."""
+        record = self.load(tenant, job_id)
+        if record is None or record.state.terminal:
+            return record
+        self.redis.set(self.cancel_key(tenant, job_id), b"1", ex=FINISHED_HASH_TTL_S * 7)
+        update: dict[str, Any] = {"cancel_requested": True}
+        if record.state == JobState.queued:
+            update.update(state=JobState.cancelled, finished_at=utcnow(), error="cancelled by request")
+        return self.save(record.model_copy(update=update))
+
+    def is_cancel_requested(self, tenant: str, job_id: str) -> bool:
+        """Cheap check for workers between frames (a Redis GET)."""
+        return bool(self.redis.exists(self.cancel_key(tenant, job_id)))
+
+    # ---- listing -------------------------------------------------------------------------------
+    def list_ids(self, tenant: str) -> list[str]:
+        """Job ids of a tenant, newest first."""
+        prefix = "index/jobs/"
+        return sorted((k[len(prefix) :] for k in self.tenant(tenant).list(prefix)), reverse=True)
+
+    def list(
+        self,
+        tenant: str,
+        *,
+        state: JobState | None = None,
+        scene_id: str | None = None,
+        batch_id: str | None = None,
+        limit: int = 50,
+        cursor: str | None = None,
+    ) -> tuple[list[JobRecord], str | None]:
+        """A page of jobs, newest first; `cursor` is the last id of the previous page."""
+        out: list[JobRecord] = []
+        ids = [i for i in self.list_ids(tenant) if cursor is None or i < cursor]
+        for n, job_id in enumerate(ids):
+            record = self.get(tenant, job_id)
+            if record is None:
+                continue
+            if state is not None and record.state != state:
+                continue
+            if scene_id is not None and record.scene_id != scene_id:
+                continue
+            if batch_id is not None and record.batch_id != batch_id:
+                continue
+            out.append(record)
+            if len(out) == limit:
+                return out, (job_id if n + 1 < len(ids) else None)
+        return out, None
+
+    def active_jobs(self) -> list[tuple[str, str]]:
+        """(tenant, job id) of every job whose manifest was last seen queued or running."""
+        pairs = []
+        for key in self.store.list("active/"):
+            parts = key.split("/")
+            if len(parts) == 3:
+                pairs.append((parts[1], parts[2]))
+        return pairs
+
+    # ---- idempotency ---------------------------------------------------------------------------
+    @staticmethod
+    def _idem_key(key: str) -> str:
+        return f"idempotency/{hashlib.sha256(key.encode()).hexdigest()}.json"
+
+    def idempotent_job(self, tenant: str, key: str) -> str | None:
+        try:
+            return str(get_json(self.tenant(tenant), self._idem_key(key))["job_id"])
+        except ArtifactNotFound:
+            return None
+
+    def remember_idempotent(self, tenant: str, key: str, job_id: str) -> None:
+        put_json(self.tenant(tenant), self._idem_key(key), {"job_id": job_id})
+
+    # ---- batches -------------------------------------------------------------------------------
+    def save_batch(self, batch: BatchRecord) -> None:
+        put_json(self.tenant(batch.tenant), f"batches/{batch.id}.json", batch.model_dump(mode="json"))
+
+    def load_batch(self, tenant: str, batch_id: str) -> BatchRecord | None:
+        try:
+            return BatchRecord.model_validate(get_json(self.tenant(tenant), f"batches/{batch_id}.json"))
+        except ArtifactNotFound:
+            return None

@@ -1,0 +1,46 @@
+"""Job and stage metrics that outlive worker processes: histograms kept in Redis hashes.
+
+Workers come and go (and are killed on purpose), so per-process prometheus counters would be
+lost or need a push gateway. Instead each observation increments a bucket counter in a Redis hash;
+the API's `/metrics` turns those hashes into Prometheus histograms. One HINCRBY per bucket per
+stage is negligible next to a stage that runs for seconds to hours.
+"""
+
+from __future__ import annotations
+
+import redis
+
+#: Upper bounds (seconds) of the duration histograms.
+BUCKETS: tuple[float, ...] = (1, 5, 15, 30, 60, 120, 300, 600, 1800, 3600, 7200, 14400)
+
+STAGE_KEY = "bf:metrics:stage:{stage}"
+JOB_KEY = "bf:metrics:job:{outcome}"
+
+
+def _observe(client: redis.Redis, key: str, seconds: float) -> None:
+    pipe = client.pipeline()
+    pipe.hincrbyfloat(key, "sum", seconds)
+    pipe.hincrby(key, "count", 1)
+    for bound in BUCKETS:
+        if seconds <= bound:
+            pipe.hincrby(key, f"le_{bound:g}", 1)
+    pipe.execute()
+
+
+def observe_stage(client: redis.Redis, stage: str, seconds: float) -> None:
+    _observe(client, STAGE_KEY.format(stage=stage), seconds)
+
+
+def observe_job(client: redis.Redis, outcome: str, seconds: float) -> None:
+    _observe(client, JOB_KEY.format(outcome=outcome), seconds)
+
+
+def read_histogram(client: redis.Redis, key: str) -> tuple[list[tuple[str, float]], float, float] | None:
+    """(cumulative buckets incl. +Inf, sum, count) of one stored histogram, or None."""
+    raw = client.hgetall(key)
+    if not raw:
+        return None
+    data = {k.decode(): float(v) for k, v in raw.items()}
+    count = data.get("count", 0.0)
+    buckets = [(f"{b:g}", data.get(f"le_{b:g}", 0.0)) for b in BUCKETS] + [("+Inf", count)]
+    return buckets, data.get("sum", 0.0), count

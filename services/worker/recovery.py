@@ -1,0 +1,117 @@
+"""Re-enqueue jobs that Redis forgot (a Redis restart without persistence loses every queued
+message and every live hash, but the manifests in the bucket remain).
+
+A job is *orphaned* when its manifest is queued/running (an ``active/<tenant>/<id>`` marker
+exists) but Redis has neither its live hash nor a lock on any of its stages. A job is re-enqueued
+only after it has looked orphaned for `grace_s` seconds on two scans: a worker that is running a
+stage re-creates its lock within one heartbeat, so a live job is never sent twice. Should a
+duplicate slip through anyway, stages are idempotent (finished markers are skipped) and guarded
+by the per-stage lock, so the cost is time, never a wrong result.
+
+Every worker runs the scan in a daemon thread (started on `worker_ready`); a Redis lock makes
+one scan at a time do the work.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import threading
+import time
+
+import redis
+from celery import Celery
+
+from services.common.jobs import JobStore
+from services.common.settings import ServiceSettings
+
+from .dispatch import enqueue_stages
+
+log = logging.getLogger(__name__)
+
+#: Seconds between scans and how long a job must look orphaned before it is re-enqueued
+#: (environment: BFIELDS_RECOVERY_INTERVAL_S, BFIELDS_RECOVERY_GRACE_S).
+SCAN_INTERVAL_S = float(os.environ.get("BFIELDS_RECOVERY_INTERVAL_S", "15"))
+GRACE_S = float(os.environ.get("BFIELDS_RECOVERY_GRACE_S", "20"))
+_SUSPECT_KEY = "bf:orphan:{tenant}:{job_id}"
+
+_stop = threading.Event()
+_thread: threading.Thread | None = None
+
+
+def _has_stage_lock(client: redis.Redis, tenant: str, job_id: str) -> bool:
+    return any(True for _ in client.scan_iter(match=f"bf:lock:{tenant}:{job_id}:*", count=100))
+
+
+def recover_orphans(
+    app: Celery, jobs: JobStore, settings: ServiceSettings, *, grace_s: float = GRACE_S
+) -> list[str]:
+    """One scan; returns the ids of the jobs it re-enqueued."""
+    client = jobs.redis
+    lock = client.lock("bf:recovery", timeout=120, blocking_timeout=0)
+    if not lock.acquire(blocking=False):
+        return []
+    requeued = []
+    try:
+        now = time.time()
+        for tenant, job_id in jobs.active_jobs():
+            if jobs.has_live_entry(tenant, job_id) or _has_stage_lock(client, tenant, job_id):
+                continue
+            suspect = _SUSPECT_KEY.format(tenant=tenant, job_id=job_id)
+            first_seen = client.get(suspect)
+            if first_seen is None:
+                client.set(suspect, now, ex=int(grace_s * 10) + 60)
+                if grace_s > 0:
+                    continue
+            elif now - float(first_seen) < grace_s:
+                continue
+            record = jobs.load(tenant, job_id)
+            if record is None or record.state.terminal:
+                jobs.store.delete(jobs.active_key(tenant, job_id))
+                continue
+            jobs.touch_live(record)  # the job is known to Redis again before its message is sent
+            enqueue_stages(
+                app,
+                tenant,
+                job_id,
+                record.remaining_stages(),
+                gpu_queue=settings.gpu_queue,
+                cpu_queue=settings.cpu_queue,
+            )
+            client.delete(suspect)
+            requeued.append(job_id)
+            log.warning(
+                "re-enqueued orphaned job %s/%s at stages %s", tenant, job_id, record.remaining_stages()
+            )
+    finally:
+        try:
+            lock.release()
+        except redis.RedisError:
+            pass
+    return requeued
+
+
+def _loop(app: Celery, jobs: JobStore, settings: ServiceSettings, interval_s: float) -> None:
+    while not _stop.is_set():
+        try:
+            recover_orphans(app, jobs, settings)
+        except Exception:  # keep scanning whatever one scan hit (Redis down, bucket hiccup)
+            log.exception("orphan recovery scan failed")
+        _stop.wait(interval_s)
+
+
+def start_recovery_thread(
+    app: Celery, jobs: JobStore, settings: ServiceSettings, interval_s: float = SCAN_INTERVAL_S
+) -> None:
+    global _thread
+    if _thread is not None and _thread.is_alive():
+        return
+    _stop.clear()
+    _thread = threading.Thread(
+        target=_loop, args=(app, jobs, settings, interval_s), name="bf-recovery", daemon=True
+    )
+    _thread.start()
+
+
+def stop_recovery_thread() -> None:
+    _stop.set()

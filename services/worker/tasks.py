@@ -1,0 +1,298 @@
+"""The stage tasks: one Celery task per pipeline stage, each idempotent and resumable.
+
+A task (tenant, job id) loads the job manifest, skips a stage whose ``stages/<name>.json`` marker
+exists, otherwise holds a per-(job, stage) Redis lock while it runs `run_stage`, reporting progress
+to Redis and the outcome to the manifest. Failure handling:
+- `InputError` (bad scene, bad parameter): the job fails with the message; no retry;
+- `CancelledError` (the cancel flag, checked between frames): the job is cancelled;
+- connection / storage errors: retried with exponential backoff, at most ``job_max_retries``;
+- a killed worker: the message was not acknowledged (acks_late), Redis redelivers it after the
+  visibility timeout, and the stage re-runs from its last finished marker.
+Models are built once per worker process, keyed by profile.
+"""
+
+from __future__ import annotations
+
+import logging
+import secrets
+import threading
+import time
+from typing import Any
+
+import redis
+from celery import Task
+from celery.exceptions import SoftTimeLimitExceeded
+from celery.signals import worker_process_init, worker_ready, worker_shutdown
+
+from bayesian_fields_core.context import JobContext, Models
+from bayesian_fields_core.errors import CancelledError, InputError, ModelError
+from bayesian_fields_core.params import PipelineParams
+from bayesian_fields_core.pipeline import load_models, run_stage
+from bayesian_fields_core.stages.markers import STAGES
+from services.common.jobs import JobRecord, JobState, JobStore, overall_progress, utcnow
+from services.common.settings import ServiceSettings
+from services.common.storage import build_store, tenant_store
+
+from .celery_app import app
+from .dispatch import STAGE_TASKS
+from .metrics import observe_job, observe_stage
+from .recovery import start_recovery_thread, stop_recovery_thread
+
+log = logging.getLogger(__name__)
+
+#: Errors worth retrying: the network or a server, never the input.
+TRANSIENT: tuple[type[BaseException], ...] = (
+    redis.ConnectionError,
+    redis.TimeoutError,
+    ConnectionError,
+    TimeoutError,
+)
+try:  # storage errors only exist when boto3 is installed
+    from services.common.s3_store import StorageError
+
+    TRANSIENT = (*TRANSIENT, StorageError)
+except ImportError:  # pragma: no cover - local-store deployments
+    pass
+
+LOCK_TTL_S = 60
+HEARTBEAT_S = 10
+PROGRESS_INTERVAL_S = 0.5
+
+
+class _Runtime:
+    """Per-process singletons: settings, store, Redis, job store, models by profile."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._models: dict[str, Models] = {}
+        self.settings: ServiceSettings = app.conf.bfields_settings
+        self.store = build_store(self.settings)
+        self.redis = redis.Redis.from_url(
+            self.settings.redis_url, socket_timeout=10, socket_connect_timeout=5
+        )
+        self.jobs = JobStore(self.store, self.redis)
+
+    def models(self, profile: str) -> Models:
+        with self._lock:
+            if profile not in self._models:
+                source: Any = self.settings.model_profile if profile == "default" else profile
+                device = "cpu" if self.settings.worker_device == "cpu" else _auto_device()
+                log.info("loading model profile %s on %s", profile, device)
+                self._models[profile] = load_models(source, device=device)
+            return self._models[profile]
+
+
+def _auto_device() -> str:
+    import torch
+
+    return "cuda" if torch.cuda.is_available() else "cpu"
+
+
+_runtime: _Runtime | None = None
+
+
+def runtime() -> _Runtime:
+    global _runtime
+    if _runtime is None:
+        _runtime = _Runtime()
+    return _runtime
+
+
+@worker_process_init.connect
+def _reset_runtime(**_: Any) -> None:
+    """Forked pool processes must not share the parent's sockets: rebuild lazily."""
+    global _runtime
+    _runtime = None
+
+
+@worker_ready.connect
+def _on_worker_ready(sender: Any = None, **_: Any) -> None:
+    rt = runtime()
+    start_recovery_thread(app, rt.jobs, rt.settings)
+
+
+@worker_shutdown.connect
+def _on_worker_shutdown(**_: Any) -> None:
+    stop_recovery_thread()
+
+
+class StageLock:
+    """A Redis lock on (job, stage) with a heartbeat, so a redelivered duplicate never runs the
+    same stage concurrently; a crashed holder's lock expires after LOCK_TTL_S."""
+
+    def __init__(self, client: redis.Redis, key: str) -> None:
+        self.client = client
+        self.key = key
+        self.token = secrets.token_hex(8)
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def acquire(self) -> bool:
+        if not self.client.set(self.key, self.token, nx=True, ex=LOCK_TTL_S):
+            return False
+        self._thread = threading.Thread(target=self._beat, daemon=True)
+        self._thread.start()
+        return True
+
+    def _beat(self) -> None:
+        while not self._stop.wait(HEARTBEAT_S):
+            try:  # re-set after a Redis restart too, so recovery sees the stage is alive
+                current = self.client.get(self.key)
+                if current in (None, self.token.encode()):
+                    self.client.set(self.key, self.token, ex=LOCK_TTL_S)
+            except redis.RedisError:
+                continue
+
+    def release(self) -> None:
+        self._stop.set()
+        try:
+            if self.client.get(self.key) == self.token.encode():
+                self.client.delete(self.key)
+        except redis.RedisError:
+            pass
+
+
+def stage_lock_key(tenant: str, job_id: str, stage: str) -> str:
+    return f"bf:lock:{tenant}:{job_id}:{stage}"
+
+
+def _finish(rt: _Runtime, record: JobRecord, state: JobState, error: str | None = None) -> JobRecord:
+    now = utcnow()
+    update: dict[str, Any] = {"state": state, "error": error, "finished_at": now}
+    if state == JobState.succeeded:
+        update["progress"] = 100.0
+    saved = rt.jobs.save(record.model_copy(update=update))
+    if saved.state == state:  # not already terminal through another path
+        start = saved.started_at or saved.created_at
+        observe_job(rt.redis, state.value, (now - start).total_seconds())
+    return saved
+
+
+def execute_stage(task: Task, stage: str, tenant: str, job_id: str) -> str:
+    """The body of every stage task; returns what happened ('ran', 'skipped', 'cancelled', ...)."""
+    rt = runtime()
+    record = rt.jobs.load(tenant, job_id)
+    if record is None:
+        log.warning("job %s/%s has no manifest; dropping %s", tenant, job_id, stage)
+        return "missing"
+    if record.state.terminal:
+        return f"already {record.state.value}"
+    if record.cancel_requested or rt.jobs.is_cancel_requested(tenant, job_id):
+        _finish(rt, record, JobState.cancelled, "cancelled by request")
+        return "cancelled"
+    lock = StageLock(rt.redis, stage_lock_key(tenant, job_id, stage))
+    if not lock.acquire():
+        # Another delivery of this stage is running: try again later (its holder may die).
+        raise task.retry(countdown=HEARTBEAT_S, max_retries=None)
+    try:
+        return _run_locked(rt, record, stage)
+    finally:
+        lock.release()
+
+
+def _run_locked(rt: _Runtime, record: JobRecord, stage: str) -> str:
+    tenant, job_id = record.tenant, record.id
+    record = rt.jobs.save(
+        record.model_copy(
+            update={
+                "state": JobState.running,
+                "stage": stage,
+                "started_at": record.started_at or utcnow(),
+                "attempts": record.attempts + 1,
+                "progress": overall_progress(record.stages_done, stage, 0.0),
+            }
+        )
+    )
+    if record.state.terminal:
+        return f"already {record.state.value}"
+    last = [0.0]
+
+    def progress(name: str, fraction: float) -> None:
+        now = time.monotonic()
+        if now - last[0] >= PROGRESS_INTERVAL_S or fraction >= 1.0:
+            last[0] = now
+            try:
+                rt.jobs.set_progress(record, name, fraction)
+            except redis.RedisError:
+                log.warning("progress update for %s lost (Redis unavailable)", job_id)
+
+    def should_cancel() -> bool:
+        try:
+            return rt.jobs.is_cancel_requested(tenant, job_id)
+        except redis.RedisError:
+            return False
+
+    try:
+        ctx = JobContext(
+            store=tenant_store(rt.store, tenant),
+            job_prefix=record.job_prefix,
+            scene_prefix=record.scene_prefix,
+            tasks=record.tasks,
+            params=PipelineParams.model_validate(record.parameters),
+            models=rt.models(record.model_profile),
+            progress=progress,
+            should_cancel=should_cancel,
+        )
+        t0 = time.perf_counter()
+        report = run_stage(stage, ctx)
+        seconds = time.perf_counter() - t0
+    except CancelledError:
+        _finish(rt, record, JobState.cancelled, "cancelled by request")
+        return "cancelled"
+    except (InputError, ModelError) as exc:
+        _finish(rt, record, JobState.failed, f"{stage}: {exc}")
+        return "failed"
+    except SoftTimeLimitExceeded:
+        _finish(
+            rt,
+            record,
+            JobState.failed,
+            f"{stage}: exceeded the time limit of {rt.settings.job_soft_time_limit_s} s",
+        )
+        return "failed"
+    observe_stage(rt.redis, stage, seconds)
+    done = [s for s in STAGES if s in {*record.stages_done, stage}]
+    record = rt.jobs.save(
+        record.model_copy(
+            update={
+                "stages_done": done,
+                "timings": {**record.timings, stage: round(report.get("seconds", seconds), 3)},
+                "stage_reports": {**record.stage_reports, stage: report},
+                "progress": overall_progress(done, None, 0.0),
+            }
+        )
+    )
+    if set(done) == set(STAGES):
+        _finish(rt, record, JobState.succeeded)
+    return "ran"
+
+
+def _fail_after_retries(rt: _Runtime, tenant: str, job_id: str, stage: str, exc: BaseException) -> None:
+    record = rt.jobs.load(tenant, job_id)
+    if record is not None and not record.state.terminal:
+        _finish(rt, record, JobState.failed, f"{stage}: gave up after retries: {type(exc).__name__}: {exc}")
+
+
+def _make_stage_task(stage: str) -> Task:
+    @app.task(name=STAGE_TASKS[stage], bind=True, acks_late=True, reject_on_worker_lost=True)
+    def stage_task(self: Task, tenant: str, job_id: str) -> str:
+        rt = runtime()
+        try:
+            outcome = execute_stage(self, stage, tenant, job_id)
+            if outcome != "ran":
+                self.request.chain = None  # the job ended here: do not start the next stage
+            return outcome
+        except TRANSIENT as exc:
+            if self.request.retries >= rt.settings.job_max_retries:
+                _fail_after_retries(rt, tenant, job_id, stage, exc)
+                raise
+            countdown = min(60, 2 ** (self.request.retries + 1))
+            log.warning("stage %s of %s: %s; retry in %ss", stage, job_id, exc, countdown)
+            raise self.retry(exc=exc, countdown=countdown, max_retries=rt.settings.job_max_retries) from exc
+
+    return stage_task
+
+
+perceive_task = _make_stage_task("perceive")
+fuse_task = _make_stage_task("fuse")
+cluster_task = _make_stage_task("cluster")

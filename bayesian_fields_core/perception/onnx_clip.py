@@ -37,6 +37,12 @@ def onnx_session(path: Path, providers: list[str] | None, threads: int = 0) -> A
         raise ModelError(f"{path}: cannot load ONNX model ({exc})") from exc
 
 
+def onnx_clip_model_id(path: str | Path, image_model: str = IMAGE_MODEL, text_model: str = TEXT_MODEL) -> str:
+    """``"<folder name>@<12 hex of both ONNX files' sha256>"`` (see ``hf_clip_model_id``)."""
+    folder = Path(path)
+    return f"{folder.resolve().name}@{files_digest([folder / image_model, folder / text_model])}"
+
+
 class OnnxClipEncoder:
     """Separate image and text ONNX models + the tokenizer folder as an ``Encoder``.
 
@@ -62,7 +68,7 @@ class OnnxClipEncoder:
         image_path, text_path = self.path / image_model, self.path / text_model
         self._image = onnx_session(image_path, providers, threads)
         self._text = onnx_session(text_path, providers, threads)
-        self.model_id = f"{self.path.resolve().name}@{files_digest([image_path, text_path])}"
+        self.model_id = onnx_clip_model_id(self.path, image_model, text_model)
         self.preprocess = ClipImagePreprocessor.from_folder(self.path, resize_mode)
         self.tokenizer = ClipTokenizer(self.path)
         self._image_input = self._image.get_inputs()[0].name

@@ -20,6 +20,11 @@ from bayesian_fields_core.perception.optional import import_extra
 from bayesian_fields_core.perception.validation import check_rgb
 
 
+def open_clip_model_id(model_name: str, checkpoint: str | Path) -> str:
+    """``"open_clip:<model name>@<12 hex of the checkpoint's sha256>"``."""
+    return f"open_clip:{model_name}@{files_digest([checkpoint])}"
+
+
 class OpenClipEncoder:
     """``open_clip`` model ``model_name`` with weights from ``checkpoint`` as an ``Encoder``."""
 
@@ -46,7 +51,7 @@ class OpenClipEncoder:
         self.preprocess = preprocess
         self.tokenizer = open_clip.get_tokenizer(model_name)
         self.model_name = model_name
-        self.model_id = f"open_clip:{model_name}@{files_digest([self.checkpoint])}"
+        self.model_id = open_clip_model_id(model_name, self.checkpoint)
         self.dim = int(self.encode_texts(["a"]).shape[1])
 
     @property

@@ -1,0 +1,254 @@
+"""The result format: in-memory types, the version policy and the array encodings.
+
+`docs/results-format.md` is the normative description; this module is its executable form.
+Arrays are stored as raw little-endian bytes, compressed with whichever of zlib and lzma (both in
+the standard library, so any language can read them) gives the smaller file, and described in
+`summary.json` (dtype, shape, codec, sentinel, SHA-256 of the raw bytes). Per-Gaussian ids use the
+smallest unsigned type that holds the largest id with the type's maximum left free as the "none"
+sentinel: the paper stores 8-byte ids (3.04 MB for 400k Gaussians); one byte and a compressor
+make the id map one to two orders of magnitude smaller.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import lzma
+import zlib
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..errors import InputError
+from ..objects.obb import OrientedBox
+
+FORMAT_NAME = "bayesian-fields-result"
+FORMAT_VERSION = "1.0"
+"""MAJOR.MINOR. A reader accepts any MINOR of its MAJOR (minors only add optional fields and files);
+a new MAJOR (a changed meaning, dtype rule or layout) is refused with a clear error."""
+
+SUMMARY_KEY = "summary.json"
+OBJECT_IDS_KEY = "object_ids.bin"
+PRIMITIVE_IDS_KEY = "primitive_ids.bin"
+PROBABILITIES_KEY = "probabilities.bin"
+OBJECT_EXPORT_DIR = "exports/objects/"
+SCENE_EXPORT_KEY = "exports/scene_objects.ply"
+
+ID_DTYPES = (np.dtype("<u1"), np.dtype("<u2"), np.dtype("<u4"))
+CODECS = ("raw", "zlib", "lzma")
+NULL_TASK = "<null>"
+"""Name of the last probability column: relevant to none of the tasks."""
+
+
+@dataclass
+class SelectedObject:
+    """One of a task's top-k objects. `num_gaussians`, `centroid` (mean Gaussian centre) and `box`
+    describe the object's Gaussians after floater removal; `export` is the key of its `.ply`
+    (relative to the result prefix) when one was written."""
+
+    object_id: int
+    probability: float
+    num_gaussians: int
+    centroid: np.ndarray
+    box: OrientedBox
+    export: str | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "object_id": int(self.object_id),
+            "probability": float(self.probability),
+            "num_gaussians": int(self.num_gaussians),
+            "centroid": np.asarray(self.centroid, dtype=np.float64).tolist(),
+            "box": self.box.to_dict(),
+            "export": self.export,
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> SelectedObject:
+        try:
+            centroid = np.asarray(data["centroid"], dtype=np.float64)
+            if centroid.shape != (3,):
+                raise InputError(f"result summary: centroid must have 3 values, got {centroid.shape}")
+            return cls(
+                object_id=int(data["object_id"]),
+                probability=float(data["probability"]),
+                num_gaussians=int(data["num_gaussians"]),
+                centroid=centroid,
+                box=OrientedBox.from_dict(data["box"]),
+                export=data.get("export"),
+            )
+        except KeyError as exc:
+            raise InputError(f"result summary: selected object missing field {exc.args[0]!r}") from None
+
+
+@dataclass
+class Result:
+    """A task-driven semantic map.
+
+    object_ids: (N,) integer, the object of each Gaussian, -1 = none (pruned, never observed, or
+        removed as a floater of a selected object by the kNN filter).
+    probabilities: (O, T + 1) float32, p(task | object) per object; the last column is the null task.
+    selections: task -> its top-k objects, most probable first.
+    primitive_ids: optional (N,) integer primitive of each Gaussian, -1 = none.
+    parameters / models / timings_s: provenance: pipeline parameters, model ids, seconds per stage.
+    num_primitives: primitive count when known without `primitive_ids` (the memory table needs it).
+    """
+
+    tasks: list[str]
+    object_ids: np.ndarray
+    probabilities: np.ndarray
+    selections: dict[str, list[SelectedObject]]
+    primitive_ids: np.ndarray | None = None
+    parameters: dict[str, Any] = field(default_factory=dict)
+    models: dict[str, Any] = field(default_factory=dict)
+    timings_s: dict[str, float] = field(default_factory=dict)
+    num_primitives: int | None = None
+    format_version: str = FORMAT_VERSION
+
+    @property
+    def num_gaussians(self) -> int:
+        return int(np.asarray(self.object_ids).shape[0])
+
+    @property
+    def num_objects(self) -> int:
+        return int(np.asarray(self.probabilities).shape[0])
+
+    def validate(self) -> None:
+        """Raise InputError unless every array and selection is consistent."""
+        ids = np.asarray(self.object_ids)
+        if ids.ndim != 1 or not np.issubdtype(ids.dtype, np.integer):
+            raise InputError(f"result: object_ids must be a 1-D integer array, got {ids.dtype} {ids.shape}")
+        probs = np.asarray(self.probabilities)
+        if probs.ndim != 2 or probs.shape[1] != len(self.tasks) + 1:
+            raise InputError(
+                f"result: probabilities must be (objects, tasks + 1) = (O, {len(self.tasks) + 1}), got {probs.shape}"
+            )
+        if not np.isfinite(probs).all():
+            raise InputError("result: probabilities contain NaN or infinity")
+        if ids.size and (ids.min() < -1 or ids.max() >= probs.shape[0]):
+            raise InputError(
+                f"result: object_ids must lie in [-1, {probs.shape[0]}), got [{ids.min()}, {ids.max()}]"
+            )
+        if self.primitive_ids is not None:
+            prim = np.asarray(self.primitive_ids)
+            if prim.shape != ids.shape or not np.issubdtype(prim.dtype, np.integer):
+                raise InputError(f"result: primitive_ids must be an integer array of shape {ids.shape}")
+            if prim.size and prim.min() < -1:
+                raise InputError("result: primitive_ids below -1")
+        if len(set(self.tasks)) != len(self.tasks):
+            raise InputError("result: duplicate task names")
+        for task, objs in self.selections.items():
+            if task not in self.tasks:
+                raise InputError(f"result: selection for unknown task {task!r}")
+            for obj in objs:
+                if not 0 <= obj.object_id < probs.shape[0]:
+                    raise InputError(f"result: task {task!r} selects unknown object {obj.object_id}")
+
+    def counts(self) -> dict[str, int | None]:
+        ids = np.asarray(self.object_ids)
+        prims = self.num_primitives
+        if prims is None and self.primitive_ids is not None and np.asarray(self.primitive_ids).size:
+            prims = int(np.unique(self.primitive_ids[self.primitive_ids >= 0]).size)
+        return {
+            "gaussians": self.num_gaussians,
+            "gaussians_in_objects": int(np.count_nonzero(ids >= 0)),
+            "primitives": prims,
+            "objects": self.num_objects,
+            "tasks": len(self.tasks),
+            "selected_objects": len({o.object_id for objs in self.selections.values() for o in objs}),
+        }
+
+
+# ---- array encodings ------------------------------------------------------------------------
+
+
+def id_dtype(max_id: int) -> np.dtype:
+    """Smallest unsigned little-endian type whose maximum (the sentinel) exceeds `max_id`."""
+    for dtype in ID_DTYPES:
+        if max_id < np.iinfo(dtype).max:
+            return dtype
+    raise InputError(f"result: id {max_id} does not fit in uint32 with a sentinel")
+
+
+def encode_ids(ids: np.ndarray) -> tuple[np.ndarray, int]:
+    """(-1 = none) ids -> (unsigned array with the sentinel for none, sentinel)."""
+    ids = np.asarray(ids)
+    dtype = id_dtype(int(ids.max()) if ids.size else 0)
+    sentinel = int(np.iinfo(dtype).max)
+    return np.where(ids < 0, sentinel, ids).astype(dtype), sentinel
+
+
+def decode_ids(stored: np.ndarray, sentinel: int) -> np.ndarray:
+    """Unsigned ids with a sentinel -> int64 ids with -1 for none."""
+    out = stored.astype(np.int64)
+    out[stored == sentinel] = -1
+    return out
+
+
+def compress(raw: bytes) -> tuple[str, bytes]:
+    """The smallest of raw, zlib (level 9) and lzma (xz, preset 6) encodings: (codec, bytes)."""
+    options = [("raw", raw), ("zlib", zlib.compress(raw, 9)), ("lzma", lzma.compress(raw, preset=6))]
+    return min(options, key=lambda item: len(item[1]))
+
+
+def decompress(codec: str, data: bytes, *, expected: int, name: str) -> bytes:
+    """Inverse of `compress`, refusing output longer than `expected` bytes (a hostile archive)."""
+    try:
+        if codec == "raw":
+            raw = data
+        elif codec == "zlib":
+            d = zlib.decompressobj()
+            raw = d.decompress(data, expected + 1)
+        elif codec == "lzma":
+            raw = lzma.LZMADecompressor().decompress(data, max_length=expected + 1)
+        else:
+            raise InputError(f"result: {name}: unknown codec {codec!r} (expected one of {CODECS})")
+    except (zlib.error, lzma.LZMAError) as exc:
+        raise InputError(f"result: {name}: corrupt {codec} data ({exc})") from None
+    if len(raw) != expected:
+        raise InputError(f"result: {name}: expected {expected} bytes after decompression, got {len(raw)}")
+    return raw
+
+
+def encode_array(
+    array: np.ndarray, *, file: str, sentinel: int | None = None
+) -> tuple[dict[str, Any], bytes]:
+    """(descriptor for summary.json, stored bytes) of a numeric array."""
+    arr = np.ascontiguousarray(array)
+    arr = arr.astype(arr.dtype.newbyteorder("<"), copy=False)
+    raw = arr.tobytes()
+    codec, data = compress(raw)
+    desc: dict[str, Any] = {
+        "file": file,
+        "dtype": arr.dtype.str,
+        "shape": list(arr.shape),
+        "codec": codec,
+        "raw_bytes": len(raw),
+        "stored_bytes": len(data),
+        "sha256": hashlib.sha256(raw).hexdigest(),
+    }
+    if sentinel is not None:
+        desc["sentinel"] = sentinel
+    return desc, data
+
+
+_ALLOWED_DTYPES = {"<u1", "|u1", "<u2", "<u4", "<f2", "<f4", "<f8", "<i4", "<i8"}
+
+
+def decode_array(desc: dict[str, Any], data: bytes, *, name: str) -> np.ndarray:
+    """Array from its descriptor and stored bytes, checking dtype, size and checksum."""
+    try:
+        dtype_str, shape, codec = str(desc["dtype"]), [int(s) for s in desc["shape"]], str(desc["codec"])
+        digest = str(desc["sha256"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise InputError(f"result: {name}: malformed array descriptor ({exc!r})") from None
+    if dtype_str not in _ALLOWED_DTYPES:
+        raise InputError(f"result: {name}: unsupported dtype {dtype_str!r}")
+    if any(s < 0 for s in shape):
+        raise InputError(f"result: {name}: negative shape {shape}")
+    dtype = np.dtype(dtype_str)
+    expected = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
+    raw = decompress(codec, data, expected=expected, name=name)
+    if hashlib.sha256(raw).hexdigest() != digest:
+        raise InputError(f"result: {name}: checksum mismatch (the file is corrupt or was replaced)")
+    return np.frombuffer(raw, dtype=dtype).reshape(shape).copy()

@@ -1,0 +1,126 @@
+"""Read a result written by `write_result`, validating the format version and every array, and
+report the bytes each part takes (the paper's memory table)."""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+import numpy as np
+
+from ..errors import InputError
+from ..scene.types import Gaussians
+from ..store import ArtifactNotFound, Store
+from .format import (
+    FORMAT_NAME,
+    FORMAT_VERSION,
+    OBJECT_IDS_KEY,
+    PRIMITIVE_IDS_KEY,
+    PROBABILITIES_KEY,
+    SUMMARY_KEY,
+    Result,
+    SelectedObject,
+    decode_array,
+    decode_ids,
+)
+from .writer import normalise_prefix
+
+
+def _check_version(summary: dict[str, Any], where: str) -> None:
+    if summary.get("format") != FORMAT_NAME:
+        raise InputError(f"{where}: not a Bayesian Fields result (format={summary.get('format')!r})")
+    version = str(summary.get("format_version", ""))
+    major = version.split(".")[0]
+    if not version or major != FORMAT_VERSION.split(".")[0]:
+        raise InputError(
+            f"{where}: format version {version!r} is not readable by this reader (reads {FORMAT_VERSION.split('.')[0]}.x)"
+        )
+
+
+def read_summary(store: Store, prefix: str) -> dict[str, Any]:
+    """The parsed, version-checked `summary.json` of a result."""
+    key = normalise_prefix(prefix) + SUMMARY_KEY
+    try:
+        summary = json.loads(store.get_bytes(key))
+    except ArtifactNotFound:
+        raise InputError(
+            f"{key}: no result here (summary.json missing or the result is incomplete)"
+        ) from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(f"{key}: not valid JSON ({exc})") from None
+    if not isinstance(summary, dict):
+        raise InputError(f"{key}: expected a JSON object")
+    _check_version(summary, key)
+    return summary
+
+
+def _array(store: Store, prefix: str, summary: dict[str, Any], name: str, file: str) -> np.ndarray | None:
+    desc = summary.get("arrays", {}).get(name)
+    if desc is None:
+        return None
+    if desc.get("file") != file:
+        raise InputError(f"{prefix}{SUMMARY_KEY}: array {name!r} must be stored in {file!r}")
+    try:
+        data = store.get_bytes(prefix + file)
+    except ArtifactNotFound:
+        raise InputError(f"{prefix}{file}: missing (listed in summary.json)") from None
+    arr = decode_array(desc, data, name=prefix + file)
+    if "sentinel" in desc:
+        return decode_ids(arr, int(desc["sentinel"]))
+    return arr
+
+
+def read_result(store: Store, prefix: str) -> Result:
+    """The `Result` stored under `prefix` (ids as int64 with -1 = none, probabilities float32)."""
+    prefix = normalise_prefix(prefix)
+    summary = read_summary(store, prefix)
+    object_ids = _array(store, prefix, summary, "object_ids", OBJECT_IDS_KEY)
+    probabilities = _array(store, prefix, summary, "probabilities", PROBABILITIES_KEY)
+    if object_ids is None or probabilities is None:
+        raise InputError(f"{prefix}{SUMMARY_KEY}: object_ids and probabilities are required")
+    try:
+        tasks = [str(t) for t in summary["tasks"]]
+        selections = {
+            str(entry["task"]): [SelectedObject.from_dict(o) for o in entry["objects"]]
+            for entry in summary["selections"]
+        }
+    except (KeyError, TypeError) as exc:
+        raise InputError(f"{prefix}{SUMMARY_KEY}: malformed tasks or selections ({exc!r})") from None
+    result = Result(
+        tasks=tasks,
+        object_ids=object_ids,
+        probabilities=probabilities.astype(np.float32, copy=False),
+        selections=selections,
+        primitive_ids=_array(store, prefix, summary, "primitive_ids", PRIMITIVE_IDS_KEY),
+        parameters=summary.get("parameters", {}),
+        models=summary.get("models", {}),
+        timings_s=summary.get("timings_s", {}),
+        num_primitives=summary.get("counts", {}).get("primitives"),
+        format_version=str(summary["format_version"]),
+    )
+    result.validate()
+    return result
+
+
+def object_gaussians(result: Result, gaussians: Gaussians, object_id: int) -> Gaussians:
+    """The Gaussians of one object (after floater removal), every attribute kept."""
+    if len(gaussians) != result.num_gaussians:
+        raise InputError(
+            f"the splat has {len(gaussians)} Gaussians but the result has {result.num_gaussians}"
+        )
+    return gaussians.subset(np.asarray(result.object_ids) == object_id)
+
+
+def result_sizes(store: Store, prefix: str) -> dict[str, int]:
+    """Bytes of every file of the result under `prefix`, keyed relative to the prefix, plus the
+    totals `semantic_map` (ids + probabilities + summary: what a consumer needs) and `exports`."""
+    prefix = normalise_prefix(prefix)
+    sizes = {key[len(prefix) :]: store.size(key) for key in store.list(prefix)}
+    if SUMMARY_KEY not in sizes:
+        raise InputError(f"{prefix}{SUMMARY_KEY}: no result here")
+    semantic = (SUMMARY_KEY, OBJECT_IDS_KEY, PRIMITIVE_IDS_KEY, PROBABILITIES_KEY)
+    totals = {
+        "total/semantic_map": sum(sizes.get(k, 0) for k in semantic),
+        "total/exports": sum(v for k, v in sizes.items() if k.startswith("exports/")),
+    }
+    return {**sizes, **totals}

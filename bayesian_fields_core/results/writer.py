@@ -1,0 +1,121 @@
+"""Write a `Result` through a `Store` (see `docs/results-format.md`).
+
+The arrays and exports are written first and `summary.json` last: the summary names every other
+file with its checksum, so its presence marks a complete result and a crash mid-write leaves
+nothing a reader would accept.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from ..errors import InputError
+from ..scene.types import Gaussians
+from ..store import Store, put_json
+from .export import put_ply, recolour
+from .format import (
+    FORMAT_NAME,
+    FORMAT_VERSION,
+    NULL_TASK,
+    OBJECT_EXPORT_DIR,
+    OBJECT_IDS_KEY,
+    PRIMITIVE_IDS_KEY,
+    PROBABILITIES_KEY,
+    SCENE_EXPORT_KEY,
+    SUMMARY_KEY,
+    Result,
+    SelectedObject,
+    encode_array,
+    encode_ids,
+)
+
+
+def normalise_prefix(prefix: str) -> str:
+    """'' or a key prefix ending in '/'."""
+    return prefix if not prefix or prefix.endswith("/") else prefix + "/"
+
+
+def object_export_key(object_id: int) -> str:
+    return f"{OBJECT_EXPORT_DIR}object_{object_id:05d}.ply"
+
+
+def write_result(
+    store: Store,
+    prefix: str,
+    result: Result,
+    *,
+    gaussians: Gaussians | None = None,
+    export_ply: bool = True,
+) -> dict[str, int]:
+    """Write `result` under `prefix`; with `gaussians` (the scene's splat) and `export_ply`, also the
+    per-object and recoloured-scene `.ply` exports. Returns {key relative to prefix: bytes written}.
+
+    Stale files of an earlier result under the same prefix are removed first, so the directory
+    always holds exactly what the summary describes.
+    """
+    result.validate()
+    prefix = normalise_prefix(prefix)
+    if gaussians is not None and len(gaussians) != result.num_gaussians:
+        raise InputError(
+            f"write_result: the splat has {len(gaussians)} Gaussians but object_ids has {result.num_gaussians}"
+        )
+    store.delete(prefix + SUMMARY_KEY)  # first: a half-rewritten result is never readable
+    store.delete_prefix(prefix + "exports/")
+    sizes: dict[str, int] = {}
+
+    def put(name: str, data: bytes) -> None:
+        store.put_bytes(prefix + name, data)
+        sizes[name] = len(data)
+
+    arrays: dict[str, Any] = {}
+    stored_ids, sentinel = encode_ids(result.object_ids)
+    arrays["object_ids"], data = encode_array(stored_ids, file=OBJECT_IDS_KEY, sentinel=sentinel)
+    put(OBJECT_IDS_KEY, data)
+    if result.primitive_ids is not None:
+        stored_prims, prim_sentinel = encode_ids(result.primitive_ids)
+        arrays["primitive_ids"], data = encode_array(
+            stored_prims, file=PRIMITIVE_IDS_KEY, sentinel=prim_sentinel
+        )
+        put(PRIMITIVE_IDS_KEY, data)
+    else:
+        store.delete(prefix + PRIMITIVE_IDS_KEY)
+    probs = np.asarray(result.probabilities, dtype=np.float32)
+    arrays["probabilities"], data = encode_array(probs, file=PROBABILITIES_KEY)
+    put(PROBABILITIES_KEY, data)
+
+    exports: dict[str, Any] = {"objects": {}, "scene": None}
+    if gaussians is not None and export_ply:
+        ids = np.asarray(result.object_ids)
+        for object_id in sorted({o.object_id for objs in result.selections.values() for o in objs}):
+            key = object_export_key(object_id)
+            sizes[key] = put_ply(store, prefix + key, gaussians.subset(ids == object_id))
+            exports["objects"][str(object_id)] = key
+        sizes[SCENE_EXPORT_KEY] = put_ply(
+            store, prefix + SCENE_EXPORT_KEY, recolour(gaussians, ids, result.num_objects)
+        )
+        exports["scene"] = SCENE_EXPORT_KEY
+
+    def describe(obj: SelectedObject) -> dict[str, Any]:
+        return {**obj.to_dict(), "export": exports["objects"].get(str(obj.object_id))}
+
+    summary = {
+        "format": FORMAT_NAME,
+        "format_version": FORMAT_VERSION,
+        "tasks": list(result.tasks),
+        "probability_columns": [*result.tasks, NULL_TASK],
+        "counts": result.counts(),
+        "arrays": arrays,
+        "selections": [
+            {"task": task, "objects": [describe(o) for o in result.selections.get(task, [])]}
+            for task in result.tasks
+        ],
+        "exports": exports,
+        "parameters": result.parameters,
+        "models": result.models,
+        "timings_s": {k: float(v) for k, v in result.timings_s.items()},
+    }
+    put_json(store, prefix + SUMMARY_KEY, summary)
+    sizes[SUMMARY_KEY] = store.size(prefix + SUMMARY_KEY)
+    return sizes

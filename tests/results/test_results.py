@@ -1,0 +1,195 @@
+"""Result format: round trips through a LocalStore, id encodings, version and integrity checks,
+and the .ply exports read back with the scene reader."""
+
+from __future__ import annotations
+
+import json
+import zlib
+
+import numpy as np
+import pytest
+
+from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.objects.obb import minimum_obb
+from bayesian_fields_core.results import Result, SelectedObject, read_result, result_sizes, write_result
+from bayesian_fields_core.results.export import BACKGROUND_GREY, SH_C0, object_palette
+from bayesian_fields_core.results.format import (
+    compress,
+    decode_ids,
+    decompress,
+    encode_ids,
+    id_dtype,
+)
+from bayesian_fields_core.scene.ply import read_ply
+from bayesian_fields_core.scene.types import Gaussians
+from bayesian_fields_core.store import LocalStore
+
+N, NUM_OBJECTS, TASKS = 2000, 6, ["get dish soap", "move hats and gloves"]
+
+
+def make_gaussians(rng, n=N):
+    return Gaussians(
+        means=rng.normal(size=(n, 3)).astype(np.float32),
+        log_scales=rng.normal(-4, 0.5, size=(n, 3)).astype(np.float32),
+        quats=rng.normal(size=(n, 4)).astype(np.float32),
+        opacity_logits=rng.normal(size=n).astype(np.float32),
+        sh=rng.normal(size=(n, 4, 3)).astype(np.float32),
+        extra={"nx": np.zeros(n, np.float32), "ny": np.zeros(n, np.float32), "nz": np.ones(n, np.float32)},
+    )
+
+
+def make_result(rng, gaussians):
+    ids = rng.integers(-1, NUM_OBJECTS, size=N)
+    probs = rng.dirichlet(np.ones(len(TASKS) + 1), size=NUM_OBJECTS).astype(np.float32)
+
+    def selected(task_col, k):
+        out = []
+        for oid in np.argsort(-probs[:, task_col])[:k]:
+            pts = gaussians.means[ids == oid]
+            out.append(
+                SelectedObject(int(oid), float(probs[oid, task_col]), len(pts), pts.mean(0), minimum_obb(pts))
+            )
+        return out
+
+    return Result(
+        tasks=TASKS,
+        object_ids=ids,
+        probabilities=probs,
+        selections={TASKS[0]: selected(0, 2), TASKS[1]: selected(1, 1)},
+        primitive_ids=rng.integers(-1, 300, size=N),
+        parameters={"delta": 1e-5, "prior": 0.05},
+        models={"clip": "tiny-clip"},
+        timings_s={"perceive": 1.5, "fuse": 2.0, "cluster": 0.25},
+    )
+
+
+@pytest.fixture
+def setup(tmp_path):
+    rng = np.random.default_rng(0)
+    g = make_gaussians(rng)
+    return LocalStore(tmp_path / "store"), g, make_result(rng, g)
+
+
+def test_round_trip(setup):
+    store, g, res = setup
+    written = write_result(store, "jobs/j1/result", res, gaussians=g)
+    back = read_result(store, "jobs/j1/result/")
+    np.testing.assert_array_equal(back.object_ids, res.object_ids)
+    np.testing.assert_array_equal(back.primitive_ids, res.primitive_ids)
+    np.testing.assert_array_equal(back.probabilities, res.probabilities)
+    assert back.tasks == TASKS
+    assert back.parameters == res.parameters and back.models == res.models
+    assert back.timings_s == res.timings_s
+    for task in TASKS:
+        for a, b in zip(back.selections[task], res.selections[task], strict=True):
+            assert (a.object_id, a.num_gaussians) == (b.object_id, b.num_gaussians)
+            assert a.probability == pytest.approx(b.probability)
+            np.testing.assert_allclose(a.box.rotation, b.box.rotation)
+            assert a.export == f"exports/objects/object_{a.object_id:05d}.ply"
+    summary = json.loads(store.get_bytes("jobs/j1/result/summary.json"))
+    assert summary["arrays"]["object_ids"]["dtype"] == "|u1"
+    assert summary["arrays"]["object_ids"]["sentinel"] == 255
+    assert summary["arrays"]["primitive_ids"]["dtype"] == "<u2"  # ids up to 299
+    assert summary["counts"] == {
+        "gaussians": N,
+        "gaussians_in_objects": int((res.object_ids >= 0).sum()),
+        "primitives": len(np.unique(res.primitive_ids[res.primitive_ids >= 0])),
+        "objects": NUM_OBJECTS,
+        "tasks": 2,
+        "selected_objects": 3,
+    }
+    assert [s["task"] for s in summary["selections"]] == TASKS
+    sizes = result_sizes(store, "jobs/j1/result")
+    assert {k: v for k, v in sizes.items() if not k.startswith("total/")} == written
+    assert sizes["total/semantic_map"] == sum(
+        written[k] for k in ("summary.json", "object_ids.bin", "primitive_ids.bin", "probabilities.bin")
+    )
+
+
+def test_exports_open_as_splats(setup, tmp_path):
+    store, g, res = setup
+    write_result(store, "r", res, gaussians=g)
+    oid = res.selections[TASKS[0]][0].object_id
+    store.get_file(f"r/exports/objects/object_{oid:05d}.ply", tmp_path / "obj.ply")
+    obj = read_ply(tmp_path / "obj.ply")
+    mask = res.object_ids == oid
+    np.testing.assert_array_equal(obj.means, g.means[mask])
+    np.testing.assert_array_equal(obj.sh, g.sh[mask])  # all attributes untouched
+    np.testing.assert_array_equal(obj.quats, g.quats[mask])
+    store.get_file("r/exports/scene_objects.ply", tmp_path / "scene.ply")
+    scene = read_ply(tmp_path / "scene.ply")
+    assert len(scene) == N
+    assert not scene.sh[:, 1:, :].any()
+    rgb = 0.5 + SH_C0 * scene.sh[:, 0, :]
+    none = res.object_ids < 0
+    np.testing.assert_allclose(rgb[none], BACKGROUND_GREY, atol=1e-6)
+    np.testing.assert_allclose(
+        rgb[res.object_ids == 3],
+        np.broadcast_to(object_palette(NUM_OBJECTS)[3], rgb[res.object_ids == 3].shape),
+        atol=1e-6,
+    )
+    assert len(np.unique(np.round(object_palette(NUM_OBJECTS), 3), axis=0)) == NUM_OBJECTS
+    # rewriting without a splat removes the stale exports
+    write_result(store, "r", res)
+    assert not store.list("r/exports/")
+    assert all(o.export is None for o in read_result(store, "r").selections[TASKS[0]])
+
+
+def test_id_encoding_by_hand():
+    assert id_dtype(0) == np.dtype("u1") and id_dtype(254) == np.dtype("u1")
+    assert id_dtype(255) == np.dtype("<u2") and id_dtype(65534) == np.dtype("<u2")
+    assert id_dtype(65535) == np.dtype("<u4")
+    stored, sentinel = encode_ids(np.array([-1, 0, 254, 7]))
+    assert sentinel == 255 and stored.dtype == np.uint8
+    np.testing.assert_array_equal(stored, [255, 0, 254, 7])
+    np.testing.assert_array_equal(decode_ids(stored, sentinel), [-1, 0, 254, 7])
+    stored, sentinel = encode_ids(np.array([-1, 255]))
+    assert sentinel == 65535 and stored.tolist() == [65535, 255]
+
+
+def test_codec_choice():
+    codec, data = compress(bytes(100_000))
+    assert codec in ("zlib", "lzma") and len(data) < 1000
+    assert decompress(codec, data, expected=100_000, name="x") == bytes(100_000)
+    assert compress(b"\x01\x02")[0] == "raw"
+    with pytest.raises(InputError, match="expected 10 bytes"):
+        decompress("zlib", zlib.compress(bytes(100)), expected=10, name="x")
+
+
+def test_version_and_integrity_checks(setup):
+    store, _, res = setup
+    write_result(store, "r", res)
+    summary = json.loads(store.get_bytes("r/summary.json"))
+    summary["format_version"] = "1.7"  # a later minor stays readable
+    store.put_bytes("r/summary.json", json.dumps(summary).encode())
+    read_result(store, "r")
+    summary["format_version"] = "2.0"
+    store.put_bytes("r/summary.json", json.dumps(summary).encode())
+    with pytest.raises(InputError, match="format version '2.0'"):
+        read_result(store, "r")
+    write_result(store, "r", res)
+    ids = res.object_ids.copy()
+    ids[0] = (ids[0] + 1) % NUM_OBJECTS
+    store.put_bytes("r/object_ids.bin", zlib.compress(encode_ids(ids)[0].tobytes()))
+    summary = json.loads(store.get_bytes("r/summary.json"))
+    summary["arrays"]["object_ids"]["codec"] = "zlib"
+    store.put_bytes("r/summary.json", json.dumps(summary).encode())
+    with pytest.raises(InputError, match="checksum"):
+        read_result(store, "r")
+    with pytest.raises(InputError, match="no result"):
+        read_result(store, "elsewhere")
+
+
+def test_invalid_results_are_refused(setup):
+    store, g, res = setup
+    res.probabilities = res.probabilities[:, :2]
+    with pytest.raises(InputError, match="probabilities"):
+        write_result(store, "r", res)
+    rng = np.random.default_rng(1)
+    good = make_result(rng, g)
+    good.object_ids = good.object_ids.copy()
+    good.object_ids[0] = NUM_OBJECTS
+    with pytest.raises(InputError, match="object_ids"):
+        write_result(store, "r", good)
+    with pytest.raises(InputError, match="Gaussians"):
+        write_result(store, "r", make_result(rng, g), gaussians=g.subset(np.arange(10)))

@@ -95,10 +95,19 @@ def plan_parts(total_bytes: int, part_bytes: int) -> list[PartSpec]:
     return [PartSpec(i + 1, i * part_bytes, min(total_bytes, (i + 1) * part_bytes)) for i in range(n)]
 
 
+def _key(key: str) -> str:
+    """`validate_key`, plus what only matters on S3: 'a//b' and 'a/' would be keys distinct from
+    'a/b' and 'a' there, while a folder-backed store maps them to the same file."""
+    validate_key(key)
+    if "//" in key or key.endswith("/"):
+        raise InputError(f"invalid artifact key {key!r}")
+    return key
+
+
 def _validate_prefix(prefix: str) -> str:
     """A list/delete prefix: '' or a key-like string, optionally ending in '/'."""
     if prefix:
-        validate_key(prefix.rstrip("/") or ".")  # '.' is rejected: a prefix of only slashes
+        _key(prefix[:-1] if prefix.endswith("/") else prefix)
     return prefix
 
 
@@ -218,7 +227,7 @@ class S3Store:
     # ---- Store protocol --------------------------------------------------------------------
 
     def put_bytes(self, key: str, data: bytes) -> None:
-        validate_key(key)
+        _key(key)
         if len(data) >= self.transfer_config.multipart_threshold:
             self._retry(
                 lambda: self.client.upload_fileobj(
@@ -230,13 +239,13 @@ class S3Store:
             self._retry(lambda: self.client.put_object(Bucket=self.bucket, Key=key, Body=data), key)
 
     def get_bytes(self, key: str) -> bytes:
-        validate_key(key)
+        _key(key)
         return self._retry(lambda: self.client.get_object(Bucket=self.bucket, Key=key)["Body"].read(), key)
 
     def get_range(self, key: str, start: int, end: int) -> bytes:
         """Bytes [start, end) (end exclusive, like Python slices; S3's Range header is inclusive).
         A range past the end of the object yields b'' (as with a file), not an error."""
-        validate_key(key)
+        _key(key)
         if start < 0 or end < 0:
             raise InputError(f"ranged read of {key!r}: negative offsets {start}, {end}")
         if end <= start:
@@ -256,7 +265,7 @@ class S3Store:
 
     def put_file(self, key: str, path: Path) -> None:
         """Upload a file; multipart (parallel parts) above the configured threshold."""
-        validate_key(key)
+        _key(key)
         if not Path(path).is_file():
             raise InputError("not a file", source=str(path))
         self._retry(
@@ -265,7 +274,7 @@ class S3Store:
 
     def get_file(self, key: str, path: Path) -> None:
         """Download to `path` atomically (temp file in the same folder, then rename)."""
-        validate_key(key)
+        _key(key)
         dest = Path(path)
         dest.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(dir=dest.parent, prefix=".tmp-")
@@ -286,7 +295,7 @@ class S3Store:
         return True
 
     def size(self, key: str) -> int:
-        validate_key(key)
+        _key(key)
         head = self._retry(lambda: self.client.head_object(Bucket=self.bucket, Key=key), key)
         return int(head["ContentLength"])
 
@@ -308,7 +317,7 @@ class S3Store:
         return sorted(self._retry(lambda: list(self.iter_keys(prefix, page_size=page_size)), prefix))
 
     def delete(self, key: str) -> None:
-        validate_key(key)
+        _key(key)
         self._retry(lambda: self.client.delete_object(Bucket=self.bucket, Key=key), key)
 
     def delete_prefix(self, prefix: str) -> int:
@@ -356,7 +365,7 @@ class S3Store:
     def presigned_get(self, key: str, expires_s: int = 3600, *, filename: str | None = None) -> str:
         """A URL anyone holding it can GET for `expires_s` seconds. `filename` sets the download
         name (Content-Disposition)."""
-        params: dict[str, Any] = {"Bucket": self.bucket, "Key": validate_key(key)}
+        params: dict[str, Any] = {"Bucket": self.bucket, "Key": _key(key)}
         if filename:
             safe = PurePosixPath(filename).name.replace('"', "")
             params["ResponseContentDisposition"] = f'attachment; filename="{safe}"'
@@ -365,7 +374,7 @@ class S3Store:
     def presigned_put(self, key: str, expires_s: int = 3600, *, content_type: str | None = None) -> str:
         """A URL to PUT one object (up to 5 GiB) for `expires_s` seconds. When `content_type` is
         given the uploader must send the same Content-Type header (it is signed)."""
-        params: dict[str, Any] = {"Bucket": self.bucket, "Key": validate_key(key)}
+        params: dict[str, Any] = {"Bucket": self.bucket, "Key": _key(key)}
         if content_type:
             params["ContentType"] = content_type
         return self.client.generate_presigned_url("put_object", Params=params, ExpiresIn=expires_s)
@@ -375,7 +384,7 @@ class S3Store:
     def create_multipart_upload(self, key: str, *, content_type: str | None = None) -> str:
         """Start a multipart upload; returns its upload id. Not retried: a retry would leak an
         orphan upload (abort it, or let a bucket lifecycle rule expire it)."""
-        params: dict[str, Any] = {"Bucket": self.bucket, "Key": validate_key(key)}
+        params: dict[str, Any] = {"Bucket": self.bucket, "Key": _key(key)}
         if content_type:
             params["ContentType"] = content_type
         try:
@@ -390,7 +399,7 @@ class S3Store:
             raise InputError(f"part number {part_number} out of range 1..{MAX_PARTS}")
         params = {
             "Bucket": self.bucket,
-            "Key": validate_key(key),
+            "Key": _key(key),
             "UploadId": upload_id,
             "PartNumber": part_number,
         }
@@ -398,7 +407,7 @@ class S3Store:
 
     def list_parts(self, key: str, upload_id: str) -> list[dict[str, Any]]:
         """Parts uploaded so far: [{'PartNumber', 'ETag', 'Size'}], in part order."""
-        validate_key(key)
+        _key(key)
         parts: list[dict[str, Any]] = []
         paginator = self.client.get_paginator("list_parts")
 
@@ -418,7 +427,7 @@ class S3Store:
     ) -> None:
         """Assemble the parts into the object. `parts` = [{'PartNumber', 'ETag'}] as reported by
         the uploader; None takes the server's own list (`list_parts`)."""
-        validate_key(key)
+        _key(key)
         if parts is None:
             parts = self.list_parts(key, upload_id)
         if not parts:
@@ -440,7 +449,7 @@ class S3Store:
 
     def abort_multipart_upload(self, key: str, upload_id: str) -> None:
         """Discard an upload and its parts (idempotent: an unknown upload id is ignored)."""
-        validate_key(key)
+        _key(key)
         try:
             self._retry(
                 lambda: self.client.abort_multipart_upload(Bucket=self.bucket, Key=key, UploadId=upload_id),

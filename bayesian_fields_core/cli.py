@@ -163,7 +163,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     run = sub.add_parser("run", help="run the whole pipeline on a local scene folder")
     run.add_argument("scene", help="scene folder (splat .ply + cameras + images/)")
-    run.add_argument("--tasks", help="tasks file (.yaml list, .json or one per line); default SCENE/tasks.yaml")
+    run.add_argument(
+        "--tasks", help="tasks file (.yaml list, .json or one per line); default SCENE/tasks.yaml"
+    )
     run.add_argument("--task", action="append", default=[], help="a task (repeatable); overrides --tasks")
     run.add_argument("--out", required=True, help="output folder")
     run.add_argument("--profile", help="model profile YAML (default: bundled classical + tiny CLIP)")
@@ -181,7 +183,9 @@ def build_parser() -> argparse.ArgumentParser:
     gen.set_defaults(func=cmd_generate)
 
     ev = sub.add_parser("eval", help="evaluate the method, ablations and baselines on the synthetic suite")
-    ev.add_argument("--suite-dir", default="bench/_generated/suite", help="where suite scenes are generated/cached")
+    ev.add_argument(
+        "--suite-dir", default="bench/_generated/suite", help="where suite scenes are generated/cached"
+    )
     ev.add_argument("--out", default="bench/_generated/eval", help="where runs are written")
     ev.add_argument("--scenes", type=int, default=3, help="number of suite scenes")
     ev.add_argument("--profile", help="model profile YAML")
@@ -215,7 +219,9 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.WARNING, format="%(levelname)s %(message)s")
+    logging.basicConfig(
+        level=logging.DEBUG if args.verbose else logging.WARNING, format="%(levelname)s %(message)s"
+    )
     try:
         return int(args.func(args) or 0)
     except InputError as exc:

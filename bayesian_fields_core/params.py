@@ -26,19 +26,28 @@ class PipelineParams(BaseModel):
     mu1: float | None = Field(None, description="Mean cosine score of relevant segments (paper: 0.27).")
     s: float | None = Field(None, gt=0, description="Std of both likelihoods (paper: 0.035).")
     s_eps: float = Field(0.0, ge=0, description="Extra measurement noise std added in quadrature to s.")
-    prior: float = Field(0.05, gt=0, lt=1, description="Prior probability that a Gaussian is relevant to a task.")
+    prior: float = Field(
+        0.05, gt=0, lt=1, description="Prior probability that a Gaussian is relevant to a task."
+    )
 
     # --- fusion (steps 4-5) ----------------------------------------------------------------------
     fusion: Literal["bayes", "average"] = Field(
         "bayes", description="'bayes' = the method; 'average' = ablation averaging cosine scores then Eq. 3."
     )
-    outlier_rejection: bool = Field(True, description="OR-phi: skip masks that would lower every task's probability.")
-    depth_source: Literal["median", "expected", "input"] = Field(
-        "median", description="Depth image for visibility: rendered median or expected depth, or the input depth maps."
+    outlier_rejection: bool = Field(
+        True, description="OR-phi: skip masks that would lower every task's probability."
     )
-    depth_tolerance: float = Field(0.05, ge=0, description="Absolute visibility tolerance on centre depth, metres.")
+    depth_source: Literal["median", "expected", "input"] = Field(
+        "median",
+        description="Depth image for visibility: rendered median or expected depth, or the input depth maps.",
+    )
+    depth_tolerance: float = Field(
+        0.05, ge=0, description="Absolute visibility tolerance on centre depth, metres."
+    )
     depth_tolerance_relative: float = Field(
-        0.03, ge=0, description="Visibility tolerance as a fraction of the rendered depth (added to the absolute one)."
+        0.03,
+        ge=0,
+        description="Visibility tolerance as a fraction of the rendered depth (added to the absolute one).",
     )
 
     # --- objects (steps 7-12) --------------------------------------------------------------------
@@ -46,18 +55,27 @@ class PipelineParams(BaseModel):
         "product", description="Null task: prod(1-p_y) (default), 1-max p_y, or a constant null_constant."
     )
     null_constant: float = Field(0.5, ge=0, description="Null task score when null_mode='constant'.")
-    edge_padding: float = Field(0.0, ge=0, description="Grow primitive boxes by this many metres before overlap tests.")
-    identical_tolerance: float = Field(1e-6, ge=0, description="Max abs difference for 'identical' p(y|x) vectors.")
-    aib_delta: float = Field(1e-5, gt=0, description="AIB stops when the relative information loss exceeds this (Clio).")
-    prune_threshold: float = Field(0.1, ge=0, le=1, description="Drop objects below this probability for every task.")
+    edge_padding: float = Field(
+        0.0, ge=0, description="Grow primitive boxes by this many metres before overlap tests."
+    )
+    identical_tolerance: float = Field(
+        1e-6, ge=0, description="Max abs difference for 'identical' p(y|x) vectors."
+    )
+    aib_delta: float = Field(
+        1e-5, gt=0, description="AIB stops when the relative information loss exceeds this (Clio)."
+    )
+    prune_threshold: float = Field(
+        0.1, ge=0, le=1, description="Drop objects below this probability for every task."
+    )
     top_k: int = Field(5, ge=1, description="Objects kept per task.")
     knn_filter: bool = Field(True, description="Statistical outlier removal on each selected object.")
     knn_k: int = Field(20, ge=1, description="Neighbours for the kNN filter (Open3D default 20).")
     knn_std_ratio: float = Field(2.0, gt=0, description="Keep points with mean kNN distance <= mean + r*std.")
 
     # --- outputs --------------------------------------------------------------------------------
-    export_object_ply: bool = Field(True, description="Write one .ply per selected object.")
-    export_scene_ply: bool = Field(True, description="Write a recoloured whole-scene .ply.")
+    export_ply: bool = Field(
+        True, description="Write one .ply per selected object and a recoloured scene .ply."
+    )
     store_primitive_ids: bool = Field(True, description="Store per-Gaussian primitive ids in the result.")
 
     # --- execution ------------------------------------------------------------------------------

@@ -17,8 +17,8 @@ from typing import Any
 import numpy as np
 
 from ..context import JobContext
-from ..fusion.averaging import AveragingState
-from ..fusion.bayes import bayes_update, initial_logodds, probabilities
+from ..fusion.averaging import CosineAverager
+from ..fusion.bayes import accepted_masks, bayes_update, init_logodds, probabilities
 from ..fusion.likelihood import LikelihoodParams, log_likelihood_ratio
 from ..fusion.visibility import mask_associations
 from ..scene.images import load_depth
@@ -75,7 +75,9 @@ def associations(ctx: JobContext, index: int, frame: Any, labels: np.ndarray, re
     put_arrays(
         store,
         key,
-        gaussian_ids=gaussian_ids.astype(np.uint32 if gaussian_ids.size == 0 or gaussian_ids.max() < 2**32 else np.int64),
+        gaussian_ids=gaussian_ids.astype(
+            np.uint32 if gaussian_ids.size == 0 or gaussian_ids.max() < 2**32 else np.int64
+        ),
         mask_ids=mask_ids.astype(np.int32),
     )
     return gaussian_ids, mask_ids, True
@@ -92,8 +94,8 @@ def run(ctx: JobContext) -> dict[str, Any]:
     lik = likelihood_params(ctx)
     use_bayes = ctx.params.fusion == "bayes"
 
-    logodds = initial_logodds(len(gaussians), n_tasks, ctx.params.prior)
-    averaging = None if use_bayes else AveragingState(len(gaussians), n_tasks)
+    logodds = init_logodds(len(gaussians), n_tasks, ctx.params.prior)
+    averaging = None if use_bayes else CosineAverager(len(gaussians), n_tasks)
 
     renderer = None
 
@@ -122,8 +124,8 @@ def run(ctx: JobContext) -> dict[str, Any]:
                 logodds, gaussian_ids, mask_ids, llr, outlier_rejection=ctx.params.outlier_rejection
             )
         else:
-            accepted = (llr >= 0).any(axis=1) if ctx.params.outlier_rejection else np.ones(len(phi), bool)
-            averaging.add(gaussian_ids, mask_ids, phi)
+            accepted = accepted_masks(llr, ctx.params.outlier_rejection)
+            averaging.add_frame(gaussian_ids, mask_ids, phi, accepted)
         accepted_chunks.append(np.asarray(accepted, dtype=bool))
         mask_counts[n] = len(phi)
         ctx.progress("fuse", (n + 1) / len(frames))
@@ -131,7 +133,7 @@ def run(ctx: JobContext) -> dict[str, Any]:
     if use_bayes:
         probs = probabilities(logodds)
     else:
-        probs = averaging.probabilities(lik, ctx.params.prior)
+        probs = averaging.probabilities(lik, unobserved=ctx.params.prior)
     observed = None if averaging is None else averaging.counts > 0
     put_arrays(
         ctx.store,

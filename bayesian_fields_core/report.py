@@ -1,0 +1,75 @@
+"""Human-readable output of a finished run: per task, the chosen objects; then stage timings."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+from rich.console import Console
+from rich.table import Table
+
+from .results.format import Result
+
+
+def result_summary(result: Result, reports: dict[str, dict[str, Any]], out: Path) -> dict[str, Any]:
+    """A JSON-able digest of a run for `--json` and scripts."""
+    return {
+        "output": str(out),
+        "tasks": {
+            task: [
+                {
+                    "object_id": o.object_id,
+                    "probability": round(o.probability, 4),
+                    "num_gaussians": o.num_gaussians,
+                    "centroid": [round(float(c), 4) for c in o.centroid],
+                }
+                for o in objects
+            ]
+            for task, objects in result.selections.items()
+        },
+        "counts": result.counts(),
+        "stage_seconds": {name: round(float(r.get("seconds", 0.0)), 3) for name, r in reports.items()},
+    }
+
+
+def print_result(
+    result: Result, reports: dict[str, dict[str, Any]], out: Path, *, json_output: bool = False
+) -> None:
+    if json_output:
+        print(json.dumps(result_summary(result, reports, out), indent=2))
+        return
+    console = Console()
+    table = Table(title="Task-relevant objects", show_lines=False)
+    for column, justify in (
+        ("task", "left"),
+        ("rank", "right"),
+        ("object", "right"),
+        ("p(task|object)", "right"),
+        ("Gaussians", "right"),
+        ("centroid (m)", "left"),
+    ):
+        table.add_column(column, justify=justify)
+    for task, objects in result.selections.items():
+        if not objects:
+            table.add_row(task, "-", "-", "-", "-", "no object")
+        for rank, obj in enumerate(objects, start=1):
+            table.add_row(
+                task if rank == 1 else "",
+                str(rank),
+                str(obj.object_id),
+                f"{obj.probability:.3f}",
+                str(obj.num_gaussians),
+                "(" + ", ".join(f"{c:+.2f}" for c in obj.centroid) + ")",
+            )
+    console.print(table)
+    counts = result.counts()
+    timing = ", ".join(f"{name} {float(r.get('seconds', 0.0)):.1f}s" for name, r in reports.items())
+    perceive = reports.get("perceive", {})
+    console.print(
+        f"{counts.get('gaussians')} Gaussians, {counts.get('primitives')} primitives, "
+        f"{counts.get('objects')} objects | {timing} | "
+        f"perception: {perceive.get('frames_computed', 0)} frames computed, "
+        f"{perceive.get('frames_cached', 0)} from cache"
+    )
+    console.print(f"result written to {out / 'result'}")

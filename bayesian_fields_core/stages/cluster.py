@@ -1,0 +1,239 @@
+"""Stage 3, `cluster`: primitives -> p(y|x) -> edges -> AIB -> prune -> top-k -> kNN -> result.
+
+METHOD steps 6-12. Runs on the CPU queue: it reads the fused probabilities, the per-mask
+acceptance flags and the cached mask-to-Gaussian associations, and writes the result.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..context import JobContext
+from ..objects.aib import aib
+from ..objects.edges import merge_identical, overlap_edges
+from ..objects.knn_filter import statistical_outlier_mask
+from ..objects.obb import OrientedBox, minimum_obb
+from ..objects.primitives import PrimitiveBuilder
+from ..objects.probabilities import primitive_probabilities
+from ..objects.select import prune_mask, top_k
+from ..params import PipelineParams
+from ..results.format import Result, SelectedObject
+from ..store import get_arrays
+from .fuse import ACCEPTED_KEY, FUSION_KEY
+from .markers import write_marker
+from .perceive import frame_key
+
+RESULT_PREFIX = "result/"
+
+
+@dataclass
+class ObjectMap:
+    """The clustered map before serialisation.
+
+    object_ids: (N,) int64 object of each Gaussian, -1 = none (kNN-removed floaters of selected
+    objects are none). probabilities: (C, T+1) p(y|object), null last. selection: (T, k) object
+    ids per task, best first, -1 padded. boxes / centroids / sizes: per object, after filtering.
+    """
+
+    object_ids: np.ndarray
+    primitive_ids: np.ndarray
+    probabilities: np.ndarray
+    selection: np.ndarray
+    sizes: np.ndarray
+    centroids: np.ndarray
+    boxes: list[OrientedBox | None]
+    counts: dict[str, int] = field(default_factory=dict)
+    timings: dict[str, float] = field(default_factory=dict)
+
+
+def objects_from_primitives(
+    means: np.ndarray,
+    primitive_ids: np.ndarray,
+    pyx: np.ndarray,
+    params: PipelineParams,
+) -> ObjectMap:
+    """Steps 8-12 from primitives and their conditionals (shared by the method and baselines)."""
+    timings: dict[str, float] = {}
+    t = time.perf_counter()
+    edges = overlap_edges(means, primitive_ids, padding=params.edge_padding)
+    merged = merge_identical(pyx, edges, atol=params.identical_tolerance)
+    timings["edges"] = time.perf_counter() - t
+    t = time.perf_counter()
+    clustering = aib(merged.pyx, merged.edges, params.aib_delta, weights=merged.weights)
+    timings["aib"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    object_of_primitive = clustering.labels[merged.labels]
+    raw_pyx = clustering.pyx
+    keep = prune_mask(raw_pyx, params.prune_threshold)
+    # Renumber surviving objects 0..K-1; pruned objects become -1.
+    new_id = np.full(raw_pyx.shape[0], -1, dtype=np.int64)
+    new_id[keep] = np.arange(int(keep.sum()))
+    object_of_primitive = new_id[object_of_primitive]
+    probabilities = raw_pyx[keep]
+    object_ids = np.where(primitive_ids >= 0, object_of_primitive[np.maximum(primitive_ids, 0)], -1)
+    sizes = np.bincount(object_ids[object_ids >= 0], minlength=len(probabilities))
+    selection = (
+        top_k(probabilities, sizes, params.top_k)
+        if len(probabilities)
+        else np.full((raw_pyx.shape[1] - 1, params.top_k), -1, dtype=np.int64)
+    )
+    timings["select"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    selected = np.unique(selection[selection >= 0])
+    order = np.argsort(object_ids, kind="stable")
+    bounds = np.searchsorted(object_ids[order], np.arange(len(probabilities) + 1))
+    removed = 0
+    for obj in selected:  # a loop over selected objects (at most tasks x k), not Gaussians
+        members = order[bounds[obj] : bounds[obj + 1]]
+        if params.knn_filter and len(members) > 1:
+            keep_pts = statistical_outlier_mask(
+                means[members], k=params.knn_k, std_ratio=params.knn_std_ratio
+            )
+            object_ids[members[~keep_pts]] = -1
+            removed += int((~keep_pts).sum())
+    timings["knn"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    sizes = np.bincount(object_ids[object_ids >= 0], minlength=len(probabilities))
+    centroids = np.zeros((len(probabilities), 3))
+    np.add.at(centroids, object_ids[object_ids >= 0], means[object_ids >= 0])
+    centroids /= np.maximum(sizes, 1)[:, None]
+    order = np.argsort(object_ids, kind="stable")
+    bounds = np.searchsorted(object_ids[order], np.arange(len(probabilities) + 1))
+    boxes: list[OrientedBox | None] = [None] * len(probabilities)
+    for obj in selected:
+        members = order[bounds[obj] : bounds[obj + 1]]
+        if len(members):
+            boxes[obj] = minimum_obb(means[members].astype(np.float64))
+    timings["boxes"] = time.perf_counter() - t
+    return ObjectMap(
+        object_ids=object_ids,
+        primitive_ids=primitive_ids,
+        probabilities=probabilities,
+        selection=selection,
+        sizes=sizes,
+        centroids=centroids,
+        boxes=boxes,
+        counts={
+            "primitives": int(pyx.shape[0]),
+            "nodes_after_identical_merge": int(merged.pyx.shape[0]),
+            "edges": int(edges.shape[0]),
+            "clusters": int(raw_pyx.shape[0]),
+            "objects": int(len(probabilities)),
+            "selected_objects": int(len(selected)),
+            "knn_removed_gaussians": removed,
+        },
+        timings=timings,
+    )
+
+
+def build_primitives(ctx: JobContext) -> np.ndarray:
+    """Replay the primitive rule over the frames with the masks OR-phi accepted (step 6)."""
+    scene_store = ctx.scene_store
+    assert scene_store is not None
+    accepted = get_arrays(ctx.store, ctx.job_key(ACCEPTED_KEY))
+    offsets = np.concatenate([[0], np.cumsum(accepted["mask_counts"])])
+    builder = PrimitiveBuilder(len(ctx.scene().gaussians))
+    for n, index in enumerate(accepted["frame_indices"]):
+        vis = get_arrays(scene_store, frame_key(ctx.visibility_prefix, int(index)))
+        builder.add_frame(
+            vis["gaussian_ids"].astype(np.int64),
+            vis["mask_ids"].astype(np.int64),
+            accepted["accepted"][offsets[n] : offsets[n + 1]],
+        )
+        ctx.check_cancel()
+    return builder.primitive_ids
+
+
+def run(ctx: JobContext) -> dict[str, Any]:
+    from ..results.writer import write_result
+
+    t0 = time.perf_counter()
+    timings: dict[str, float] = {}
+    gaussians = ctx.scene().gaussians
+    probs = get_arrays(ctx.store, ctx.job_key(FUSION_KEY))["probabilities"]
+    ctx.progress("cluster", 0.05)
+
+    t = time.perf_counter()
+    primitive_ids = build_primitives(ctx)
+    timings["primitives"] = time.perf_counter() - t
+    ctx.progress("cluster", 0.3)
+
+    t = time.perf_counter()
+    pyx = primitive_probabilities(primitive_ids, probs, null_mode=ctx.params.null_mode)
+    timings["probabilities"] = time.perf_counter() - t
+    object_map = objects_from_primitives(gaussians.means, primitive_ids, pyx, ctx.params)
+    timings.update(object_map.timings)
+    ctx.progress("cluster", 0.8)
+
+    t = time.perf_counter()
+    stage_timings = _stage_timings(ctx)
+    stage_timings["cluster"] = time.perf_counter() - t0
+    result = build_result(ctx, object_map, stage_timings)
+    sizes = write_result(
+        ctx.store,
+        ctx.job_key(RESULT_PREFIX),
+        result,
+        gaussians=gaussians,
+        export_ply=ctx.params.export_ply,
+    )
+    timings["write"] = time.perf_counter() - t
+    ctx.progress("cluster", 1.0)
+    return write_marker(
+        ctx,
+        "cluster",
+        {
+            "seconds": time.perf_counter() - t0,
+            "timings": timings,
+            "counts": object_map.counts,
+            "result_bytes": sizes,
+        },
+    )
+
+
+def build_result(ctx: JobContext, object_map: ObjectMap, timings: dict[str, float]) -> Result:
+    """The serialisable result: id maps, probability table, per-task selections, provenance."""
+    selections: dict[str, list[SelectedObject]] = {}
+    for t, task in enumerate(ctx.tasks):
+        chosen = []
+        for obj in object_map.selection[t]:
+            box = object_map.boxes[obj] if obj >= 0 else None
+            if obj < 0 or box is None or object_map.sizes[obj] == 0:
+                continue
+            chosen.append(
+                SelectedObject(
+                    object_id=int(obj),
+                    probability=float(object_map.probabilities[obj, t]),
+                    num_gaussians=int(object_map.sizes[obj]),
+                    centroid=object_map.centroids[obj],
+                    box=box,
+                )
+            )
+        selections[task] = chosen
+    return Result(
+        tasks=list(ctx.tasks),
+        object_ids=object_map.object_ids,
+        probabilities=object_map.probabilities.astype(np.float32),
+        selections=selections,
+        primitive_ids=object_map.primitive_ids if ctx.params.store_primitive_ids else None,
+        parameters=ctx.params.model_dump(mode="json"),
+        models=ctx.models.model_ids,
+        timings_s=timings,
+        num_primitives=int(object_map.counts.get("primitives", 0)),
+    )
+
+
+def _stage_timings(ctx: JobContext) -> dict[str, float]:
+    from .markers import is_done, read_marker
+
+    return {
+        stage: float(read_marker(ctx, stage).get("seconds", 0.0))
+        for stage in ("perceive", "fuse")
+        if is_done(ctx, stage)
+    }

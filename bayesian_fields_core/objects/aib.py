@@ -15,14 +15,21 @@ exactly `d_ij` whatever `q` is. `q` therefore only sets the normaliser `I(X;Y)`:
 uniform `q` (`py_mode="uniform"`, default), giving `I(X;Y) = log|Y| - sum_x p_x H(p(y|x))`;
 `py_mode="marginal"` uses the true marginal and the textbook mutual information.
 
-Complexity: a binary heap of edges with lazy invalidation (per-node version counters; an entry is
-stale once either endpoint merged since it was pushed), `O(E log E)` plus the re-weighting of the
-merged node's edges, which is vectorised per merge.
+Two exact drivers, chosen by graph size (`dense_limit`), make the same merges (same costs, ties
+broken by the lower node pair):
+- dense (up to `dense_limit` nodes): an (n, n) cost matrix with per-row minima; a merge rewrites
+  one row/column and re-scans only the rows whose minimum pointed at the merged pair, all in
+  numpy, so a merge costs O(n) vectorised work however many neighbours the merged node has
+  (large "background" clusters touch almost everything, which makes per-edge Python work slow).
+- heap (larger graphs, O(E) memory): a binary heap of edges with lazy invalidation (per-node
+  version counters; an entry is stale once either endpoint merged since it was pushed),
+  `O(E log E)` plus the re-weighting of the merged node's edges, vectorised per merge.
 """
 
 from __future__ import annotations
 
 import heapq
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal
 
@@ -38,6 +45,9 @@ DEFAULT_DELTA = 1e-5
 
 PyMode = Literal["uniform", "marginal"]
 _TINY = 1e-12
+
+DEFAULT_DENSE_LIMIT = 3072
+"""Largest node count for the dense driver: its (n, n) float64 costs take 8 n^2 bytes (72 MiB)."""
 
 
 def entropy(dist: np.ndarray) -> np.ndarray:
@@ -101,58 +111,66 @@ def _check(pyx: np.ndarray, edges: np.ndarray, weights: np.ndarray | None) -> np
     return w / w.sum()
 
 
-def aib(
-    pyx: np.ndarray,
-    edges: np.ndarray,
-    delta: float = DEFAULT_DELTA,
-    *,
-    weights: np.ndarray | None = None,
-    py_mode: PyMode = "uniform",
-) -> AIBResult:
-    """Cluster graph nodes with conditionals `pyx` (P, Y) along `edges` (E, 2) until the next
-    merge would lose more than `delta` of `I(X;Y)`; `weights` (P,) default to uniform `p(x)`."""
-    pyx = np.asarray(pyx, dtype=np.float64)
-    edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
-    num = pyx.shape[0]
-    px = _check(pyx, edges, weights)
-    info = mutual_information(px, pyx, py_mode) if num else 0.0
+class _Nodes:
+    """Cluster state shared by both drivers: masses, conditionals and their cached entropies."""
 
-    def relative(cost: float) -> float:
-        if info > _TINY:
-            return cost / info
-        return 0.0 if cost <= _TINY else float("inf")
+    def __init__(self, px: np.ndarray, pyx: np.ndarray) -> None:
+        self.mass = px.copy()
+        self.cond = pyx.copy()
+        self.ent = entropy(pyx)
 
-    edges = np.unique(np.sort(edges[edges[:, 0] != edges[:, 1]], axis=1), axis=0)
-    cond = pyx.copy()
-    mass = px.copy()
-    ent = entropy(cond)
+    def costs(self, i: int, ks: np.ndarray) -> np.ndarray:
+        """Merge costs `d_ik` between node i and nodes ks (only the mixtures' entropies are new)."""
+        m_i, m_k = self.mass[i], self.mass[ks]
+        total = m_i + m_k
+        mix = (m_i * self.cond[i] + m_k[:, None] * self.cond[ks]) / total[:, None]
+        return np.maximum(total * entropy(mix) - m_i * self.ent[i] - m_k * self.ent[ks], 0.0)
+
+    def pair_costs(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """Merge costs of the node pairs (a[e], b[e])."""
+        m_a, m_b = self.mass[a], self.mass[b]
+        total = m_a + m_b
+        mix = (m_a[:, None] * self.cond[a] + m_b[:, None] * self.cond[b]) / total[:, None]
+        return np.maximum(total * entropy(mix) - m_a * self.ent[a] - m_b * self.ent[b], 0.0)
+
+    def merge(self, i: int, j: int) -> None:
+        """Fold node j into node i."""
+        total = self.mass[i] + self.mass[j]
+        self.cond[i] = (self.mass[i] * self.cond[i] + self.mass[j] * self.cond[j]) / total
+        self.mass[i] = total
+        self.mass[j] = 0.0
+        self.ent[i] = entropy(self.cond[i])
+
+
+_Stop = Callable[[float], bool]
+
+
+def _merge_heap(nodes: _Nodes, edges: np.ndarray, stop: _Stop) -> tuple[list[tuple[int, int]], list[float]]:
+    """Greedy merging with an edge heap and lazy invalidation (see module doc)."""
+    num = nodes.mass.size
     version = [0] * num
     neighbours: list[set[int]] = [set() for _ in range(num)]
     for a, b in edges.tolist():
         neighbours[a].add(b)
         neighbours[b].add(a)
-    costs0 = merge_cost(mass[edges[:, 0]], cond[edges[:, 0]], mass[edges[:, 1]], cond[edges[:, 1]])
+    costs0 = merge_cost(
+        nodes.mass[edges[:, 0]], nodes.cond[edges[:, 0]], nodes.mass[edges[:, 1]], nodes.cond[edges[:, 1]]
+    )
     zeros = [0] * edges.shape[0]
     heap = list(zip(costs0.tolist(), edges[:, 0].tolist(), edges[:, 1].tolist(), zeros, zeros, strict=True))
     heapq.heapify(heap)
     compact_at = max(4 * len(heap), 100_000)
-
     merges: list[tuple[int, int]] = []
     costs: list[float] = []
-    stopped_at = float("inf")
     while heap:
         cost, i, j, vi, vj = heapq.heappop(heap)
         if version[i] != vi or version[j] != vj:
             continue
-        if relative(cost) > delta:
-            stopped_at = relative(cost)
+        if stop(cost):
             break
         merges.append((i, j))
         costs.append(cost)
-        total = mass[i] + mass[j]
-        cond[i] = (mass[i] * cond[i] + mass[j] * cond[j]) / total
-        mass[i] = total
-        ent[i] = entropy(cond[i])
+        nodes.merge(i, j)
         version[i] += 1
         version[j] += 1
         for k in neighbours[j]:
@@ -165,15 +183,103 @@ def aib(
         if not neighbours[i]:
             continue
         ks = np.fromiter(neighbours[i], dtype=np.int64, count=len(neighbours[i]))
-        new = merge_cost(np.full(ks.size, total), cond[i][None, :], mass[ks], cond[ks])
         lo = np.minimum(ks, i).tolist()
         hi = np.maximum(ks, i).tolist()
-        for c, a, b in zip(new.tolist(), lo, hi, strict=True):
+        for c, a, b in zip(nodes.costs(i, ks).tolist(), lo, hi, strict=True):
             heapq.heappush(heap, (c, a, b, version[a], version[b]))
         if len(heap) > compact_at:
             heap = [e for e in heap if version[e[1]] == e[3] and version[e[2]] == e[4]]
             heapq.heapify(heap)
             compact_at = max(4 * len(heap), 100_000)
+    return merges, costs
+
+
+def _merge_dense(nodes: _Nodes, edges: np.ndarray, stop: _Stop) -> tuple[list[tuple[int, int]], list[float]]:
+    """Greedy merging on a dense cost matrix with cached row minima (see module doc)."""
+    num = nodes.mass.size
+    cost = np.full((num, num), np.inf)
+    adjacent = np.zeros((num, num), dtype=bool)
+    a, b = edges[:, 0], edges[:, 1]
+    cost[a, b] = cost[b, a] = nodes.pair_costs(a, b)
+    adjacent[a, b] = adjacent[b, a] = True
+    row_arg = cost.argmin(axis=1)
+    row_min = cost[np.arange(num), row_arg]
+    merges: list[tuple[int, int]] = []
+    costs: list[float] = []
+    while num:
+        r = int(row_min.argmin())
+        best = float(row_min[r])
+        if best == np.inf or stop(best):
+            break
+        # The lowest row holding the minimum and its lowest column: the lexicographically
+        # smallest pair (i < j) among the cheapest edges, as the heap driver pops it.
+        i, j = r, int(row_arg[r])
+        merges.append((i, j))
+        costs.append(best)
+        nodes.merge(i, j)
+        adjacent[i] |= adjacent[j]
+        adjacent[j] = False
+        adjacent[:, j] = False
+        adjacent[i, [i, j]] = False
+        adjacent[:, i] = adjacent[i]
+        ks = np.flatnonzero(adjacent[i])
+        cost[j] = np.inf
+        cost[:, j] = np.inf
+        cost[i] = np.inf
+        cost[i, ks] = nodes.costs(i, ks)
+        cost[:, i] = cost[i]
+        row_min[j] = np.inf
+        stale = np.flatnonzero((row_arg == i) | (row_arg == j))
+        stale = stale[stale != j]
+        if stale.size:
+            row_arg[stale] = cost[stale].argmin(axis=1)
+            row_min[stale] = cost[stale, row_arg[stale]]
+        # Neighbours whose new edge to i beats (or ties with a lower id) their cached minimum.
+        new = cost[ks, i]
+        better = (new < row_min[ks]) | ((new == row_min[ks]) & (i < row_arg[ks]))
+        row_min[ks[better]] = new[better]
+        row_arg[ks[better]] = i
+        row_arg[i] = int(cost[i].argmin())
+        row_min[i] = cost[i, row_arg[i]]
+    return merges, costs
+
+
+def aib(
+    pyx: np.ndarray,
+    edges: np.ndarray,
+    delta: float = DEFAULT_DELTA,
+    *,
+    weights: np.ndarray | None = None,
+    py_mode: PyMode = "uniform",
+    dense_limit: int = DEFAULT_DENSE_LIMIT,
+) -> AIBResult:
+    """Cluster graph nodes with conditionals `pyx` (P, Y) along `edges` (E, 2) until the next
+    merge would lose more than `delta` of `I(X;Y)`; `weights` (P,) default to uniform `p(x)`.
+
+    `dense_limit` picks the driver (dense matrix up to that many nodes, heap above); both make
+    the same merges.
+    """
+    pyx = np.asarray(pyx, dtype=np.float64)
+    edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
+    num = pyx.shape[0]
+    px = _check(pyx, edges, weights)
+    info = mutual_information(px, pyx, py_mode) if num else 0.0
+    stopped_at = [float("inf")]
+
+    def stop(cost: float) -> bool:
+        if info > _TINY:
+            rel = cost / info
+        else:
+            rel = 0.0 if cost <= _TINY else float("inf")
+        if rel > delta:
+            stopped_at[0] = rel
+            return True
+        return False
+
+    edges = np.unique(np.sort(edges[edges[:, 0] != edges[:, 1]], axis=1), axis=0).reshape(-1, 2)
+    nodes = _Nodes(px, pyx)
+    driver = _merge_dense if num <= dense_limit else _merge_heap
+    merges, costs = driver(nodes, edges, stop)
 
     merge_arr = np.asarray(merges, dtype=np.int64).reshape(-1, 2)
     graph = coo_matrix((np.ones(len(merges)), (merge_arr[:, 0], merge_arr[:, 1])), shape=(num, num))
@@ -190,5 +296,5 @@ def aib(
         merges=merge_arr,
         costs=np.asarray(costs, dtype=np.float64),
         information=info,
-        stopped_at=stopped_at,
+        stopped_at=stopped_at[0],
     )

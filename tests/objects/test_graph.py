@@ -87,12 +87,13 @@ def _chain() -> tuple[np.ndarray, np.ndarray]:
     return pyx, np.array([[0, 1], [1, 2], [2, 3], [3, 4]])
 
 
-def test_aib_merge_order_and_stop() -> None:
+@pytest.mark.parametrize("dense_limit", [0, 10_000])  # heap driver, dense driver
+def test_aib_merge_order_and_stop(dense_limit: int) -> None:
     pyx, edges = _chain()
     # Uniform p(x) = 0.2; Clio's I(X;Y) = ln 2 - mean H(row) = 0.297936.
     # Costs: (0,1): 0. (3,4): 0.4 [H(.15) - (H(.1) + H(.2)) / 2] = 0.0039866 -> relative 0.01338.
     # ({0,1},2): 0.6 [H(.8667) - 2/3 H(.1) - 1/3 H(.2)] = 0.0054910 -> relative 0.01843.
-    result = aib(pyx, edges, delta=0.015)
+    result = aib(pyx, edges, delta=0.015, dense_limit=dense_limit)
     assert result.information == pytest.approx(0.297936, abs=1e-6)
     assert result.merges.tolist() == [[0, 1], [3, 4]]
     np.testing.assert_allclose(result.costs, [0.0, 0.0039866], atol=1e-7)
@@ -101,7 +102,7 @@ def test_aib_merge_order_and_stop() -> None:
     np.testing.assert_allclose(result.pyx[2], [0.15, 0.85])
     np.testing.assert_allclose(result.mass, [0.4, 0.2, 0.4])
 
-    everything = aib(pyx, edges, delta=10.0)
+    everything = aib(pyx, edges, delta=10.0, dense_limit=dense_limit)
     assert everything.merges.tolist() == [[0, 1], [3, 4], [0, 2], [0, 3]]
     assert everything.labels.tolist() == [0] * 5
     assert everything.stopped_at == math.inf  # ran out of edges
@@ -129,3 +130,17 @@ def test_aib_only_merges_neighbours() -> None:
 def test_aib_rejects_non_distributions() -> None:
     with pytest.raises(InputError, match="aib.pyx"):
         aib(np.array([[0.5, 0.6]]), np.zeros((0, 2)))
+
+
+def test_dense_and_heap_drivers_agree() -> None:
+    rng = np.random.default_rng(5)
+    # Repeated rows create exact cost ties, which both drivers must break the same way.
+    pyx = rng.dirichlet(np.ones(5), size=40)[rng.integers(0, 25, size=60)]
+    edges = np.unique(np.sort(rng.integers(0, 60, size=(240, 2)), axis=1), axis=0)
+    dense = aib(pyx, edges, delta=0.05, dense_limit=10_000)
+    heap = aib(pyx, edges, delta=0.05, dense_limit=0)
+    assert len(dense.merges) > 20
+    np.testing.assert_array_equal(dense.merges, heap.merges)
+    np.testing.assert_array_equal(dense.costs, heap.costs)
+    np.testing.assert_array_equal(dense.labels, heap.labels)
+    assert dense.stopped_at == heap.stopped_at

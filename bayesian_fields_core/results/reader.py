@@ -112,15 +112,18 @@ def object_gaussians(result: Result, gaussians: Gaussians, object_id: int) -> Ga
 
 
 def result_sizes(store: Store, prefix: str) -> dict[str, int]:
-    """Bytes of every file of the result under `prefix`, keyed relative to the prefix, plus the
-    totals `semantic_map` (ids + probabilities + summary: what a consumer needs) and `exports`."""
+    """Bytes of every file of the result under `prefix`, keyed relative to the prefix, plus totals:
+    `total/object_map` (object ids + probabilities + summary: the map a consumer needs, the paper's
+    "Objects" column), `total/with_primitives` (plus the optional primitive ids) and
+    `total/exports` (the .ply files)."""
     prefix = normalise_prefix(prefix)
     sizes = {key[len(prefix) :]: store.size(key) for key in store.list(prefix)}
     if SUMMARY_KEY not in sizes:
         raise InputError(f"{prefix}{SUMMARY_KEY}: no result here")
-    semantic = (SUMMARY_KEY, OBJECT_IDS_KEY, PRIMITIVE_IDS_KEY, PROBABILITIES_KEY)
+    object_map = sum(sizes.get(k, 0) for k in (SUMMARY_KEY, OBJECT_IDS_KEY, PROBABILITIES_KEY))
     totals = {
-        "total/semantic_map": sum(sizes.get(k, 0) for k in semantic),
+        "total/object_map": object_map,
+        "total/with_primitives": object_map + sizes.get(PRIMITIVE_IDS_KEY, 0),
         "total/exports": sum(v for k, v in sizes.items() if k.startswith("exports/")),
     }
     return {**sizes, **totals}

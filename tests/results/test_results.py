@@ -101,9 +101,11 @@ def test_round_trip(setup):
     assert [s["task"] for s in summary["selections"]] == TASKS
     sizes = result_sizes(store, "jobs/j1/result")
     assert {k: v for k, v in sizes.items() if not k.startswith("total/")} == written
-    assert sizes["total/semantic_map"] == sum(
-        written[k] for k in ("summary.json", "object_ids.bin", "primitive_ids.bin", "probabilities.bin")
+    assert sizes["total/object_map"] == sum(
+        written[k] for k in ("summary.json", "object_ids.bin", "probabilities.bin")
     )
+    assert sizes["total/with_primitives"] == sizes["total/object_map"] + written["primitive_ids.bin"]
+    assert sizes["total/exports"] == sum(v for k, v in written.items() if k.startswith("exports/")) > 0
 
 
 def test_exports_open_as_splats(setup, tmp_path):

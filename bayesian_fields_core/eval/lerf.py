@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError
+from .tables import render_table
 
 DEFAULT_RATIO = 0.8
 DEFAULT_ACCURACY_THRESHOLD = 0.25
@@ -115,10 +116,4 @@ def format_lerf_table(rows: Mapping[str, Mapping[str, LerfScores]], *, markdown:
             )
         cells.append("{:.2f} / {:.2f}".format(*mean_over_scenes(per_scene).as_percent()))
         body.append(cells)
-    if markdown:
-        lines = ["| " + " | ".join(header) + " |", "|" + "|".join(["---"] * len(header)) + "|"]
-        return "\n".join(lines + ["| " + " | ".join(r) + " |" for r in body])
-    widths = [max(len(r[i]) for r in [header, *body]) for i in range(len(header))]
-    return "\n".join(
-        "  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)).rstrip() for r in [header, *body]
-    )
+    return render_table(header, body, markdown=markdown)

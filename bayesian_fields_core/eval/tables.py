@@ -1,0 +1,23 @@
+"""Plain-text and markdown tables for the evaluation reports (the paper's tables' layout)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+
+def render_table(header: Sequence[str], rows: Sequence[Sequence[str]], *, markdown: bool = False) -> str:
+    """A table with the first column left-aligned and the others right-aligned: aligned plain text
+    (two spaces between columns, a rule under the header) or a GitHub markdown table."""
+    if markdown:
+        lines = [
+            "| " + " | ".join(header) + " |",
+            "|" + "|".join(["---"] + ["---:"] * (len(header) - 1)) + "|",
+        ]
+        return "\n".join(lines + ["| " + " | ".join(r) + " |" for r in rows])
+    widths = [max(len(r[i]) for r in [header, *rows]) for i in range(len(header))]
+
+    def fmt(cells: Sequence[str]) -> str:
+        rest = [c.rjust(w) for c, w in zip(cells[1:], widths[1:], strict=True)]
+        return "  ".join([cells[0].ljust(widths[0]), *rest])
+
+    return "\n".join([fmt(header), "-" * len(fmt(header)), *(fmt(r) for r in rows)])

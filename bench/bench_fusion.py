@@ -155,6 +155,7 @@ def main() -> None:
             f"  {key:<11} median {np.median(arr):7.1f} ms   p90 {np.percentile(arr, 90):7.1f} ms   "
             f"mean {arr.mean():7.1f} ms"
         )
+    print(f"  total process CPU per frame: median {np.median(cpu) * 1e3:.1f} ms")
     print(
         f"  finalise (probabilities + compact ids): {t_final * 1e3:.1f} ms; "
         f"primitives: {int(ids.max()) + 1:,}; max p {float(probs.max()):.3f}"

@@ -64,7 +64,7 @@ def _zip_members(zf: zipfile.ZipFile, source: str) -> list[_Member]:
         mode = info.external_attr >> 16
         if stat.S_ISLNK(mode):
             raise InputError(f"archive member {info.filename!r} is a symbolic link", source=source)
-        if mode and not (stat.S_ISREG(mode) or stat.S_ISDIR(mode)):
+        if stat.S_IFMT(mode) and not (stat.S_ISREG(mode) or stat.S_ISDIR(mode)):
             raise InputError(f"archive member {info.filename!r} is not a regular file", source=source)
         if info.flag_bits & 0x1:
             raise InputError(f"archive member {info.filename!r} is encrypted", source=source)

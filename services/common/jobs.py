@@ -194,7 +194,11 @@ class JobStore:
         return merged
 
     def touch_live(self, record: JobRecord) -> None:
-        """Mirror the record's state into its live Redis hash (the 'job is known to Redis' mark)."""
+        """Mirror the record's state into its live Redis hash (the 'job is known to Redis' mark).
+
+        ``phase`` is 'waiting' (a message is queued for the next stage) or 'active' (a worker is
+        executing a stage and holds its lock, see `set_progress`); recovery treats 'active'
+        without a lock as a crashed worker."""
         key = self.live_key(record.tenant, record.id)
         pipe = self.redis.pipeline()
         pipe.hset(
@@ -203,6 +207,7 @@ class JobStore:
                 "state": record.state.value,
                 "stage": record.stage or "",
                 "progress": record.progress,
+                "phase": "waiting",
                 "updated": time.time(),
             },
         )
@@ -221,9 +226,15 @@ class JobStore:
                 "state": JobState.running.value,
                 "stage": stage,
                 "progress": pct,
+                "phase": "active",
                 "updated": time.time(),
             },
         )
+
+    def live_phase(self, tenant: str, job_id: str) -> str | None:
+        """'waiting' / 'active' from the live hash; None when Redis does not know the job."""
+        phase = self.redis.hget(self.live_key(tenant, job_id), "phase")
+        return phase.decode() if phase is not None else None
 
     def has_live_entry(self, tenant: str, job_id: str) -> bool:
         return bool(self.redis.exists(self.live_key(tenant, job_id)))

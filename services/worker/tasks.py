@@ -205,6 +205,7 @@ def _run_locked(rt: _Runtime, record: JobRecord, stage: str) -> str:
     )
     if record.state.terminal:
         return f"already {record.state.value}"
+    rt.jobs.set_progress(record, stage, 0.0)  # phase 'active': this worker holds the stage lock
     last = [0.0]
 
     def progress(name: str, fraction: float) -> None:

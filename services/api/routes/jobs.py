@@ -63,16 +63,14 @@ def _build_job(state: AppState, tenant: str, scene_id: str, tasks: list[str], pa
             )
         params = PipelineParams.model_validate(parameters).model_dump(mode="json", exclude_unset=True)
     except InputError as exc:
-        raise HTTPException(status.HTTP_422_UNPROCESSABLE_ENTITY, str(exc)) from None
+        raise HTTPException(422, str(exc)) from None
     except ValidationError as exc:
         first = exc.errors()[0]
         where = ".".join(str(p) for p in first["loc"])
-        raise HTTPException(
-            status.HTTP_422_UNPROCESSABLE_ENTITY, f"parameters.{where}: {first['msg']}"
-        ) from None
+        raise HTTPException(422, f"parameters.{where}: {first['msg']}") from None
     if model_profile not in MODEL_PROFILES:
         raise HTTPException(
-            status.HTTP_422_UNPROCESSABLE_ENTITY,
+            422,
             f"model_profile {model_profile!r} is unknown; available: {', '.join(MODEL_PROFILES)}",
         )
     return JobRecord(
@@ -235,12 +233,10 @@ def submit_batch(body: BatchRequest, tenant: Tenant, state: State) -> BatchStatu
     pairs = [(i.scene_id, i.tasks) for i in body.items]
     pairs += [(s, t) for s in body.scene_ids for t in body.task_lists]
     if not pairs:
-        raise HTTPException(
-            status.HTTP_422_UNPROCESSABLE_ENTITY, "the batch is empty: give items or scene_ids x task_lists"
-        )
+        raise HTTPException(422, "the batch is empty: give items or scene_ids x task_lists")
     if len(pairs) > state.settings.max_batch_jobs:
         raise HTTPException(
-            status.HTTP_422_UNPROCESSABLE_ENTITY,
+            422,
             f"{len(pairs)} jobs; at most {state.settings.max_batch_jobs} per batch (BFIELDS_MAX_BATCH_JOBS)",
         )
     batch_id = new_id("b_")

@@ -101,7 +101,7 @@ def _ingest(
 
 
 def _unprocessable(exc: InputError) -> HTTPException:
-    return HTTPException(status.HTTP_422_UNPROCESSABLE_ENTITY, str(exc))
+    return HTTPException(422, str(exc))
 
 
 @router.post(

@@ -1,0 +1,179 @@
+"""Scene uploads over HTTP against the real API + S3 server: good uploads, every malformed kind
+(4xx naming the problem, nothing stored, earlier data intact) and the size/bomb guards."""
+
+from __future__ import annotations
+
+import io
+import json
+import tarfile
+from collections.abc import Callable
+from pathlib import Path
+
+import httpx
+import pytest
+from PIL import Image
+
+from .conftest import MAX_EXPANDED, MAX_UPLOAD, scene_form
+from .scene_factory import image_zip, zip_bytes
+
+pytestmark = pytest.mark.integration
+
+
+def _scene_ids(client: httpx.Client) -> set[str]:
+    resp = client.get("/v1/scenes", params={"limit": 500})
+    assert resp.status_code == 200
+    return {s["id"] for s in resp.json()["items"]}
+
+
+def test_upload_with_image_zip(client_a: httpx.Client, scene_dir: Path) -> None:
+    resp = client_a.post("/v1/scenes", files=scene_form(scene_dir, images_zip=image_zip(scene_dir)))
+    assert resp.status_code == 201, resp.text
+    scene = resp.json()
+    assert scene["state"] == "ready"
+    assert scene["summary"]["frames"] == 4 and scene["summary"]["gaussians"] == 2400
+    assert scene["files"] == 6  # splat + transforms + 4 images
+    got = client_a.get(f"/v1/scenes/{scene['id']}")
+    assert got.status_code == 200 and got.json() == scene
+    assert scene["id"] in _scene_ids(client_a)
+
+
+def test_upload_with_image_files_and_delete(client_a: httpx.Client, scene_dir: Path) -> None:
+    resp = client_a.post("/v1/scenes", files=scene_form(scene_dir), data={"name": "files"})
+    assert resp.status_code == 201, resp.text
+    scene = resp.json()
+    assert scene["name"] == "files" and scene["summary"]["camera_format"] == "transforms"
+    assert client_a.delete(f"/v1/scenes/{scene['id']}").status_code == 204
+    assert client_a.get(f"/v1/scenes/{scene['id']}").status_code == 404
+    assert scene["id"] not in _scene_ids(client_a)
+
+
+def _replace(form: list, field: str, name: str, data: bytes) -> list:
+    """The form with every part of `field` replaced by one file."""
+    return [p for p in form if p[0] != field] + [(field, (name, data))]
+
+
+def _resized_image(folder: Path) -> list:
+    form = scene_form(folder)
+    buf = io.BytesIO()
+    Image.open(folder / "images" / "frame_001.png").resize((32, 24)).save(buf, format="PNG")
+    return [p for p in form if p[1][0] != "frame_001.png"] + [("images", ("frame_001.png", buf.getvalue()))]
+
+
+def _tar_gz_bomb() -> bytes:
+    buf = io.BytesIO()
+    with tarfile.open(fileobj=buf, mode="w:gz") as tf:
+        info = tarfile.TarInfo("images/zeros.png")
+        info.size = MAX_EXPANDED + 1
+        tf.addfile(info, io.BytesIO(bytes(info.size)))
+    return buf.getvalue()
+
+
+BAD_UPLOADS: dict[str, tuple[Callable[[Path], list], int, list[str]]] = {
+    "malformed ply": (
+        lambda d: _replace(
+            scene_form(d), "splat", "splat.ply", b"ply\nformat binary_little_endian 1.0\nelement vertex 10\n"
+        ),
+        422,
+        ["splat.ply"],
+    ),
+    "not a ply": (
+        lambda d: _replace(scene_form(d), "splat", "splat.txt", b"hello"),
+        422,
+        ["splat.txt", ".ply"],
+    ),
+    "camera json broken": (
+        lambda d: _replace(scene_form(d), "cameras", "transforms.json", b"{not json"),
+        422,
+        ["transforms.json"],
+    ),
+    "unsupported camera file": (
+        lambda d: _replace(scene_form(d), "cameras", "poses.csv", b"1,2,3"),
+        422,
+        ["poses.csv", "not a supported camera file"],
+    ),
+    "cameras disagree with images": (
+        lambda d: _replace(
+            scene_form(d),
+            "cameras",
+            "transforms.json",
+            json.dumps(
+                {
+                    **json.loads((d / "transforms.json").read_text()),
+                    "frames": [
+                        {**f, "w": 100} for f in json.loads((d / "transforms.json").read_text())["frames"]
+                    ],
+                }  # fmt: skip
+            ).encode(),
+        ),
+        422,
+        ["frame_000.png"],
+    ),
+    "image size mismatch": (_resized_image, 422, ["frame_001.png", "32"]),
+    "zip with ..": (
+        lambda d: _replace(scene_form(d), "images", "images.zip", zip_bytes({"../evil.png": b"x"})),
+        422,
+        ["images.zip", "'..'"],
+    ),
+    "zip with absolute path": (
+        lambda d: _replace(scene_form(d), "images", "images.zip", zip_bytes({"/etc/evil.png": b"x"})),
+        422,
+        ["images.zip", "absolute"],
+    ),
+    "zip with symlink": (
+        lambda d: _replace(
+            scene_form(d),
+            "images",
+            "images.zip",
+            zip_bytes({"a.png": b"x"}, symlinks={"b.png": "/etc/passwd"}),
+        ),
+        422,
+        ["images.zip", "symbolic link"],
+    ),
+    "too many members": (
+        lambda d: _replace(
+            scene_form(d), "images", "images.zip", zip_bytes({f"{i}.png": b"" for i in range(101)})
+        ),
+        422,
+        ["101 members"],
+    ),
+    "zip bomb": (
+        lambda d: _replace(
+            scene_form(d), "images", "images.zip", zip_bytes({"zeros.png": bytes(MAX_EXPANDED + 1)})
+        ),
+        422,
+        ["images.zip", "decompression bomb"],
+    ),
+    "tar.gz bomb": (
+        lambda d: _replace(scene_form(d), "images", "images.tar.gz", _tar_gz_bomb()),
+        422,
+        ["images.tar.gz", "decompression bomb"],
+    ),
+    "too large": (
+        lambda d: _replace(scene_form(d), "images", "big.png", bytes(MAX_UPLOAD + 1)),
+        413,
+        [f"limit of {MAX_UPLOAD} bytes"],
+    ),
+    "no images": (lambda d: [p for p in scene_form(d) if p[0] != "images"], 422, ["no images"]),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_UPLOADS))
+def test_bad_upload_is_refused_and_stores_nothing(
+    case: str, client_a: httpx.Client, scene_dir: Path, stored_scene: dict
+) -> None:
+    build, status, fragments = BAD_UPLOADS[case]
+    before = _scene_ids(client_a)
+    resp = client_a.post("/v1/scenes", files=build(scene_dir))
+    assert resp.status_code == status, resp.text
+    detail = resp.json()["detail"]
+    for fragment in fragments:
+        assert fragment in detail, (case, detail)
+    assert "/tmp" not in detail  # server paths never leak
+    assert _scene_ids(client_a) == before
+    intact = client_a.get(f"/v1/scenes/{stored_scene['id']}")
+    assert intact.status_code == 200 and intact.json() == stored_scene
+
+
+def test_upload_needs_multipart(client_a: httpx.Client) -> None:
+    resp = client_a.post("/v1/scenes", json={"splat": "x"})
+    assert resp.status_code == 415

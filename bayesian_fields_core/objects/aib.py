@@ -108,7 +108,7 @@ def _check(pyx: np.ndarray, edges: np.ndarray, weights: np.ndarray | None) -> np
     w = np.ones(pyx.shape[0]) if weights is None else np.asarray(weights, dtype=np.float64)
     if w.shape != (pyx.shape[0],) or np.any(w <= 0):
         raise InputError(f"expected ({pyx.shape[0]},) positive weights", source="aib.weights")
-    return w / w.sum()
+    return w / w.sum() if w.size else w
 
 
 class _Nodes:
@@ -279,7 +279,7 @@ def aib(
     edges = np.unique(np.sort(edges[edges[:, 0] != edges[:, 1]], axis=1), axis=0).reshape(-1, 2)
     nodes = _Nodes(px, pyx)
     driver = _merge_dense if num <= dense_limit else _merge_heap
-    merges, costs = driver(nodes, edges, stop)
+    merges, costs = driver(nodes, edges, stop) if edges.size else ([], [])
 
     merge_arr = np.asarray(merges, dtype=np.int64).reshape(-1, 2)
     graph = coo_matrix((np.ones(len(merges)), (merge_arr[:, 0], merge_arr[:, 1])), shape=(num, num))

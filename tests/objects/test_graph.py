@@ -144,3 +144,11 @@ def test_dense_and_heap_drivers_agree() -> None:
     np.testing.assert_array_equal(dense.costs, heap.costs)
     np.testing.assert_array_equal(dense.labels, heap.labels)
     assert dense.stopped_at == heap.stopped_at
+
+
+def test_aib_degenerate_graphs() -> None:
+    assert aib(np.zeros((0, 3)), np.zeros((0, 2))).labels.shape == (0,)
+    uniform = np.full((3, 3), 1 / 3)
+    assert aib(uniform, np.zeros((0, 2))).labels.tolist() == [0, 1, 2]  # no edges, no merges
+    # I(X;Y) = 0 (every row uniform): free merges still happen along edges.
+    assert aib(uniform, np.array([[0, 1], [1, 2]])).labels.tolist() == [0, 0, 0]

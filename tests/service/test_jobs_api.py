@@ -1,0 +1,167 @@
+"""Job, batch, auth and tenant-isolation behaviour of the real API (no worker needed: jobs stay
+queued, and are cancelled at the end so later worker tests skip them)."""
+
+from __future__ import annotations
+
+import uuid
+
+import httpx
+import pytest
+
+from tests.integration.fixtures.services import ApiServer
+
+pytestmark = pytest.mark.integration
+
+TASKS = ["red blob", "green blob"]
+
+
+def _submit(client: httpx.Client, scene_id: str, **extra: object) -> httpx.Response:
+    headers = extra.pop("headers", None)
+    return client.post("/v1/jobs", json={"scene_id": scene_id, "tasks": TASKS, **extra}, headers=headers)  # type: ignore[arg-type]
+
+
+@pytest.fixture
+def queued_job(client_a: httpx.Client, stored_scene: dict):
+    resp = _submit(client_a, stored_scene["id"])
+    assert resp.status_code == 202, resp.text
+    job_id = resp.json()["id"]
+    yield job_id
+    client_a.delete(f"/v1/jobs/{job_id}")
+
+
+def test_auth_required_everywhere(api: ApiServer, stored_scene: dict, queued_job: str) -> None:
+    routes = [
+        ("GET", "/v1/scenes"),
+        ("GET", f"/v1/scenes/{stored_scene['id']}"),
+        ("POST", "/v1/scenes"),
+        ("POST", "/v1/scenes/uploads"),
+        ("DELETE", f"/v1/scenes/{stored_scene['id']}"),
+        ("POST", "/v1/jobs"),
+        ("GET", "/v1/jobs"),
+        ("GET", f"/v1/jobs/{queued_job}"),
+        ("GET", f"/v1/jobs/{queued_job}/result"),
+        ("DELETE", f"/v1/jobs/{queued_job}"),
+        ("POST", "/v1/batches"),
+        ("GET", "/v1/batches/b_0000000000000000000000"),
+    ]
+    for headers in ({}, {"X-API-Key": "wrong"}, {"Authorization": "Bearer wrong"}):
+        for method, path in routes:
+            resp = httpx.request(method, api.base_url + path, headers=headers, timeout=10)
+            assert resp.status_code == 401, (method, path, headers, resp.text)
+            assert "API key" in resp.json()["detail"]
+    key = api.keys["tenant-a"]
+    ok = httpx.get(f"{api.base_url}/v1/jobs/{queued_job}", headers={"Authorization": f"Bearer {key}"})
+    assert ok.status_code == 200
+    assert httpx.get(f"{api.base_url}/healthz").status_code == 200  # probes need no key
+
+
+def test_job_lifecycle_without_worker(client_a: httpx.Client, queued_job: str, stored_scene: dict) -> None:
+    job = client_a.get(f"/v1/jobs/{queued_job}").json()
+    assert job["state"] == "queued" and job["scene_id"] == stored_scene["id"] and job["tasks"] == TASKS
+    assert client_a.get(f"/v1/jobs/{queued_job}/result").status_code == 409
+    listed = client_a.get("/v1/jobs", params={"scene_id": stored_scene["id"], "state": "queued"}).json()
+    assert queued_job in [j["id"] for j in listed["items"]]
+    cancelled = client_a.delete(f"/v1/jobs/{queued_job}")
+    assert cancelled.status_code == 202 and cancelled.json()["state"] == "cancelled"
+    assert client_a.get(f"/v1/jobs/{queued_job}").json()["state"] == "cancelled"
+    queued_now = client_a.get("/v1/jobs", params={"scene_id": stored_scene["id"], "state": "queued"}).json()
+    assert queued_job not in [j["id"] for j in queued_now["items"]]
+
+
+def test_job_validation(client_a: httpx.Client, stored_scene: dict) -> None:
+    sid = stored_scene["id"]
+    bad = [
+        ({"scene_id": sid, "tasks": []}, "tasks"),
+        ({"scene_id": sid, "tasks": ["a", "a"]}, "duplicate"),
+        ({"scene_id": sid, "tasks": ["a"], "parameters": {"top_kk": 3}}, "top_kk"),
+        ({"scene_id": sid, "tasks": ["a"], "parameters": {"top_k": 0}}, "top_k"),
+        ({"scene_id": sid, "tasks": ["a"], "model_profile": "huge"}, "huge"),
+    ]
+    for body, fragment in bad:
+        resp = client_a.post("/v1/jobs", json=body)
+        assert resp.status_code == 422, body
+        assert fragment in resp.text, (body, resp.text)
+    missing = client_a.post("/v1/jobs", json={"scene_id": "s_0000000000000000000000", "tasks": ["a"]})
+    assert missing.status_code == 404
+
+
+def test_idempotency_key_returns_the_same_job(client_a: httpx.Client, stored_scene: dict) -> None:
+    key = {"Idempotency-Key": f"retry-{uuid.uuid4()}"}
+    first = _submit(client_a, stored_scene["id"], headers=key)
+    second = _submit(client_a, stored_scene["id"], headers=key)
+    other = _submit(client_a, stored_scene["id"], headers={"Idempotency-Key": f"other-{uuid.uuid4()}"})
+    try:
+        assert first.status_code == 202 and first.json()["created"] is True
+        assert second.status_code == 200 and second.json()["created"] is False
+        assert second.json()["id"] == first.json()["id"]
+        assert other.json()["id"] != first.json()["id"]
+    finally:
+        for resp in (first, other):
+            client_a.delete(f"/v1/jobs/{resp.json()['id']}")
+
+
+def test_batch_status_aggregates(client_a: httpx.Client, stored_scene: dict) -> None:
+    body = {"scene_ids": [stored_scene["id"]], "task_lists": [["red blob"], ["green blob", "blue blob"]]}
+    resp = client_a.post("/v1/batches", json=body)
+    assert resp.status_code == 202, resp.text
+    batch = resp.json()
+    assert len(batch["jobs"]) == 2 and batch["counts"] == {"queued": 2} and not batch["finished"]
+    assert [j["tasks"] for j in batch["jobs"]] == body["task_lists"]
+    for job in batch["jobs"]:
+        client_a.delete(f"/v1/jobs/{job['id']}")
+    done = client_a.get(f"/v1/batches/{batch['id']}").json()
+    assert done["counts"] == {"cancelled": 2} and done["finished"] and done["progress"] == 100.0
+    bad = client_a.post("/v1/batches", json={"items": [{"scene_id": stored_scene["id"], "tasks": ["a"]},
+                                                       {"scene_id": "s_0000000000000000000000", "tasks": ["b"]}]})  # fmt: skip
+    assert bad.status_code == 404  # validated before anything is queued
+
+
+def test_tenant_isolation_on_every_route(
+    client_a: httpx.Client, client_b: httpx.Client, stored_scene: dict, queued_job: str
+) -> None:
+    sid = stored_scene["id"]
+    batch = client_a.post("/v1/batches", json={"items": [{"scene_id": sid, "tasks": ["x"]}]}).json()
+    try:
+        for method, path in [
+            ("GET", f"/v1/scenes/{sid}"),
+            ("DELETE", f"/v1/scenes/{sid}"),
+            ("POST", f"/v1/scenes/{sid}/complete"),
+            ("GET", f"/v1/jobs/{queued_job}"),
+            ("GET", f"/v1/jobs/{queued_job}/result"),
+            ("GET", f"/v1/jobs/{queued_job}/artifacts/result/summary.json"),
+            ("DELETE", f"/v1/jobs/{queued_job}"),
+            ("GET", f"/v1/batches/{batch['id']}"),
+        ]:
+            resp = client_b.request(method, path)
+            assert resp.status_code == 404, (method, path, resp.text)
+        assert client_b.post("/v1/jobs", json={"scene_id": sid, "tasks": ["x"]}).status_code == 404
+        assert (
+            client_b.post("/v1/batches", json={"scene_ids": [sid], "task_lists": [["x"]]}).status_code == 404
+        )
+        assert sid not in [s["id"] for s in client_b.get("/v1/scenes").json()["items"]]
+        assert queued_job not in [j["id"] for j in client_b.get("/v1/jobs").json()["items"]]
+        # tenant-b's failed attempts changed nothing of tenant-a's
+        assert client_a.get(f"/v1/scenes/{sid}").json() == stored_scene
+        assert client_a.get(f"/v1/jobs/{queued_job}").json()["state"] == "queued"
+    finally:
+        client_a.delete(f"/v1/jobs/{batch['jobs'][0]['id']}")
+
+
+def test_scene_with_active_job_cannot_be_deleted(
+    client_a: httpx.Client, stored_scene: dict, queued_job: str
+) -> None:
+    resp = client_a.delete(f"/v1/scenes/{stored_scene['id']}")
+    assert resp.status_code == 409 and queued_job in resp.text
+
+
+def test_openapi_health_and_metrics(api: ApiServer) -> None:
+    spec = httpx.get(f"{api.base_url}/openapi.json").json()
+    for path in ["/v1/scenes", "/v1/scenes/uploads", "/v1/scenes/{scene_id}/complete", "/v1/jobs",
+                 "/v1/jobs/{job_id}/result", "/v1/batches/{batch_id}", "/readyz", "/metrics"]:  # fmt: skip
+        assert path in spec["paths"], path
+    assert "multipart/form-data" in spec["paths"]["/v1/scenes"]["post"]["requestBody"]["content"]
+    assert spec["components"]["schemas"]["JobRequest"]["examples"]
+    ready = httpx.get(f"{api.base_url}/readyz")
+    assert ready.status_code == 200 and ready.json()["checks"] == {"redis": "ok", "storage": "ok"}
+    metrics = httpx.get(f"{api.base_url}/metrics").text
+    assert 'bfields_queue_depth{queue="gpu"}' in metrics and "bfields_jobs_active" in metrics

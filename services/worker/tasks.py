@@ -243,6 +243,8 @@ def _run_locked(rt: _Runtime, record: JobRecord, stage: str) -> str:
     except (InputError, ModelError) as exc:
         _finish(rt, record, JobState.failed, f"{stage}: {exc}")
         return "failed"
+    except TRANSIENT:
+        raise  # retried by the task wrapper
     except SoftTimeLimitExceeded:
         _finish(
             rt,
@@ -250,6 +252,10 @@ def _run_locked(rt: _Runtime, record: JobRecord, stage: str) -> str:
             JobState.failed,
             f"{stage}: exceeded the time limit of {rt.settings.job_soft_time_limit_s} s",
         )
+        return "failed"
+    except Exception as exc:  # a bug, not bad input: fail the job visibly instead of leaving it running
+        log.exception("stage %s of %s/%s crashed", stage, tenant, job_id)
+        _finish(rt, record, JobState.failed, f"{stage}: internal error: {type(exc).__name__}: {exc}")
         return "failed"
     observe_stage(rt.redis, stage, seconds)
     done = [s for s in STAGES if s in {*record.stages_done, stage}]

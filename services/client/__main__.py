@@ -1,0 +1,7 @@
+"""``python -m services.client submit|status|fetch|batch ...``"""
+
+import sys
+
+from .commands import main
+
+sys.exit(main())

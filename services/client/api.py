@@ -1,0 +1,225 @@
+"""A small typed client of the HTTP API (httpx), used by `bfields submit|status|fetch|batch`.
+
+It packs a scene folder the way the server expects it (the .ply, the camera file(s), the images
+zipped into one archive), uploads it with a progress callback, and wraps the job/batch routes.
+Errors from the server become `ClientError` carrying the server's message, which already names
+the file and the problem.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import tempfile
+import time
+import zipfile
+from collections.abc import Callable, Iterator
+from contextlib import ExitStack, contextmanager
+from pathlib import Path
+from typing import Any
+
+import httpx
+
+from bayesian_fields_core.errors import InputError
+
+ProgressFn = Callable[[int], None]  # called with bytes just sent/received
+COLMAP_FILES = ("cameras.txt", "images.txt", "points3D.txt", "cameras.bin", "images.bin", "points3D.bin")
+TERMINAL = ("succeeded", "failed", "cancelled")
+
+
+class ClientError(RuntimeError):
+    """The server refused a request (the message is the server's) or could not be reached."""
+
+    def __init__(self, message: str, status: int | None = None) -> None:
+        self.status = status
+        super().__init__(message)
+
+
+class _ProgressFile(io.FileIO):
+    """A file that reports every read, so httpx's multipart upload drives a progress bar."""
+
+    def __init__(self, path: Path, on_bytes: ProgressFn | None) -> None:
+        super().__init__(path, "rb")
+        self._on_bytes = on_bytes
+
+    def read(self, size: int = -1) -> bytes:
+        data = super().read(size)
+        if self._on_bytes is not None and data:
+            self._on_bytes(len(data))
+        return data
+
+
+def scene_files(folder: Path) -> dict[str, list[Path]]:
+    """The files of a scene folder by form field: one splat, the camera file(s), the images dir."""
+    from bayesian_fields_core.scene.loader import find_cameras, find_splat
+
+    folder = Path(folder)
+    splat = find_splat(folder)
+    kind, camera = find_cameras(folder)
+    cameras = [camera] if camera.is_file() else sorted(p for p in camera.iterdir() if p.name in COLMAP_FILES)
+    images_dir = folder / "images"
+    if not images_dir.is_dir():
+        raise InputError("no images/ folder next to the cameras", source=str(folder))
+    images = sorted(p for p in images_dir.rglob("*") if p.is_file() and not p.name.startswith("."))
+    return {"splat": [splat], "cameras": cameras, "images": images}
+
+
+def zip_images(images: list[Path], root: Path, dest: Path) -> Path:
+    """Store (no recompression: images are compressed already) the images under their path
+    relative to `root` (the images/ folder)."""
+    with zipfile.ZipFile(dest, "w", zipfile.ZIP_STORED) as zf:
+        for path in images:
+            zf.write(path, path.relative_to(root).as_posix())
+    return dest
+
+
+class BFieldsClient:
+    """Calls the API of one server with one API key."""
+
+    def __init__(self, server: str, api_key: str | None, *, timeout_s: float = 60.0) -> None:
+        if not api_key:
+            raise ClientError("no API key: pass --api-key or set BFIELDS_API_KEY")
+        self.server = server.rstrip("/")
+        self.http = httpx.Client(
+            base_url=self.server,
+            headers={"X-API-Key": api_key},
+            timeout=httpx.Timeout(timeout_s, connect=10.0),
+        )
+
+    def close(self) -> None:
+        self.http.close()
+
+    def __enter__(self) -> BFieldsClient:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # ---- plumbing ------------------------------------------------------------------------------
+    def _call(self, method: str, path: str, **kwargs: Any) -> Any:
+        try:
+            resp = self.http.request(method, path, **kwargs)
+        except httpx.HTTPError as exc:
+            raise ClientError(f"{self.server}: {type(exc).__name__}: {exc}") from None
+        if resp.status_code >= 400:
+            try:
+                detail = resp.json().get("detail", resp.text)
+            except ValueError:
+                detail = resp.text
+            raise ClientError(f"{method} {path}: HTTP {resp.status_code}: {detail}", resp.status_code)
+        return (
+            resp.json()
+            if resp.content and resp.headers.get("content-type", "").startswith("application/json")
+            else None
+        )
+
+    # ---- scenes --------------------------------------------------------------------------------
+    def upload_scene(self, folder: Path, *, name: str | None = None, on_bytes: ProgressFn | None = None,
+                     on_total: Callable[[int], None] | None = None) -> dict[str, Any]:  # fmt: skip
+        """Zip the images, upload splat + cameras + zip in one multipart request."""
+        files = scene_files(Path(folder))
+        with tempfile.TemporaryDirectory(prefix="bfields-submit-") as tmp, ExitStack() as stack:
+            archive = zip_images(files["images"], Path(folder) / "images", Path(tmp) / "images.zip")
+            parts = [*((("splat", p)) for p in files["splat"]), *(("cameras", p) for p in files["cameras"])]
+            parts.append(("images", archive))
+            if on_total is not None:
+                on_total(sum(p.stat().st_size for _, p in parts))
+            form = [(field, (p.name, stack.enter_context(_ProgressFile(p, on_bytes)))) for field, p in parts]
+            return self._call("POST", "/v1/scenes", files=form, data={"name": name or Path(folder).name},
+                              timeout=httpx.Timeout(None, connect=10.0))  # fmt: skip
+
+    def scene(self, scene_id: str) -> dict[str, Any]:
+        return self._call("GET", f"/v1/scenes/{scene_id}")
+
+    # ---- jobs ----------------------------------------------------------------------------------
+    def submit_job(self, scene_id: str, tasks: list[str], *, parameters: dict[str, Any] | None = None,
+                   model_profile: str = "default", idempotency_key: str | None = None) -> dict[str, Any]:  # fmt: skip
+        headers = {"Idempotency-Key": idempotency_key} if idempotency_key else None
+        body = {
+            "scene_id": scene_id,
+            "tasks": tasks,
+            "parameters": parameters or {},
+            "model_profile": model_profile,
+        }
+        return self._call("POST", "/v1/jobs", json=body, headers=headers)
+
+    def job(self, job_id: str) -> dict[str, Any]:
+        return self._call("GET", f"/v1/jobs/{job_id}")
+
+    def cancel(self, job_id: str) -> dict[str, Any]:
+        return self._call("DELETE", f"/v1/jobs/{job_id}")
+
+    def result(self, job_id: str) -> dict[str, Any]:
+        return self._call("GET", f"/v1/jobs/{job_id}/result")
+
+    def wait(self, job_id: str, *, poll_s: float = 1.0, timeout_s: float | None = None,
+             on_update: Callable[[dict[str, Any]], None] | None = None) -> dict[str, Any]:  # fmt: skip
+        """Poll until the job ends; returns its final record."""
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        while True:
+            job = self.job(job_id)
+            if on_update is not None:
+                on_update(job)
+            if job["state"] in TERMINAL:
+                return job
+            if deadline is not None and time.monotonic() > deadline:
+                raise ClientError(f"job {job_id} still {job['state']} after {timeout_s} s")
+            time.sleep(poll_s)
+
+    def download_artifacts(
+        self, job_id: str, out_dir: Path, *, on_bytes: ProgressFn | None = None
+    ) -> list[Path]:
+        """Download every artifact of a finished job (presigned URLs) into `out_dir`."""
+        result = self.result(job_id)
+        out_dir = Path(out_dir)
+        written = []
+        for art in result["artifacts"]:
+            dest = (out_dir / art["path"]).resolve()
+            if not dest.is_relative_to(out_dir.resolve()):
+                raise ClientError(f"refusing artifact path {art['path']!r} outside {out_dir}")
+            dest.parent.mkdir(parents=True, exist_ok=True)
+            url = art["url"]
+            client = self.http if url.startswith("/") else httpx.Client(timeout=self.http.timeout)
+            with _download(client, url, dest, on_bytes) as size:
+                if size != art["size"]:
+                    raise ClientError(f"{art['path']}: downloaded {size} bytes, expected {art['size']}")
+            if client is not self.http:
+                client.close()
+            written.append(dest)
+        (out_dir / "result.json").write_text(_json(result))
+        return written
+
+    # ---- batches -------------------------------------------------------------------------------
+    def submit_batch(self, body: dict[str, Any]) -> dict[str, Any]:
+        return self._call("POST", "/v1/batches", json=body)
+
+    def batch(self, batch_id: str) -> dict[str, Any]:
+        return self._call("GET", f"/v1/batches/{batch_id}")
+
+
+@contextmanager
+def _download(client: httpx.Client, url: str, dest: Path, on_bytes: ProgressFn | None) -> Iterator[int]:
+    """Stream `url` into `dest` atomically; yields the byte count."""
+    fd, tmp = tempfile.mkstemp(dir=dest.parent, prefix=".part-")
+    size = 0
+    try:
+        with os.fdopen(fd, "wb") as fh, client.stream("GET", url) as resp:
+            if resp.status_code != 200:
+                raise ClientError(
+                    f"download of {dest.name} failed: HTTP {resp.status_code}", resp.status_code
+                )
+            for chunk in resp.iter_bytes(1 << 20):
+                fh.write(chunk)
+                size += len(chunk)
+                if on_bytes is not None:
+                    on_bytes(len(chunk))
+        os.replace(tmp, dest)
+        yield size
+    finally:
+        Path(tmp).unlink(missing_ok=True)
+
+
+def _json(obj: Any) -> str:
+    import json
+
+    return json.dumps(obj, indent=2, sort_keys=True)

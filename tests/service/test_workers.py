@@ -1,0 +1,259 @@
+"""End to end over HTTP with real Celery workers on both queues: the result equals the in-process
+pipeline's; a SIGKILLed worker's job completes on a new worker; a Redis restart loses no job;
+cancel stops a job; the CLI client's submit/status/fetch work against the live service."""
+
+from __future__ import annotations
+
+import io
+import json
+import time
+from collections.abc import Iterator
+from contextlib import redirect_stdout
+from pathlib import Path
+
+import httpx
+import numpy as np
+import pytest
+
+from bayesian_fields_core.context import JobContext
+from bayesian_fields_core.params import PipelineParams
+from bayesian_fields_core.pipeline import load_models, run_job
+from bayesian_fields_core.results.reader import read_result
+from bayesian_fields_core.store import LocalStore
+from services.client import BFieldsClient, fetch, status, submit
+from tests.integration.fixtures.redis_server import RedisServer
+from tests.integration.fixtures.services import ApiServer, WorkerPool, service_env
+
+from .conftest import SERVICE_ENV
+
+pytestmark = [pytest.mark.integration, pytest.mark.slow]
+
+TASKS = ["red blob", "green blob"]
+PARAMS = {"max_frames": 4, "export_scene_ply": False}
+REPO = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture(scope="session")
+def model_profile(tmp_path_factory: pytest.TempPathFactory) -> str | None:
+    """None (the bundled default profile) when the repository's tiny CLIP exists, else a profile
+    around a random tiny CLIP made for this session."""
+    if (REPO / "models" / "tiny-clip" / "config.json").is_file():
+        return None
+    from tests.perception.conftest import make_tiny_clip
+
+    folder = tmp_path_factory.mktemp("profile")
+    clip = make_tiny_clip(folder / "tiny-clip")
+    profile = folder / "profile.yaml"
+    profile.write_text(
+        "name: service-test\n"
+        "segmenter: {kind: classical, params: {method: felzenszwalb, scale: 300, sigma: 0.8, min_size: 50, min_area: 16}}\n"
+        f"encoder: {{kind: hf_clip, path: {clip}, device: cpu}}\n"
+        "calibration: {mu0: 0.2, mu1: 0.27, s: 0.035}\n"
+    )
+    return str(profile)
+
+
+@pytest.fixture(scope="session")
+def worker_env(model_profile: str | None) -> dict[str, str]:
+    return {"BFIELDS_MODEL_PROFILE": model_profile} if model_profile else {}
+
+
+@pytest.fixture(scope="module")
+def workers(celery_workers: WorkerPool, worker_env: dict[str, str]) -> Iterator[WorkerPool]:
+    """One worker per queue (solo pool) with the service test settings."""
+    env = {**SERVICE_ENV, **worker_env}
+    started = [celery_workers.start("gpu", extra_env=env), celery_workers.start("cpu", extra_env=env)]
+    yield celery_workers
+    for worker in started:
+        if worker.alive:
+            worker.stop()
+
+
+def _upload(api: ApiServer, scene_dir: Path) -> str:
+    with BFieldsClient(api.base_url, api.keys["tenant-a"]) as client:
+        return client.upload_scene(scene_dir)["id"]
+
+
+def _wait(client: httpx.Client, job_id: str, timeout_s: float = 240) -> dict:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        job = client.get(f"/v1/jobs/{job_id}").json()
+        if job["state"] in ("succeeded", "failed", "cancelled"):
+            return job
+        time.sleep(0.5)
+    raise AssertionError(f"job {job_id} did not finish: {job}")
+
+
+def _wait_for(predicate, timeout_s: float, what: str):  # noqa: ANN001, ANN202
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        value = predicate()
+        if value:
+            return value
+        time.sleep(0.2)
+    raise AssertionError(f"timed out waiting for {what}")
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory: pytest.TempPathFactory, scene_dir: Path, model_profile: str | None):
+    """The in-process pipeline's result on the same scene, tasks and parameters."""
+    import torch
+
+    torch.set_num_threads(1)  # the workers run single-threaded (OMP_NUM_THREADS=1): same sums
+    store = LocalStore(tmp_path_factory.mktemp("reference"))
+    ctx = JobContext(
+        store=store, job_prefix="job/", tasks=TASKS, params=PipelineParams.model_validate(PARAMS),
+        models=load_models(model_profile), scene_dir=scene_dir,
+    )  # fmt: skip
+    run_job(ctx)
+    return read_result(store, "job/result/")
+
+
+def _assert_same_result(folder: Path, reference) -> None:  # noqa: ANN001
+    got = read_result(LocalStore(folder), "result/")
+    assert got.tasks == reference.tasks
+    np.testing.assert_array_equal(got.object_ids, reference.object_ids)
+    np.testing.assert_array_equal(got.probabilities, reference.probabilities)
+    assert {t: [o.object_id for o in objs] for t, objs in got.selections.items()} == {
+        t: [o.object_id for o in objs] for t, objs in reference.selections.items()
+    }
+
+
+def test_end_to_end_over_http_matches_in_process(
+    api: ApiServer, workers: WorkerPool, scene_dir: Path, reference, tmp_path: Path, client_a: httpx.Client
+) -> None:
+    scene_id = _upload(api, scene_dir)
+    resp = client_a.post("/v1/jobs", json={"scene_id": scene_id, "tasks": TASKS, "parameters": PARAMS})
+    assert resp.status_code == 202, resp.text
+    job = _wait(client_a, resp.json()["id"])
+    assert job["state"] == "succeeded", job
+    assert job["stages_done"] == ["perceive", "fuse", "cluster"] and job["progress"] == 100.0
+    assert set(job["timings"]) == {"perceive", "fuse", "cluster"}
+    result = client_a.get(f"/v1/jobs/{job['id']}/result").json()
+    assert any(a["path"] == "result/summary.json" for a in result["artifacts"])
+    assert result["summary"]["tasks"] == TASKS
+    with BFieldsClient(api.base_url, api.keys["tenant-a"]) as client:
+        client.download_artifacts(job["id"], tmp_path / "fetched")
+    _assert_same_result(tmp_path / "fetched", reference)
+    # tenant-b cannot read the result
+    with api.client("tenant-b") as other:
+        assert other.get(f"/v1/jobs/{job['id']}/result").status_code == 404
+    # a new task list on the same scene reuses the cached perception (no perceive work redone)
+    again = client_a.post(
+        "/v1/jobs", json={"scene_id": scene_id, "tasks": ["blue blob"], "parameters": PARAMS}
+    )
+    second = _wait(client_a, again.json()["id"])
+    assert second["state"] == "succeeded", second
+    assert second["stage_reports"]["perceive"].get("cached_frames", 0) >= 1 or (
+        second["timings"]["perceive"] < job["timings"]["perceive"]
+    )
+    metrics = httpx.get(f"{api.base_url}/metrics").text
+    assert 'bfields_stage_seconds_count{stage="cluster"}' in metrics
+    assert 'bfields_job_seconds_count{outcome="succeeded"}' in metrics
+
+
+def test_cli_submit_status_fetch(
+    api: ApiServer,
+    workers: WorkerPool,
+    scene_dir: Path,
+    tmp_path: Path,
+    reference,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setenv("BFIELDS_API_KEY", api.keys["tenant-a"])
+    tasks = tmp_path / "tasks.yaml"
+    tasks.write_text("- red blob\n- green blob\n")
+    params = tmp_path / "params.yaml"
+    params.write_text(json.dumps(PARAMS))
+    out = io.StringIO()
+    with redirect_stdout(out):
+        code = submit(scene_dir, tasks, server=api.base_url, wait=True, parameters=str(params), poll_s=0.5)
+    assert code == 0
+    job_id = out.getvalue().strip().splitlines()[-1]
+    out = io.StringIO()
+    with redirect_stdout(out):
+        assert status(job_id, server=api.base_url) == 0
+    assert json.loads(out.getvalue())["state"] == "succeeded"
+    assert fetch(job_id, tmp_path / "out", server=api.base_url) == 0
+    _assert_same_result(tmp_path / "out", reference)
+
+
+def test_cancel_running_job(
+    api: ApiServer, workers: WorkerPool, scene_dir: Path, client_a: httpx.Client
+) -> None:
+    scene_id = _upload(api, scene_dir)
+    # a fresh parameter set (depth source) misses the visibility cache, so fuse has real work to do
+    params = {**PARAMS, "depth_source": "expected", "depth_tolerance": 0.0417}
+    job_id = client_a.post(
+        "/v1/jobs", json={"scene_id": scene_id, "tasks": TASKS, "parameters": params}
+    ).json()["id"]
+    _wait_for(lambda: client_a.get(f"/v1/jobs/{job_id}").json()["state"] != "queued", 60, "the job to start")
+    assert client_a.delete(f"/v1/jobs/{job_id}").status_code == 202
+    final = _wait(client_a, job_id)
+    # the cancel lands between frames; a job that finished its last frame first may still succeed
+    assert final["state"] in ("cancelled", "succeeded"), final
+    if final["state"] == "cancelled":
+        assert client_a.get(f"/v1/jobs/{job_id}/result").status_code == 409
+
+
+def test_worker_sigkilled_mid_job_is_completed_by_a_new_worker(
+    api: ApiServer, celery_workers: WorkerPool, worker_env: dict[str, str], scene_dir: Path, tmp_path: Path,
+    reference, client_a: httpx.Client, workers: WorkerPool,
+) -> None:  # fmt: skip
+    env = {**SERVICE_ENV, **worker_env}
+    for w in list(celery_workers.workers):
+        if w.queue == "gpu" and w.alive:
+            w.stop()
+    victim = celery_workers.start("gpu", name="victim", extra_env=env)
+    scene_id = _upload(api, scene_dir)
+    job_id = client_a.post(
+        "/v1/jobs", json={"scene_id": scene_id, "tasks": TASKS, "parameters": PARAMS}
+    ).json()["id"]
+    _wait_for(lambda: client_a.get(f"/v1/jobs/{job_id}").json()["state"] == "running", 120, "the job to run")
+    victim.kill()
+    assert client_a.get(f"/v1/jobs/{job_id}").json()["state"] == "running"
+    celery_workers.start("gpu", name="rescuer", extra_env=env)
+    job = _wait(client_a, job_id)
+    assert job["state"] == "succeeded", job
+    assert job["attempts"] >= 2  # the killed execution and the rescuing one
+    with BFieldsClient(api.base_url, api.keys["tenant-a"]) as client:
+        client.download_artifacts(job_id, tmp_path / "fetched")
+    _assert_same_result(tmp_path / "fetched", reference)
+
+
+def test_redis_restart_loses_no_job(
+    tmp_path: Path, tmp_path_factory: pytest.TempPathFactory, s3_server, test_api_keys: dict[str, str],  # noqa: ANN001
+    worker_env: dict[str, str], scene_dir: Path,
+) -> None:  # fmt: skip
+    """Jobs queued while no worker runs; Redis restarts WITHOUT persistence (queue and live state
+    gone); workers started afterwards recover every job from the bucket manifests."""
+    redis_srv = RedisServer(tmp_path / "redis", appendonly=False).start()
+    env = service_env(
+        tmp_path / "env", redis_srv.url(), s3_server.env(), test_api_keys, {**SERVICE_ENV, **worker_env}
+    )
+    api = ApiServer(env=env, log_dir=tmp_path / "api", keys=dict(test_api_keys)).start()
+    pool = WorkerPool(broker_url=redis_srv.url(), env=env, log_dir=tmp_path / "workers")
+    try:
+        scene_id = _upload(api, scene_dir)
+        with api.client("tenant-a") as client:
+            ids = [
+                client.post(
+                    "/v1/jobs", json={"scene_id": scene_id, "tasks": tasks, "parameters": PARAMS}
+                ).json()["id"]
+                for tasks in (TASKS, ["blue blob"])
+            ]
+            redis_srv.stop()
+            redis_srv.start()
+            import redis as redis_lib
+
+            assert redis_lib.Redis.from_url(redis_srv.url()).dbsize() == 0  # everything in Redis is gone
+            for job_id in ids:  # the manifests still answer
+                assert client.get(f"/v1/jobs/{job_id}").json()["state"] == "queued"
+            pool.start("gpu")
+            pool.start("cpu")
+            finals = [_wait(client, job_id) for job_id in ids]
+        assert [f["state"] for f in finals] == ["succeeded", "succeeded"], finals
+    finally:
+        pool.stop_all()
+        api.stop()
+        redis_srv.stop()

@@ -15,7 +15,7 @@ import os
 import shutil
 import tempfile
 from collections.abc import Iterator
-from pathlib import Path, PurePosixPath
+from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
@@ -29,10 +29,10 @@ class ArtifactNotFound(KeyError):
 
 def validate_key(key: str) -> str:
     """Reject keys that could escape a namespace (absolute, '..', empty parts, backslashes)."""
-    if not key or key.startswith("/") or "\\" in key:
+    if not key or key.startswith("/") or key.endswith("/") or "\\" in key or "//" in key:
         raise InputError(f"invalid artifact key {key!r}")
-    parts = PurePosixPath(key).parts
-    if any(p in ("", ".", "..") for p in parts) or len(key) > 1024:
+    parts = key.split("/")
+    if any(p in ("", ".", "..") for p in parts) or len(key) > 1024 or "\x00" in key:
         raise InputError(f"invalid artifact key {key!r}")
     return key
 

@@ -115,7 +115,10 @@ def clio_style(ctx: JobContext, text: np.ndarray, params: BaselineParams, mu0: f
     null = params.clio_null_score if params.clio_null_score is not None else mu0
     rows = np.concatenate([cos, np.full((n_prim, 1), null)], axis=1)
     pyx = rows / rows.sum(axis=1, keepdims=True)
-    return objects_from_primitives(means, primitive_ids, pyx, ctx.params)
+    # Clio has no floater filter: the baseline keeps every Gaussian of its objects.
+    return objects_from_primitives(
+        means, primitive_ids, pyx, ctx.params.model_copy(update={"knn_filter": False})
+    )
 
 
 def _finish(

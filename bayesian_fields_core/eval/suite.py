@@ -1,0 +1,204 @@
+"""`bfields eval`: the method, its ablations and two baselines on the synthetic suite (Table 1).
+
+Every row runs on the same scenes, the same masks and the same CLIP embeddings: the first
+(full-method) run fills the perception and visibility caches, every other row reuses them, so the
+table isolates fusion and clustering. Scores are pooled over the suite's (task, GT object) pairs;
+Objs and time are per-scene means; time counts perception once per scene for every row.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..context import JobContext, Models
+from ..params import PipelineParams
+from ..pipeline import load_models, run_job
+from ..results.reader import read_result
+from ..stages.cluster import ObjectMap
+from ..store import LocalStore
+from ..tasks import load_tasks
+from .baselines import BaselineParams, clio_style, semantic_gaussians
+from .clio import ClioScores, EstimatedObject, GTObject, TaskScores, clio_metrics, format_table
+
+FULL = "Bayesian Fields (ours)"
+METHOD_ROWS: dict[str, dict[str, Any]] = {
+    FULL: {},
+    "  w/o OR-phi": {"outlier_rejection": False},
+    "  w/o kNN filter": {"knn_filter": False},
+    "  averaging instead of Bayes": {"fusion": "average"},
+}
+SEMANTIC_GAUSSIANS = "Semantic Gaussians-style (avg. embeddings, best label)"
+CLIO = "Clio-style (AIB on raw cosine)"
+
+
+@dataclass
+class SceneCase:
+    """One suite scene: its folder, tasks and ground truth."""
+
+    name: str
+    folder: Path
+    tasks: list[str]
+    ground_truth: list[GTObject]
+
+
+def estimates_from_selection(
+    tasks: list[str], probabilities: np.ndarray, selection: dict[str, list[tuple[int, Any]]]
+) -> list[EstimatedObject]:
+    """Estimated objects for Clio's metrics: each selected object with its box and its
+    probability for the tasks that selected it (0 for the others, so it is never queried there)."""
+    by_object: dict[int, EstimatedObject] = {}
+    for t, task in enumerate(tasks):
+        for object_id, box in selection.get(task, []):
+            est = by_object.setdefault(object_id, EstimatedObject(box=box, probabilities={}))
+            est.probabilities[task] = float(probabilities[object_id, t])
+    return list(by_object.values())
+
+
+def _estimates_from_map(tasks: list[str], object_map: ObjectMap) -> list[EstimatedObject]:
+    selection = {
+        task: [
+            (int(o), object_map.boxes[o])
+            for o in object_map.selection[t]
+            if o >= 0 and object_map.boxes[o] is not None and object_map.probabilities[o, t] > 0
+        ]
+        for t, task in enumerate(tasks)
+    }
+    return estimates_from_selection(tasks, object_map.probabilities, selection)
+
+
+def pool_scores(per_scene: list[ClioScores]) -> ClioScores:
+    """Micro-average over scenes: pooled (task, GT) pairs; mean Objs and time."""
+    per_task: dict[str, TaskScores] = {}
+    for i, scores in enumerate(per_scene):
+        for task, ts in scores.per_task.items():
+            per_task[f"{i}:{task}"] = ts
+    total = sum(ts.num_gt for ts in per_task.values())
+    times = [s.time_s for s in per_scene if s.time_s is not None]
+    return ClioScores(
+        strict_osr=sum(ts.strict for ts in per_task.values()) / total,
+        relaxed_osr=sum(ts.relaxed for ts in per_task.values()) / total,
+        iou=sum(ts.iou_sum for ts in per_task.values()) / total,
+        num_objects=int(round(float(np.mean([s.num_objects for s in per_scene])))),
+        num_gt=total,
+        per_task=per_task,
+        time_s=float(np.mean(times)) if times else None,
+    )
+
+
+def prepare_scenes(suite_dir: Path, n_scenes: int) -> list[SceneCase]:
+    """Generate (once; cached on disk) the suite's scenes and read their tasks and GT."""
+    from .synthetic import generate_scene, load_clio_boxes, suite_specs
+
+    specs = suite_specs()[:n_scenes]
+    cases = []
+    for spec in specs:
+        folder = suite_dir / spec.name
+        if not (folder / "gt.json").is_file():
+            generate_scene(folder, spec)
+        cases.append(
+            SceneCase(
+                name=spec.name,
+                folder=folder,
+                tasks=load_tasks(folder / "tasks.yaml"),
+                ground_truth=load_clio_boxes(folder),
+            )
+        )
+    return cases
+
+
+def evaluate_scene(
+    case: SceneCase,
+    models: Models,
+    out_dir: Path,
+    *,
+    base_params: dict[str, Any] | None = None,
+    log: Callable[[str], None] = print,
+) -> dict[str, ClioScores]:
+    """All rows of the table for one scene."""
+    gt_per_task = {t: sum(1 for g in case.ground_truth if g.task == t) for t in case.tasks}
+    top_k = max(5, max(gt_per_task.values(), default=1))
+    scene_store = LocalStore(out_dir / "cache")
+    scene_prefix = f"scenes/{case.name}/"
+    rows: dict[str, ClioScores] = {}
+    perceive_s = 0.0
+    visibility_s = 0.0
+    full_ctx: JobContext | None = None
+    for row, overrides in METHOD_ROWS.items():
+        params = PipelineParams.model_validate({**(base_params or {}), "top_k": top_k, **overrides})
+        store = LocalStore(out_dir / case.name / _slug(row))
+        ctx = JobContext(
+            store=store,
+            job_prefix="",
+            tasks=case.tasks,
+            params=params,
+            models=models,
+            scene_store=scene_store,
+            scene_prefix=scene_prefix,
+            scene_dir=case.folder,
+        )
+        reports = run_job(ctx, force=True)
+        if full_ctx is None:
+            full_ctx = ctx
+            perceive_s = float(reports["perceive"]["seconds"])
+            visibility_s = float(reports["fuse"]["seconds"])
+        seconds = perceive_s + float(reports["fuse"]["seconds"]) + float(reports["cluster"]["seconds"])
+        result = read_result(store, "result/")
+        selection = {task: [(o.object_id, o.box) for o in objs] for task, objs in result.selections.items()}
+        estimates = estimates_from_selection(case.tasks, result.probabilities, selection)
+        rows[row] = clio_metrics(estimates, case.ground_truth, num_objects=result.num_objects, time_s=seconds)
+        log(f"  {case.name}: {row.strip():<40} strict {rows[row].strict_osr:.2f}  iou {rows[row].iou:.2f}")
+
+    assert full_ctx is not None
+    text = models.encoder.encode_texts(case.tasks).astype(np.float32)
+    cal = models.calibration
+    mu0 = float(getattr(cal, "mu0", 0.20))
+    mu1 = float(getattr(cal, "mu1", 0.27))
+    for row, run in (
+        (SEMANTIC_GAUSSIANS, lambda: semantic_gaussians(full_ctx, text, BaselineParams(), mu0, mu1)),
+        (CLIO, lambda: clio_style(full_ctx, text, BaselineParams(), mu0)),
+    ):
+        t = time.perf_counter()
+        object_map = run()
+        seconds = perceive_s + visibility_s + time.perf_counter() - t
+        rows[row] = clio_metrics(
+            _estimates_from_map(case.tasks, object_map),
+            case.ground_truth,
+            num_objects=len(object_map.probabilities),
+            time_s=seconds,
+        )
+        log(f"  {case.name}: {row:<40} strict {rows[row].strict_osr:.2f}  iou {rows[row].iou:.2f}")
+    return rows
+
+
+def run_suite(
+    *,
+    suite_dir: Path,
+    out_dir: Path,
+    n_scenes: int = 3,
+    profile: str | None = None,
+    markdown: bool = False,
+    base_params: dict[str, Any] | None = None,
+) -> dict[str, ClioScores]:
+    """Generate the suite, evaluate every row on every scene, print the pooled Table 1."""
+    models = load_models(profile)
+    cases = prepare_scenes(suite_dir, n_scenes)
+    per_row: dict[str, list[ClioScores]] = {}
+    for case in cases:
+        print(f"scene {case.name}: {len(case.tasks)} tasks, {len(case.ground_truth)} GT objects")
+        for row, scores in evaluate_scene(case, models, out_dir, base_params=base_params).items():
+            per_row.setdefault(row, []).append(scores)
+    pooled = {row: pool_scores(scores) for row, scores in per_row.items()}
+    print()
+    print(f"Synthetic suite: {len(cases)} scenes, {pooled[FULL].num_gt} (task, GT object) pairs")
+    print(format_table(pooled, markdown=markdown))
+    return pooled
+
+
+def _slug(name: str) -> str:
+    return "".join(c if c.isalnum() else "-" for c in name.strip().lower()).strip("-")

@@ -32,7 +32,8 @@ def run(ctx: JobContext) -> dict[str, Any]:
     store = ctx.scene_store
     assert store is not None
     frames = ctx.selected_frames()
-    segmenter, encoder = ctx.models.segmenter, ctx.models.encoder
+    # Built on first need only: a fully cached scene (a re-run with new tasks) loads no model.
+    segmenter = encoder = None
     computed = 0
     masks_total = 0
     seg_time = embed_time = 0.0
@@ -41,6 +42,8 @@ def run(ctx: JobContext) -> dict[str, Any]:
         ctx.check_cancel()
         key = frame_key(ctx.perception_prefix, index)
         if not store.exists(key):
+            if segmenter is None:
+                segmenter, encoder = ctx.models.segmenter, ctx.models.encoder
             image = load_image(frame)
             t = time.perf_counter()
             labels = segmenter.segment(image)

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 
 from bayesian_fields_core.render.output import RasterSettings
@@ -39,8 +40,10 @@ def _pixel_basis(tile: int, device: torch.device) -> torch.Tensor:
     return torch.stack([p * p, q * q, p * q, p, q, torch.ones_like(p)], dim=-1)
 
 
-def _exponent_coefficients(xy: torch.Tensor, conic: torch.Tensor, centre: torch.Tensor) -> torch.Tensor:
-    """(..., 6) coefficients so that basis @ coef = -0.5 d^T Sigma2D^-1 d, d = pixel - mean."""
+def _exponent_coefficients(
+    xy: torch.Tensor, conic: torch.Tensor, centre: torch.Tensor, constant: torch.Tensor
+) -> torch.Tensor:
+    """(..., 6) coefficients so that basis @ coef = -0.5 d^T Sigma2D^-1 d + constant, d = pixel - mean."""
     u = xy[..., 0] - centre[..., 0]
     v = xy[..., 1] - centre[..., 1]
     a, b, c = conic.unbind(-1)
@@ -51,10 +54,15 @@ def _exponent_coefficients(xy: torch.Tensor, conic: torch.Tensor, centre: torch.
             -b,
             a * u + b * v,
             c * v + b * u,
-            -(0.5 * a * u * u + 0.5 * c * v * v + b * u * v),
+            constant - (0.5 * a * u * u + 0.5 * c * v * v + b * u * v),
         ],
         dim=-1,
     )
+
+
+def _levels(neg_t: torch.Tensor, level: float) -> torch.Tensor:
+    """(..., 1) search values -level for counting the entries of T = -neg_t that are >= level."""
+    return torch.full((*neg_t.shape[:-1], 1), -level, device=neg_t.device, dtype=neg_t.dtype)
 
 
 def composite(
@@ -95,34 +103,54 @@ def composite(
     active = active[bins.count[active] > 0]
     last_entry = max(int(bins.entries.numel()) - 1, 0)
 
+    # F.threshold keeps x > t; just below log(min_alpha) so that alpha == min_alpha is kept.
+    log_floor = float(np.log(settings.stop_transmittance) - 1.0)
+    log_min_alpha = float(np.nextafter(np.float32(np.log(settings.min_alpha)), np.float32(-np.inf)))
     while active.numel() > 0:
         cur, active = active[:batch], active[batch:]
-        pos = bins.start[cur, None] + progress[cur, None] + arange_chunk  # (B, C)
-        valid = (progress[cur, None] + arange_chunk) < bins.count[cur, None]
-        rows = table[bins.entries[pos.clamp_max(last_entry)]]  # (B, C, 7 + F)
-        coef = _exponent_coefficients(rows[..., 0:2], rows[..., 2:5], centres[cur, None, :])
-        g_opacity = rows[..., 5] * valid
+        offset = progress[cur, None] + arange_chunk  # (B, C) position in each tile's list
+        valid = offset < bins.count[cur, None]
+        rows = table[bins.entries[(bins.start[cur, None] + offset).clamp_max(last_entry)]]
+        # log(opacity) joins the constant term, so alpha = exp(basis @ coef) in one product;
+        # padding entries get a huge negative constant, i.e. alpha = 0.
+        log_opacity = torch.where(valid, rows[..., 5].log(), -1e4)
+        coef = _exponent_coefficients(rows[..., 0:2], rows[..., 2:5], centres[cur, None, :], log_opacity)
         g_depth = rows[..., 6]
 
-        # alpha (B, P, C) = min(max_alpha, opacity * exp(exponent)), zeroed below min_alpha.
-        alpha = torch.matmul(basis_t, coef.transpose(1, 2)).clamp_max_(0.0).exp_()
-        alpha.mul_(g_opacity[:, None, :]).clamp_max_(settings.max_alpha)
-        alpha.masked_fill_(alpha < settings.min_alpha, 0.0)
+        # alpha (B, P, C) = min(max_alpha, opacity * exp(-0.5 d^T conic d)), 0 below min_alpha.
+        # The min_alpha cut is applied to the exponent: sending it to -inf before exp() keeps
+        # the far tails from becoming float32 denormals, which are slow on CPUs.
+        log_alpha = torch.matmul(basis_t, coef.transpose(1, 2))
+        torch.nn.functional.threshold_(log_alpha, log_min_alpha, float("-inf"))
+        alpha = log_alpha.exp_().clamp_max_(settings.max_alpha)
 
         t_prev = trans[cur]
         done_prev = done[cur]
-        t_after = torch.cumprod(1.0 - alpha, dim=-1).mul_(t_prev[..., None])  # inclusive
-        include = (t_after >= settings.stop_transmittance) & ~done_prev[..., None]
-        t_before = t_after / (1.0 - alpha)
-        weight = alpha.mul_(t_before).mul_(include)
+        # Stopped pixels start from zero transmittance, so nothing further is included.
+        t_start = t_prev.masked_fill(done_prev, 0.0)[..., None]
+        # Inclusive transmittance, accumulated in log space and floored just below the stop
+        # level: a plain cumprod of many (1 - 0.99) factors underflows into float32 denormals,
+        # which are slow on CPUs. Floored entries are below the stop level, so are excluded.
+        log_t = torch.rsub(alpha, 1.0).log_().cumsum_(dim=-1).add_(t_start.log())
+        t_after = log_t.clamp_min_(log_floor).exp_()
+        # T is non-increasing along the chunk, so the included Gaussians (T_after >= stop) are a
+        # prefix; its length comes from a binary search on -T (a bool .sum() would cast to int64).
+        neg_t = t_after.neg()
+        n_include = torch.searchsorted(neg_t, _levels(neg_t, settings.stop_transmittance), right=True)[..., 0]
+        t_before = torch.cat([t_start, t_after[..., :-1]], dim=-1)
+        # alpha * T_before for the included Gaussians, 0 from the stopping one on.
+        weight = t_before.sub_(t_after).masked_fill_(t_after < settings.stop_transmittance, 0.0)
         acc[cur] += torch.matmul(weight, rows[..., 7:])
 
-        crossing = (
-            include & (t_after < settings.median_transmittance) & (t_before >= settings.median_transmittance)
-        )
-        median[cur] += torch.matmul(crossing.float(), g_depth[..., None]).squeeze(-1)
-        trans[cur] = torch.where(include, t_after, t_prev[..., None]).amin(dim=-1)
-        now_done = done_prev | (t_after[..., -1] < settings.stop_transmittance)
+        # Median: the first Gaussian whose inclusion drops T below the level, if in this chunk.
+        k = torch.searchsorted(neg_t, _levels(neg_t, settings.median_transmittance), right=True)[..., 0]
+        crossed = (t_start[..., 0] >= settings.median_transmittance) & (k < n_include)
+        k_depth = g_depth.gather(1, k.clamp_max(chunk - 1))
+        median[cur] += torch.where(crossed, k_depth, 0.0)
+
+        last = t_after.gather(-1, (n_include - 1).clamp_min(0)[..., None])[..., 0]
+        trans[cur] = torch.where(n_include > 0, last, t_prev)
+        now_done = done_prev | (n_include < chunk)
         done[cur] = now_done
 
         progress[cur] += chunk

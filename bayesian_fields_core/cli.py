@@ -29,7 +29,12 @@ def _parse_param_overrides(items: list[str]) -> dict[str, Any]:
         if "=" not in item:
             raise InputError(f"expected NAME=VALUE, got {item!r}", source="--param")
         name, value = item.split("=", 1)
-        out[name.strip()] = yaml.safe_load(value)
+        try:
+            out[name.strip()] = yaml.safe_load(value)
+        except yaml.YAMLError:
+            raise InputError(
+                f"cannot parse the value of {name.strip()!r}: {value!r}", source="--param"
+            ) from None
     return out
 
 
@@ -42,7 +47,12 @@ def build_params(params_file: str | None, overrides: list[str]) -> Any:
 
     raw: dict[str, Any] = {}
     if params_file:
-        loaded = yaml.safe_load(Path(params_file).read_text())
+        try:
+            loaded = yaml.safe_load(Path(params_file).read_text(encoding="utf-8"))
+        except OSError as exc:
+            raise InputError(f"cannot read: {exc.strerror or exc}", source=params_file) from None
+        except yaml.YAMLError as exc:
+            raise InputError(f"cannot parse YAML: {exc}", source=params_file) from None
         if not isinstance(loaded, dict):
             raise InputError("expected a mapping of parameter names to values", source=params_file)
         raw.update(loaded)
@@ -216,6 +226,11 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _one_line(exc: Exception) -> str:
+    """Messages that quote a YAML or validation error span lines; the CLI prints one."""
+    return " ".join(str(exc).split())
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -225,10 +240,10 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args.func(args) or 0)
     except InputError as exc:
-        print(f"bfields: error: {exc}", file=sys.stderr)
+        print(f"bfields: error: {_one_line(exc)}", file=sys.stderr)
         return 2
     except BayesianFieldsError as exc:
-        print(f"bfields: error: {exc}", file=sys.stderr)
+        print(f"bfields: error: {_one_line(exc)}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print("bfields: interrupted", file=sys.stderr)

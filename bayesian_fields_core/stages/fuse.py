@@ -42,13 +42,14 @@ def likelihood_params(ctx: JobContext) -> LikelihoodParams:
     )
 
 
-def _depth_for_frame(ctx: JobContext, renderer: Any, frame: Any) -> np.ndarray:
+def _depth_for_frame(ctx: JobContext, renderer_factory: Any, frame: Any) -> np.ndarray:
     if ctx.params.depth_source == "input":
         depth = load_depth(frame)
         if depth is None:
             raise ValueError(f"depth_source='input' but frame {frame.name} has no depth image")
         return depth
-    out = renderer.render(frame.K, frame.world_to_camera, frame.width, frame.height, depth_only=True)
+    # The renderer (torch, resident tensors) is built only when a frame needs rendered depth.
+    out = renderer_factory().render(frame.K, frame.world_to_camera, frame.width, frame.height, depth_only=True)
     return out.median_depth if ctx.params.depth_source == "median" else out.depth
 
 
@@ -60,7 +61,7 @@ def associations(ctx: JobContext, index: int, frame: Any, labels: np.ndarray, re
     if store.exists(key):
         cached = get_arrays(store, key)
         return cached["gaussian_ids"], cached["mask_ids"], False
-    depth = _depth_for_frame(ctx, renderer_factory(), frame)
+    depth = _depth_for_frame(ctx, renderer_factory, frame)
     gaussian_ids, mask_ids = mask_associations(
         ctx.scene().gaussians.means,
         frame.K,

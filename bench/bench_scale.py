@@ -1,0 +1,380 @@
+"""Scale benchmark of the real `fuse` and `cluster` stages at the paper's size, on the CPU.
+
+Issue spec: a generated scene of 400k Gaussians, 300 frames at 640x480, ~100 masks per frame and
+26 tasks; report per-stage time and peak memory. Aims: fuse < 0.5 s per frame, cluster
+(primitives to results) < 10 s, AIB on ~2,000 primitives < 1 s.
+
+What is real and what is synthetic:
+- the stages are the pipeline's own `run_stage("fuse")` and `run_stage("cluster")` on a
+  `JobContext` over a `LocalStore`, reading a real scene folder (binary .ply + transforms.json);
+- the perception cache they read is synthetic: per frame, ~100 Voronoi masks seeded at the
+  projected blob centres (so masks follow objects from frame to frame) plus random seeds, and
+  512-d unit embeddings whose cosine with the task texts is ~0.20 (irrelevant) or ~0.27 (the
+  mask's blob belongs to that task), the paper's calibration;
+- the text encoder is a deterministic stand-in returning fixed embeddings for the 26 task
+  strings (no CLIP is loaded; perception is not what this measures).
+- depth for visibility: `--depth render` renders median depth with the project's renderer (the
+  stage's default path); `--depth synthetic` z-buffers the Gaussian centres with numpy (at a
+  quarter resolution, upsampled) into per-frame depth files and runs fuse with
+  `depth_source='input'`, so fuse's cost without rendering shows separately.
+
+Setup runs in a child process so the peak RSS printed is that of loading the scene + fuse +
+cluster only. Usage:
+  python bench/bench_scale.py [--gaussians 400000] [--frames 300] [--depth synthetic|render]
+                              [--masks 100] [--tasks 26] [--workdir DIR] [--keep]
+Times are wall seconds on the machine as it is (other work shares the cores): process-CPU
+seconds are printed too.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from PIL import Image
+from scipy.spatial import cKDTree
+
+from bayesian_fields_core.context import JobContext
+from bayesian_fields_core.eval.synthetic.cameras import look_at, pinhole
+from bayesian_fields_core.params import PipelineParams
+from bayesian_fields_core.pipeline import run_stage
+from bayesian_fields_core.scene.nerfstudio import write_transforms
+from bayesian_fields_core.scene.ply import write_ply
+from bayesian_fields_core.scene.types import Frame, Gaussians
+from bayesian_fields_core.stages.perceive import frame_key, smallest_label_dtype
+from bayesian_fields_core.store import LocalStore, put_arrays
+
+EMBED_DIM = 512
+MU0, MU1 = 0.20, 0.27  # target cosine of irrelevant / relevant masks (paper's calibration)
+NOISE_STD = 0.035  # spread of the cosines around those means (paper's s)
+N_BLOBS = 60
+NO_TASK = -1
+DEPTH_DOWNSAMPLE = 4
+SCENE_PREFIX = "scenes/bench/"
+FINGERPRINT = "bench-synthetic-perception"
+
+
+# --------------------------------------------------------------------------------------------
+# Synthetic inputs
+# --------------------------------------------------------------------------------------------
+def make_gaussians(n: int, rng: np.random.Generator) -> tuple[Gaussians, np.ndarray]:
+    """A floor plus N_BLOBS spheres resting on it (a quarter of the points on the floor).
+
+    Returns the Gaussians and the blob centres (N_BLOBS, 3).
+    """
+    angle = rng.uniform(0, 2 * np.pi, N_BLOBS)
+    radius = 1.6 * np.sqrt(rng.uniform(0, 1, N_BLOBS))
+    sizes = rng.uniform(0.08, 0.3, N_BLOBS)
+    centres = np.stack([radius * np.cos(angle), radius * np.sin(angle), sizes], axis=1)
+    n_floor = n // 4
+    floor = np.column_stack([rng.uniform(-2.5, 2.5, (n_floor, 2)), np.zeros(n_floor)])
+    blob = rng.choice(N_BLOBS, size=n - n_floor, p=sizes**2 / (sizes**2).sum())
+    direction = rng.normal(size=(n - n_floor, 3))
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    on_blobs = centres[blob] + sizes[blob, None] * direction
+    means = np.concatenate([floor, on_blobs]).astype(np.float32)
+    gaussians = Gaussians(
+        means=means,
+        log_scales=np.log(np.full((n, 3), [0.01, 0.01, 0.002], dtype=np.float32)),
+        quats=np.tile(np.array([1, 0, 0, 0], np.float32), (n, 1)),
+        opacity_logits=np.full(n, 2.0, dtype=np.float32),
+        sh=rng.normal(0, 0.3, (n, 1, 3)).astype(np.float32),
+    )
+    return gaussians, centres
+
+
+def make_frames(n_frames: int, width: int, height: int, images: Path) -> list[Frame]:
+    """An orbit of cameras at two heights looking at the scene centre; placeholder image files
+    (the loader checks they exist; fuse and cluster never read them)."""
+    K = pinhole(width, height, 60.0)
+    frames = []
+    placeholder = images / "placeholder.png"
+    Image.new("RGB", (8, 8)).save(placeholder)
+    for i in range(n_frames):
+        azimuth = 2 * np.pi * i / n_frames
+        eye = np.array([3.2 * np.cos(azimuth), 3.2 * np.sin(azimuth), 1.4 if i % 2 else 1.9])
+        path = images / f"frame_{i:05d}.png"
+        shutil.copyfile(placeholder, path)
+        frames.append(
+            Frame(f"frame_{i:05d}", K, look_at(eye, np.array([0.0, 0.0, 0.2])), width, height, path)
+        )
+    placeholder.unlink()
+    return frames
+
+
+def project(points: np.ndarray, frame: Frame) -> tuple[np.ndarray, np.ndarray]:
+    """(pixel xy (n, 2), camera depth (n,)) of world points."""
+    cam = points @ frame.world_to_camera[:3, :3].T + frame.world_to_camera[:3, 3]
+    z = cam[:, 2]
+    uv = cam[:, :2] / np.maximum(z, 1e-9)[:, None] * np.diag(frame.K)[:2] + frame.K[:2, 2]
+    return uv, z
+
+
+def synthetic_depth(means: np.ndarray, frame: Frame) -> np.ndarray:
+    """Nearest Gaussian centre per pixel, z-buffered at 1/DEPTH_DOWNSAMPLE resolution and upsampled
+    (a dense stand-in for a rendered depth image; 0 = nothing there)."""
+    step = DEPTH_DOWNSAMPLE
+    w, h = -(-frame.width // step), -(-frame.height // step)
+    uv, z = project(means, frame)
+    px = np.floor(uv / step).astype(np.int64)
+    ok = (z > 0.05) & (px[:, 0] >= 0) & (px[:, 0] < w) & (px[:, 1] >= 0) & (px[:, 1] < h)
+    depth = np.full(w * h, np.inf)
+    np.minimum.at(depth, px[ok, 1] * w + px[ok, 0], z[ok])
+    depth[~np.isfinite(depth)] = 0.0
+    full = depth.reshape(h, w).repeat(step, axis=0).repeat(step, axis=1)
+    return np.ascontiguousarray(full[: frame.height, : frame.width], dtype=np.float32)
+
+
+def voronoi_labels(seeds: np.ndarray, n_labelled: int, width: int, height: int) -> np.ndarray:
+    """Exclusive labels: each pixel takes its nearest seed (at quarter resolution, upsampled);
+    seeds at index >= n_labelled leave their cells unlabelled (-1), like uncovered pixels."""
+    step = 4
+    w, h = -(-width // step), -(-height // step)
+    grid = np.stack(np.meshgrid(np.arange(w) * step + step / 2, np.arange(h) * step + step / 2), -1)
+    _, nearest = cKDTree(seeds).query(grid.reshape(-1, 2))
+    labels = np.where(nearest < n_labelled, nearest, -1).reshape(h, w)
+    return labels.repeat(step, axis=0).repeat(step, axis=1)[:height, :width]
+
+
+def task_texts(n_tasks: int) -> list[str]:
+    return [f"task {i:02d}: fetch the object of kind {i}" for i in range(n_tasks)]
+
+
+def embedding_basis(n_tasks: int, rng: np.random.Generator) -> np.ndarray:
+    """(T+1, D) orthonormal rows: a direction every embedding shares, then one per task."""
+    return np.linalg.qr(rng.normal(size=(EMBED_DIM, n_tasks + 1)))[0].T
+
+
+def text_embeddings(basis: np.ndarray) -> np.ndarray:
+    """(T, D) unit task texts sqrt(MU0) c + sqrt(1 - MU0) r_t."""
+    return np.sqrt(MU0) * basis[0] + np.sqrt(1 - MU0) * basis[1:]
+
+
+def mask_embeddings(mask_task: np.ndarray, basis: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """(M, D) unit embeddings whose cosines with the task texts are drawn from N(MU0, NOISE_STD),
+    or N(MU1, NOISE_STD) for the mask's own task: built exactly from the wanted cosines plus a
+    random component orthogonal to every text."""
+    m, n_tasks = len(mask_task), basis.shape[0] - 1
+    phi = MU0 + NOISE_STD * rng.standard_normal((m, n_tasks))
+    relevant = mask_task >= 0
+    phi[relevant, mask_task[relevant]] += MU1 - MU0
+    along_tasks = (phi - MU0) / np.sqrt(1 - MU0)
+    rest = rng.standard_normal((m, EMBED_DIM))
+    rest -= (rest @ basis.T) @ basis
+    rest /= np.linalg.norm(rest, axis=1, keepdims=True)
+    rest_norm = np.sqrt(np.clip(1 - MU0 - (along_tasks**2).sum(axis=1), 0.0, None))
+    emb = np.sqrt(MU0) * basis[0] + along_tasks @ basis[1:] + rest_norm[:, None] * rest
+    return (emb / np.linalg.norm(emb, axis=1, keepdims=True)).astype(np.float32)
+
+
+def setup(args: argparse.Namespace, work: Path) -> None:
+    """Write the scene folder and the synthetic perception cache (run in a child process)."""
+    rng = np.random.default_rng(args.seed)
+    scene = work / "scene"
+    (scene / "images").mkdir(parents=True, exist_ok=True)
+    t = time.perf_counter()
+    gaussians, blob_centres = make_gaussians(args.gaussians, rng)
+    write_ply(scene / "point_cloud.ply", gaussians)
+    frames = make_frames(args.frames, args.width, args.height, scene / "images")
+    basis = embedding_basis(args.tasks, rng)
+    np.save(work / "texts.npy", text_embeddings(basis).astype(np.float32))
+    # Each blob is relevant to one task; about one blob in six to none.
+    blob_task = np.where(rng.uniform(size=N_BLOBS) < 1 / 6, NO_TASK, rng.integers(0, args.tasks, N_BLOBS))
+    store = LocalStore(work / "cache")
+    prefix = perception_prefix()
+    for i, frame in enumerate(frames):
+        uv, z = project(blob_centres, frame)
+        inside = (
+            (z > 0.1)
+            & (uv[:, 0] >= 0)
+            & (uv[:, 0] < frame.width)
+            & (uv[:, 1] >= 0)
+            & (uv[:, 1] < frame.height)
+        )
+        n_random = max(args.masks - int(inside.sum()), 0) + args.masks // 20
+        seeds = np.concatenate([uv[inside], rng.uniform([0, 0], [frame.width, frame.height], (n_random, 2))])
+        n_labelled = len(seeds) - args.masks // 20
+        labels = voronoi_labels(seeds, n_labelled, frame.width, frame.height)
+        mask_task = np.concatenate([blob_task[inside], np.full(n_labelled - int(inside.sum()), NO_TASK)])
+        embeddings = mask_embeddings(mask_task, basis, rng)
+        put_arrays(
+            store,
+            frame_key(prefix, i),
+            labels=labels.astype(smallest_label_dtype(n_labelled)),
+            embeddings=embeddings,
+        )
+        if args.depth == "synthetic":
+            frame.depth_path = scene / "depth" / f"frame_{i:05d}.npy"
+            frame.depth_path.parent.mkdir(exist_ok=True)
+            np.save(frame.depth_path, synthetic_depth(gaussians.means, frame))
+    write_transforms(scene / "transforms.json", frames)
+    (work / "setup.json").write_text(json.dumps({**vars(args), "setup_seconds": time.perf_counter() - t}))
+
+
+# --------------------------------------------------------------------------------------------
+# Stand-ins for the models (perception is not what this benchmark measures)
+# --------------------------------------------------------------------------------------------
+class FixedTextEncoder:
+    """Returns the fixed embeddings of the benchmark's task strings (deterministic stand-in)."""
+
+    model_id = "bench-fixed-text@000000000000"
+    dim = EMBED_DIM
+
+    def __init__(self, tasks: list[str], embeddings: np.ndarray) -> None:
+        self._rows = {task: row for task, row in zip(tasks, embeddings, strict=True)}
+
+    def encode_texts(self, texts: list[str]) -> np.ndarray:
+        return np.stack([self._rows[t] for t in texts]).astype(np.float32)
+
+    def encode_images(self, images: list[np.ndarray]) -> np.ndarray:
+        raise RuntimeError("the scale benchmark reads a pre-written perception cache")
+
+
+class BenchModels:
+    """What fuse and cluster read of `Models`: the encoder, calibration (None = paper's values),
+    the ids recorded in the result and the perception cache fingerprint."""
+
+    fingerprint = FINGERPRINT
+    profile_name = "bench"
+    calibration = None
+
+    def __init__(self, encoder: FixedTextEncoder) -> None:
+        self.encoder = encoder
+        self.model_ids = {"profile": "bench", "encoder": encoder.model_id, "fingerprint": FINGERPRINT}
+
+
+def perception_prefix() -> str:
+    """The context's perception prefix for the stand-in models (same rule as `JobContext`)."""
+    ctx = JobContext(
+        store=LocalStore(tempfile.gettempdir()),
+        job_prefix="x/",
+        tasks=["x"],
+        params=PipelineParams(),
+        models=BenchModels(FixedTextEncoder(["x"], np.zeros((1, EMBED_DIM)))),  # type: ignore[arg-type]
+        scene_prefix=SCENE_PREFIX,
+    )
+    return ctx.perception_prefix
+
+
+# --------------------------------------------------------------------------------------------
+# Measurement
+# --------------------------------------------------------------------------------------------
+def peak_rss_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # KiB on Linux
+
+
+def cpu_seconds() -> float:
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    return usage.ru_utime + usage.ru_stime
+
+
+def timed(fn: Any) -> tuple[Any, float, float]:
+    wall, cpu = time.perf_counter(), cpu_seconds()
+    out = fn()
+    return out, time.perf_counter() - wall, cpu_seconds() - cpu
+
+
+def measure(args: argparse.Namespace, work: Path) -> None:
+    tasks = task_texts(args.tasks)
+    encoder = FixedTextEncoder(tasks, np.load(work / "texts.npy", allow_pickle=False))
+    params = PipelineParams(depth_source="input" if args.depth == "synthetic" else "median", export_ply=False)
+    job = work / "job"
+    shutil.rmtree(job, ignore_errors=True)
+    for stale in list((work / "cache").rglob("visibility")):  # fuse computes visibility afresh
+        shutil.rmtree(stale)
+    ctx = JobContext(
+        store=LocalStore(job),
+        job_prefix="",
+        tasks=tasks,
+        params=params,
+        models=BenchModels(encoder),  # type: ignore[arg-type]
+        scene_store=LocalStore(work / "cache"),
+        scene_prefix=SCENE_PREFIX,
+        scene_dir=work / "scene",
+    )
+    rss0 = peak_rss_mb()
+    scene, load_s, _ = timed(ctx.scene)
+    rss_load = peak_rss_mb()
+    fuse, fuse_s, fuse_cpu = timed(lambda: run_stage("fuse", ctx, force=True))
+    rss_fuse = peak_rss_mb()
+    cluster, cluster_s, cluster_cpu = timed(lambda: run_stage("cluster", ctx, force=True))
+    rss_cluster = peak_rss_mb()
+
+    n_frames = fuse["frames"]
+    counts = cluster["counts"]
+    print(
+        f"scale benchmark: {len(scene.gaussians):,} Gaussians, {n_frames} frames at "
+        f"{args.width}x{args.height}, {fuse['masks'] / n_frames:.0f} masks/frame, {len(tasks)} tasks, "
+        f"depth={args.depth}"
+    )
+    print("  text encoder: deterministic stand-in (fixed embeddings; no CLIP); perception cache synthetic")
+    print(
+        f"  setup (child process, not measured below): {json.loads((work / 'setup.json').read_text())['setup_seconds']:.1f} s"
+    )
+    print(f"  load scene      {load_s:8.2f} s")
+    print(
+        f"  fuse            {fuse_s:8.2f} s  = {fuse_s / n_frames:.3f} s/frame "
+        f"(CPU {fuse_cpu / n_frames:.3f} s/frame; aim < 0.5)  visibility computed for {fuse['frames_rendered']} frames, "
+        f"masks {fuse['masks']:,}, rejected {fuse['masks_rejected']:,}"
+    )
+    timings = cluster["timings"]
+    print(
+        f"  cluster         {cluster_s:8.2f} s  (CPU {cluster_cpu:.2f} s; aim < 10; "
+        f"without writing the result {cluster_s - timings['write']:.2f} s)"
+    )
+    print("    " + ", ".join(f"{k} {v:.2f}" for k, v in timings.items()))
+    print(
+        f"    AIB {timings['aib']:.3f} s on {counts['nodes_after_identical_merge']:,} nodes "
+        f"({counts['primitives']:,} primitives; aim < 1 s on ~2,000)"
+    )
+    print("    counts: " + ", ".join(f"{k} {v:,}" for k, v in counts.items()))
+    print(
+        f"  peak RSS MiB: start {rss0:.0f}, after load {rss_load:.0f}, after fuse {rss_fuse:.0f}, "
+        f"after cluster {rss_cluster:.0f}"
+    )
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--gaussians", type=int, default=400_000)
+    parser.add_argument("--frames", type=int, default=300)
+    parser.add_argument("--width", type=int, default=640)
+    parser.add_argument("--height", type=int, default=480)
+    parser.add_argument("--masks", type=int, default=100, help="masks per frame (about)")
+    parser.add_argument("--tasks", type=int, default=26)
+    parser.add_argument("--depth", choices=("synthetic", "render"), default="synthetic")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--workdir", help="where the scene and caches go (default: a temp folder)")
+    parser.add_argument("--keep", action="store_true", help="keep the work folder (reused when it matches)")
+    parser.add_argument("--setup-only", action="store_true", help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+    work = Path(args.workdir or tempfile.mkdtemp(prefix="bfields-scale-"))
+    if args.setup_only:
+        setup(args, work)
+        return
+    wanted = {k: v for k, v in vars(args).items() if k not in ("workdir", "keep", "setup_only")}
+    done = work / "setup.json"
+    if not done.is_file() or {k: json.loads(done.read_text()).get(k) for k in wanted} != wanted:
+        shutil.rmtree(work, ignore_errors=True)
+        work.mkdir(parents=True)
+        child = [sys.executable, __file__, "--setup-only", "--workdir", str(work)]
+        child += [f"--{k}={v}" for k, v in wanted.items()]
+        subprocess.run(child, check=True)
+    try:
+        measure(args, work)
+    finally:
+        if not args.keep:
+            shutil.rmtree(work, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -55,7 +55,10 @@ def main() -> None:
     ap.add_argument("--height", type=int, default=480)
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--large", action="store_true", help="also 1M Gaussians at 1280x720")
+    ap.add_argument("--threads", type=int, default=0, help="torch intra-op threads (0: torch default)")
     args = ap.parse_args()
+    if args.threads:
+        torch.set_num_threads(args.threads)
     print(f"torch {torch.__version__}, threads={torch.get_num_threads()}")
 
     r = GaussianRenderer(random_scene(args.n), device="cpu", backend="torch")

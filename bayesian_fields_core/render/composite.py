@@ -32,6 +32,10 @@ class Composited:
     median_depth: torch.Tensor
 
 
+# exp(-30) ~ 1e-13: far below any min_alpha, far above the float32 denormal range.
+_EXPONENT_FLOOR = -30.0
+
+
 def _pixel_basis(tile: int, device: torch.device) -> torch.Tensor:
     """(P, 6) monomials [p^2, q^2, pq, p, q, 1] of pixel-centre offsets from the tile centre."""
     r = torch.arange(tile, device=device, dtype=torch.float32) + 0.5 - tile / 2
@@ -103,26 +107,32 @@ def composite(
     active = active[bins.count[active] > 0]
     last_entry = max(int(bins.entries.numel()) - 1, 0)
 
-    # F.threshold keeps x > t; just below log(min_alpha) so that alpha == min_alpha is kept.
+    # F.threshold keeps x > t; this t makes it keep exactly alpha >= min_alpha (float32).
+    below_min_alpha = float(np.nextafter(np.float32(settings.min_alpha), np.float32(0.0)))
     log_floor = float(np.log(settings.stop_transmittance) - 1.0)
-    log_min_alpha = float(np.nextafter(np.float32(np.log(settings.min_alpha)), np.float32(-np.inf)))
+    # Work buffers reused by every step: fresh multi-MB tensors per op would cost page faults.
+    batch = min(batch, max(int(active.numel()), 1))
+    buf_a, buf_t, buf_n = (torch.empty(batch, n_pix, chunk, device=device) for _ in range(3))
+    buf_mask = torch.empty(batch, n_pix, chunk, dtype=torch.bool, device=device)
+
     while active.numel() > 0:
         cur, active = active[:batch], active[batch:]
-        offset = progress[cur, None] + arange_chunk  # (B, C) position in each tile's list
+        b = cur.numel()
+        offset = progress[cur, None] + arange_chunk  # (b, C) position in each tile's list
         valid = offset < bins.count[cur, None]
         rows = table[bins.entries[(bins.start[cur, None] + offset).clamp_max(last_entry)]]
-        # log(opacity) joins the constant term, so alpha = exp(basis @ coef) in one product;
+        # log(opacity) joins the constant term, so log(alpha) = basis @ coef in one product;
         # padding entries get a huge negative constant, i.e. alpha = 0.
         log_opacity = torch.where(valid, rows[..., 5].log(), -1e4)
         coef = _exponent_coefficients(rows[..., 0:2], rows[..., 2:5], centres[cur, None, :], log_opacity)
         g_depth = rows[..., 6]
 
-        # alpha (B, P, C) = min(max_alpha, opacity * exp(-0.5 d^T conic d)), 0 below min_alpha.
-        # The min_alpha cut is applied to the exponent: sending it to -inf before exp() keeps
-        # the far tails from becoming float32 denormals, which are slow on CPUs.
-        log_alpha = torch.matmul(basis_t, coef.transpose(1, 2))
-        torch.nn.functional.threshold_(log_alpha, log_min_alpha, float("-inf"))
-        alpha = log_alpha.exp_().clamp_max_(settings.max_alpha)
+        # alpha (b, P, C) = min(max_alpha, opacity * exp(-0.5 d^T conic d)), 0 below min_alpha.
+        # The exponent is floored first: far tails would otherwise become float32 denormals,
+        # and exp() of huge negatives leaves the vectorised fast path; both are slow on CPUs.
+        alpha = torch.matmul(basis_t, coef.transpose(1, 2), out=buf_a[:b])
+        alpha.clamp_min_(_EXPONENT_FLOOR).exp_().clamp_max_(settings.max_alpha)
+        torch.nn.functional.threshold_(alpha, below_min_alpha, 0.0)
 
         t_prev = trans[cur]
         done_prev = done[cur]
@@ -131,15 +141,18 @@ def composite(
         # Inclusive transmittance, accumulated in log space and floored just below the stop
         # level: a plain cumprod of many (1 - 0.99) factors underflows into float32 denormals,
         # which are slow on CPUs. Floored entries are below the stop level, so are excluded.
-        log_t = torch.rsub(alpha, 1.0).log_().cumsum_(dim=-1).add_(t_start.log())
-        t_after = log_t.clamp_min_(log_floor).exp_()
+        t_after = torch.sub(1.0, alpha, out=buf_t[:b]).log_().cumsum_(dim=-1).add_(t_start.log())
+        t_after.clamp_min_(log_floor).exp_()
         # T is non-increasing along the chunk, so the included Gaussians (T_after >= stop) are a
         # prefix; its length comes from a binary search on -T (a bool .sum() would cast to int64).
-        neg_t = t_after.neg()
+        neg_t = torch.neg(t_after, out=buf_n[:b])
         n_include = torch.searchsorted(neg_t, _levels(neg_t, settings.stop_transmittance), right=True)[..., 0]
-        t_before = torch.cat([t_start, t_after[..., :-1]], dim=-1)
-        # alpha * T_before for the included Gaussians, 0 from the stopping one on.
-        weight = t_before.sub_(t_after).masked_fill_(t_after < settings.stop_transmittance, 0.0)
+        # weight = T_before - T_after = alpha * T_before for the included Gaussians, else 0.
+        weight = buf_a[:b]  # alpha is no longer needed
+        weight[..., :1] = t_start
+        weight[..., 1:] = t_after[..., :-1]
+        excluded = torch.lt(t_after, settings.stop_transmittance, out=buf_mask[:b])
+        weight.sub_(t_after).masked_fill_(excluded, 0.0)
         acc[cur] += torch.matmul(weight, rows[..., 7:])
 
         # Median: the first Gaussian whose inclusion drops T below the level, if in this chunk.

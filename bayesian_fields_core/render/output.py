@@ -50,7 +50,7 @@ class RasterSettings:
     chunk_size: how many depth-ordered Gaussians of a tile are composited per step; smaller
         wastes less work past early termination, larger means fewer Python-level steps.
     max_batch_elements: cap on tiles x tile-pixels x chunk evaluated at once; bounds the peak
-        memory of compositing (about 30 bytes per element) independently of the scene size.
+        memory of compositing (about 13 bytes per element) independently of the scene size.
     """
 
     near_plane: float = 0.01

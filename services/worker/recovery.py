@@ -2,7 +2,10 @@
 message and every live hash, but the manifests in the bucket remain).
 
 A job is *orphaned* when its manifest is queued/running (an ``active/<tenant>/<id>`` marker
-exists) but Redis has neither its live hash nor a lock on any of its stages. A job is re-enqueued
+exists), no lock on any of its stages is held, and Redis either has no live hash for it (Redis
+lost it) or its hash says a stage is executing (phase 'active': the worker died and its lock
+expired). The second case recovers a SIGKILLed worker's job after the lock TTL (a minute) rather
+than after the broker's visibility timeout (hours). A job is re-enqueued
 only after it has looked orphaned for `grace_s` seconds on two scans: a worker that is running a
 stage re-creates its lock within one heartbeat, so a live job is never sent twice. Should a
 duplicate slip through anyway, stages are idempotent (finished markers are skipped) and guarded
@@ -14,20 +17,20 @@ one scan at a time do the work.
 
 from __future__ import annotations
 
-import logging
 import os
 import threading
 import time
 
 import redis
 from celery import Celery
+from celery.utils.log import get_logger
 
 from services.common.jobs import JobStore
 from services.common.settings import ServiceSettings
 
 from .dispatch import enqueue_stages
 
-log = logging.getLogger(__name__)
+log = get_logger(__name__)  # a child of the 'celery' logger: lands in the worker log
 
 #: Seconds between scans and how long a job must look orphaned before it is re-enqueued
 #: (environment: BFIELDS_RECOVERY_INTERVAL_S, BFIELDS_RECOVERY_GRACE_S).
@@ -48,14 +51,16 @@ def recover_orphans(
 ) -> list[str]:
     """One scan; returns the ids of the jobs it re-enqueued."""
     client = jobs.redis
-    lock = client.lock("bf:recovery", timeout=120, blocking_timeout=0)
+    # short expiry: a worker killed mid-scan must not block the other scanners for long
+    lock = client.lock("bf:recovery", timeout=max(10.0, 4 * SCAN_INTERVAL_S), blocking_timeout=0)
     if not lock.acquire(blocking=False):
         return []
     requeued = []
     try:
         now = time.time()
         for tenant, job_id in jobs.active_jobs():
-            if jobs.has_live_entry(tenant, job_id) or _has_stage_lock(client, tenant, job_id):
+            # Healthy: waiting in a queue (live hash, phase 'waiting') or running (stage lock held).
+            if _has_stage_lock(client, tenant, job_id) or jobs.live_phase(tenant, job_id) == "waiting":
                 continue
             suspect = _SUSPECT_KEY.format(tenant=tenant, job_id=job_id)
             first_seen = client.get(suspect)

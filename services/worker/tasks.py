@@ -13,7 +13,7 @@ Models are built once per worker process, keyed by profile.
 
 from __future__ import annotations
 
-import logging
+import os
 import secrets
 import threading
 import time
@@ -23,6 +23,7 @@ import redis
 from celery import Task
 from celery.exceptions import SoftTimeLimitExceeded
 from celery.signals import worker_process_init, worker_ready, worker_shutdown
+from celery.utils.log import get_logger
 
 from bayesian_fields_core.context import JobContext, Models
 from bayesian_fields_core.errors import CancelledError, InputError, ModelError
@@ -38,7 +39,7 @@ from .dispatch import STAGE_TASKS
 from .metrics import observe_job, observe_stage
 from .recovery import start_recovery_thread, stop_recovery_thread
 
-log = logging.getLogger(__name__)
+log = get_logger(__name__)  # a child of the 'celery' logger: lands in the worker log
 
 #: Errors worth retrying: the network or a server, never the input.
 TRANSIENT: tuple[type[BaseException], ...] = (
@@ -54,8 +55,10 @@ try:  # storage errors only exist when boto3 is installed
 except ImportError:  # pragma: no cover - local-store deployments
     pass
 
-LOCK_TTL_S = 60
-HEARTBEAT_S = 10
+#: A stage lock expires this long after its holder stops renewing it (environment:
+#: BFIELDS_STAGE_LOCK_TTL_S); the holder renews it every quarter of that.
+LOCK_TTL_S = max(4, int(os.environ.get("BFIELDS_STAGE_LOCK_TTL_S", "60")))
+HEARTBEAT_S = LOCK_TTL_S / 4
 PROGRESS_INTERVAL_S = 0.5
 
 

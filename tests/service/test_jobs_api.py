@@ -165,3 +165,43 @@ def test_openapi_health_and_metrics(api: ApiServer) -> None:
     assert ready.status_code == 200 and ready.json()["checks"] == {"redis": "ok", "storage": "ok"}
     metrics = httpx.get(f"{api.base_url}/metrics").text
     assert 'bfields_queue_depth{queue="gpu"}' in metrics and "bfields_jobs_active" in metrics
+
+
+def test_cli_batch_submits_scenes_x_task_lists(
+    api: ApiServer,
+    scene_dir,
+    stored_scene: dict,
+    tmp_path,
+    capsys: pytest.CaptureFixture[str],  # noqa: ANN001
+) -> None:
+    from services.client import batch
+
+    (tmp_path / "tasks.txt").write_text("red blob\nblue blob\n")
+    manifest = tmp_path / "batch.yaml"
+    manifest.write_text(
+        f"scenes: [{scene_dir}, {stored_scene['id']}]\n"
+        "task_lists: [[green blob], tasks.txt]\n"
+        "parameters: {max_frames: 2}\n"
+    )
+    assert batch(manifest, server=api.base_url, api_key=api.keys["tenant-a"], wait=False) == 0
+    batch_id = capsys.readouterr().out.strip().splitlines()[-1]
+    with api.client("tenant-a") as client:
+        state = client.get(f"/v1/batches/{batch_id}").json()
+        try:
+            assert len(state["jobs"]) == 4  # 2 scenes x 2 task lists
+            assert sorted(map(tuple, (j["tasks"] for j in state["jobs"]))) == sorted(
+                [("green blob",), ("red blob", "blue blob")] * 2
+            )
+            assert len({j["scene_id"] for j in state["jobs"]}) == 2 and stored_scene["id"] in {
+                j["scene_id"] for j in state["jobs"]
+            }
+            job = client.get(f"/v1/jobs/{state['jobs'][0]['id']}").json()
+            assert job["parameters"] == {"max_frames": 2} and job["batch_id"] == batch_id
+        finally:
+            for j in state["jobs"]:
+                client.delete(f"/v1/jobs/{j['id']}")
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("scenes: []\n")
+    from services.client.commands import _run
+
+    assert _run(batch, manifest=bad, server=api.base_url, api_key=api.keys["tenant-a"], wait=False) == 2

@@ -177,3 +177,54 @@ def test_bad_upload_is_refused_and_stores_nothing(
 def test_upload_needs_multipart(client_a: httpx.Client) -> None:
     resp = client_a.post("/v1/scenes", json={"splat": "x"})
     assert resp.status_code == 415
+
+
+def _presigned_upload(client: httpx.Client, files: dict[tuple[str, str], bytes]) -> tuple[str, dict]:
+    """Start a presigned upload, PUT every part straight to the S3 server; returns (scene id, parts)."""
+    specs = [{"field": f, "name": n, "size": len(data)} for (f, n), data in files.items()]
+    resp = client.post("/v1/scenes/uploads", json={"name": "presigned", "files": specs})
+    assert resp.status_code == 201, resp.text
+    plan = resp.json()
+    parts: dict[str, list[dict]] = {}
+    for up in plan["uploads"]:
+        data = files[(up["field"], up["name"])]
+        assert len(up["part_urls"]) == 1  # small files: one (last) part
+        put = httpx.put(up["part_urls"][0], content=data, timeout=30)
+        assert put.status_code == 200, put.text
+        parts[up["name"]] = [{"PartNumber": 1, "ETag": put.headers["ETag"]}]
+    return plan["scene_id"], parts
+
+
+def test_presigned_upload_then_complete(
+    client_a: httpx.Client, client_b: httpx.Client, scene_dir: Path
+) -> None:
+    files = {
+        ("splat", "splat.ply"): (scene_dir / "splat.ply").read_bytes(),
+        ("cameras", "transforms.json"): (scene_dir / "transforms.json").read_bytes(),
+        ("images", "images.zip"): image_zip(scene_dir),
+    }
+    scene_id, parts = _presigned_upload(client_a, files)
+    assert client_a.get(f"/v1/scenes/{scene_id}").json()["state"] == "uploading"
+    assert client_a.post("/v1/jobs", json={"scene_id": scene_id, "tasks": ["x"]}).status_code == 409
+    assert client_b.post(f"/v1/scenes/{scene_id}/complete", json={"parts": parts}).status_code == 404
+    done = client_a.post(f"/v1/scenes/{scene_id}/complete", json={"parts": parts})
+    assert done.status_code == 200, done.text
+    scene = done.json()
+    assert scene["state"] == "ready" and scene["summary"]["frames"] == 4 and scene["files"] == 6
+    assert client_a.post(f"/v1/scenes/{scene_id}/complete").status_code == 409  # only once
+
+
+def test_presigned_upload_with_bad_file_stays_unready(client_a: httpx.Client, scene_dir: Path) -> None:
+    files = {
+        ("splat", "splat.ply"): b"ply\nformat ascii 1.0\nelement vertex 3\nend_header\n",
+        ("cameras", "transforms.json"): (scene_dir / "transforms.json").read_bytes(),
+        ("images", "images.zip"): image_zip(scene_dir),
+    }
+    scene_id, _ = _presigned_upload(client_a, files)
+    resp = client_a.post(f"/v1/scenes/{scene_id}/complete")  # server lists the parts itself
+    assert resp.status_code == 422 and "splat.ply" in resp.json()["detail"]
+    assert client_a.get(f"/v1/scenes/{scene_id}").json()["state"] == "uploading"
+    too_big = client_a.post(
+        "/v1/scenes/uploads", json={"files": [{"field": "images", "name": "a.zip", "size": MAX_UPLOAD + 1}]}
+    )
+    assert too_big.status_code == 413 and str(MAX_UPLOAD) in too_big.json()["detail"]

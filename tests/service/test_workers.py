@@ -49,7 +49,6 @@ def model_profile(tmp_path_factory: pytest.TempPathFactory) -> str | None:
         "segmenter: {kind: classical, params: {method: felzenszwalb, scale: 300, sigma: 0.8, min_size: 50, min_area: 16}}\n"
         f"encoder: {{kind: hf_clip, path: {clip}, device: cpu}}\n"
         "calibration: {mu0: -0.05, mu1: 0.05, s: 0.1}\n"  # random CLIP: cosines near 0
-
     )
     return str(profile)
 

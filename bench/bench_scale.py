@@ -7,10 +7,12 @@ Issue spec: a generated scene of 400k Gaussians, 300 frames at 640x480, ~100 mas
 What is real and what is synthetic:
 - the stages are the pipeline's own `run_stage("fuse")` and `run_stage("cluster")` on a
   `JobContext` over a `LocalStore`, reading a real scene folder (binary .ply + transforms.json);
-- the perception cache they read is synthetic: per frame, ~100 Voronoi masks seeded at the
-  projected blob centres (so masks follow objects from frame to frame) plus random seeds, and
-  512-d unit embeddings whose cosine with the task texts is ~0.20 (irrelevant) or ~0.27 (the
-  mask's blob belongs to that task), the paper's calibration;
+- the perception cache they read is synthetic: an ideal segmenter over the Gaussian centres
+  z-buffered into each view (a pixel shows the part of its nearest centre): parts are the 60
+  blobs and a 10 x 10 grid of floor cells, ~100 masks per frame, with granularity varying from
+  frame to frame (blob halves, merged floor cells) as a real segmenter's does; 512-d unit
+  embeddings whose cosines with the task texts are drawn from N(0.20, 0.035) (irrelevant) or
+  N(0.27, 0.035) (the mask's blob belongs to that task), the paper's calibration;
 - the text encoder is a deterministic stand-in returning fixed embeddings for the 26 task
   strings (no CLIP is loaded; perception is not what this measures).
 - depth for visibility: `--depth render` renders median depth with the project's renderer (the
@@ -36,12 +38,12 @@ import subprocess
 import sys
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from PIL import Image
-from scipy.spatial import cKDTree
 
 from bayesian_fields_core.context import JobContext
 from bayesian_fields_core.eval.synthetic.cameras import look_at, pinhole
@@ -59,6 +61,7 @@ NOISE_STD = 0.035  # spread of the cosines around those means (paper's s)
 N_BLOBS = 60
 NO_TASK = -1
 DEPTH_DOWNSAMPLE = 4
+MIN_MASK_CELLS = 4  # smallest mask kept, in z-buffer cells (64 full-resolution pixels)
 SCENE_PREFIX = "scenes/bench/"
 FINGERPRINT = "bench-synthetic-perception"
 
@@ -66,22 +69,42 @@ FINGERPRINT = "bench-synthetic-perception"
 # --------------------------------------------------------------------------------------------
 # Synthetic inputs
 # --------------------------------------------------------------------------------------------
-def make_gaussians(n: int, rng: np.random.Generator) -> tuple[Gaussians, np.ndarray]:
-    """A floor plus N_BLOBS spheres resting on it (a quarter of the points on the floor).
+@dataclass
+class Parts:
+    """What an ideal segmenter would cut the scene into: each blob, and the floor in a grid of
+    cells. blob_of / cell_of: (N,) part of each Gaussian (-1 when on the other kind); lower: (N,)
+    the Gaussian is on its blob's lower half (some frames segment the halves separately)."""
 
-    Returns the Gaussians and the blob centres (N_BLOBS, 3).
-    """
+    blob_of: np.ndarray
+    cell_of: np.ndarray
+    lower: np.ndarray
+    grid: int
+    blob_centres: np.ndarray
+
+
+def make_gaussians(n: int, grid: int, rng: np.random.Generator) -> tuple[Gaussians, Parts]:
+    """A 5 x 5 m floor (a quarter of the points, cut into grid x grid cells) and N_BLOBS spheres
+    resting on it, each sphere's point count proportional to its area."""
     angle = rng.uniform(0, 2 * np.pi, N_BLOBS)
     radius = 1.6 * np.sqrt(rng.uniform(0, 1, N_BLOBS))
     sizes = rng.uniform(0.08, 0.3, N_BLOBS)
     centres = np.stack([radius * np.cos(angle), radius * np.sin(angle), sizes], axis=1)
     n_floor = n // 4
-    floor = np.column_stack([rng.uniform(-2.5, 2.5, (n_floor, 2)), np.zeros(n_floor)])
+    floor_xy = rng.uniform(-2.5, 2.5, (n_floor, 2))
+    floor = np.column_stack([floor_xy, np.zeros(n_floor)])
     blob = rng.choice(N_BLOBS, size=n - n_floor, p=sizes**2 / (sizes**2).sum())
     direction = rng.normal(size=(n - n_floor, 3))
     direction /= np.linalg.norm(direction, axis=1, keepdims=True)
     on_blobs = centres[blob] + sizes[blob, None] * direction
     means = np.concatenate([floor, on_blobs]).astype(np.float32)
+    cell_xy = np.minimum(((floor_xy + 2.5) / 5.0 * grid).astype(np.int64), grid - 1)
+    parts = Parts(
+        blob_of=np.concatenate([np.full(n_floor, -1), blob]),
+        cell_of=np.concatenate([cell_xy[:, 1] * grid + cell_xy[:, 0], np.full(n - n_floor, -1)]),
+        lower=np.concatenate([np.zeros(n_floor, bool), direction[:, 2] < 0]),
+        grid=grid,
+        blob_centres=centres,
+    )
     gaussians = Gaussians(
         means=means,
         log_scales=np.log(np.full((n, 3), [0.01, 0.01, 0.002], dtype=np.float32)),
@@ -89,7 +112,7 @@ def make_gaussians(n: int, rng: np.random.Generator) -> tuple[Gaussians, np.ndar
         opacity_logits=np.full(n, 2.0, dtype=np.float32),
         sh=rng.normal(0, 0.3, (n, 1, 3)).astype(np.float32),
     )
-    return gaussians, centres
+    return gaussians, parts
 
 
 def make_frames(n_frames: int, width: int, height: int, images: Path) -> list[Frame]:
@@ -119,30 +142,57 @@ def project(points: np.ndarray, frame: Frame) -> tuple[np.ndarray, np.ndarray]:
     return uv, z
 
 
-def synthetic_depth(means: np.ndarray, frame: Frame) -> np.ndarray:
-    """Nearest Gaussian centre per pixel, z-buffered at 1/DEPTH_DOWNSAMPLE resolution and upsampled
-    (a dense stand-in for a rendered depth image; 0 = nothing there)."""
+def zbuffer(means: np.ndarray, frame: Frame) -> tuple[np.ndarray, np.ndarray]:
+    """(nearest Gaussian (h, w) int64, -1 = none; its depth (h, w) float32, 0 = none) per pixel of
+    a 1/DEPTH_DOWNSAMPLE resolution grid: the closest centre wins (sort by pixel then depth)."""
     step = DEPTH_DOWNSAMPLE
     w, h = -(-frame.width // step), -(-frame.height // step)
     uv, z = project(means, frame)
     px = np.floor(uv / step).astype(np.int64)
-    ok = (z > 0.05) & (px[:, 0] >= 0) & (px[:, 0] < w) & (px[:, 1] >= 0) & (px[:, 1] < h)
-    depth = np.full(w * h, np.inf)
-    np.minimum.at(depth, px[ok, 1] * w + px[ok, 0], z[ok])
-    depth[~np.isfinite(depth)] = 0.0
-    full = depth.reshape(h, w).repeat(step, axis=0).repeat(step, axis=1)
-    return np.ascontiguousarray(full[: frame.height, : frame.width], dtype=np.float32)
+    ok = np.flatnonzero((z > 0.05) & (px[:, 0] >= 0) & (px[:, 0] < w) & (px[:, 1] >= 0) & (px[:, 1] < h))
+    pixel = px[ok, 1] * w + px[ok, 0]
+    order = np.lexsort((z[ok], pixel))
+    first = np.unique(pixel[order], return_index=True)[1]
+    nearest = np.full(w * h, -1, dtype=np.int64)
+    depth = np.zeros(w * h, dtype=np.float32)
+    winners = ok[order[first]]
+    nearest[pixel[order[first]]] = winners
+    depth[pixel[order[first]]] = z[winners]
+    return nearest.reshape(h, w), depth.reshape(h, w)
 
 
-def voronoi_labels(seeds: np.ndarray, n_labelled: int, width: int, height: int) -> np.ndarray:
-    """Exclusive labels: each pixel takes its nearest seed (at quarter resolution, upsampled);
-    seeds at index >= n_labelled leave their cells unlabelled (-1), like uncovered pixels."""
-    step = 4
-    w, h = -(-width // step), -(-height // step)
-    grid = np.stack(np.meshgrid(np.arange(w) * step + step / 2, np.arange(h) * step + step / 2), -1)
-    _, nearest = cKDTree(seeds).query(grid.reshape(-1, 2))
-    labels = np.where(nearest < n_labelled, nearest, -1).reshape(h, w)
-    return labels.repeat(step, axis=0).repeat(step, axis=1)[:height, :width]
+def upsample(image: np.ndarray, frame: Frame) -> np.ndarray:
+    step = DEPTH_DOWNSAMPLE
+    return np.ascontiguousarray(image.repeat(step, 0).repeat(step, 1)[: frame.height, : frame.width])
+
+
+def frame_labels(
+    parts: Parts, part_task: np.ndarray, nearest: np.ndarray, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
+    """(labels (h, w) int64 at the z-buffer resolution, task of each mask (M,)).
+
+    A pixel shows the part of its nearest Gaussian. Segmenter granularity varies by frame: each
+    blob is cut into halves with probability 0.3, and floor cells merge pairwise with
+    probability 0.2, so primitives form at the finest cut any frame made, as with a real segmenter.
+    """
+    n_cells = parts.grid**2
+    split = rng.uniform(size=N_BLOBS) < 0.3
+    cell_target = np.arange(n_cells)
+    merge = (rng.uniform(size=n_cells) < 0.2) & (cell_target % parts.grid % 2 == 1)
+    cell_target[merge] -= 1
+    # part ids: blobs 0..B-1, lower halves B..2B-1, floor cells 2B..2B+C-1
+    part = np.where(
+        parts.blob_of >= 0,
+        parts.blob_of + N_BLOBS * (split[parts.blob_of] & parts.lower),
+        2 * N_BLOBS + cell_target[np.maximum(parts.cell_of, 0)],
+    )
+    seen = np.where(nearest >= 0, part[np.maximum(nearest, 0)], -1)
+    ids, area = np.unique(seen[seen >= 0], return_counts=True)
+    kept = ids[area >= MIN_MASK_CELLS]
+    lookup = np.full(2 * N_BLOBS + n_cells + 1, -1, dtype=np.int64)
+    lookup[kept] = np.arange(len(kept))
+    labels = lookup[seen]  # seen == -1 reads the last entry, which is -1
+    return labels, part_task[kept]
 
 
 def task_texts(n_tasks: int) -> list[str]:
@@ -182,40 +232,30 @@ def setup(args: argparse.Namespace, work: Path) -> None:
     scene = work / "scene"
     (scene / "images").mkdir(parents=True, exist_ok=True)
     t = time.perf_counter()
-    gaussians, blob_centres = make_gaussians(args.gaussians, rng)
+    grid = max(2, round(np.sqrt(args.masks)))
+    gaussians, parts = make_gaussians(args.gaussians, grid, rng)
     write_ply(scene / "point_cloud.ply", gaussians)
     frames = make_frames(args.frames, args.width, args.height, scene / "images")
     basis = embedding_basis(args.tasks, rng)
     np.save(work / "texts.npy", text_embeddings(basis).astype(np.float32))
-    # Each blob is relevant to one task; about one blob in six to none.
+    # Each blob (both halves) is relevant to one task, about one blob in six to none; floor to none.
     blob_task = np.where(rng.uniform(size=N_BLOBS) < 1 / 6, NO_TASK, rng.integers(0, args.tasks, N_BLOBS))
+    part_task = np.concatenate([blob_task, blob_task, np.full(grid**2, NO_TASK)])
     store = LocalStore(work / "cache")
     prefix = perception_prefix()
     for i, frame in enumerate(frames):
-        uv, z = project(blob_centres, frame)
-        inside = (
-            (z > 0.1)
-            & (uv[:, 0] >= 0)
-            & (uv[:, 0] < frame.width)
-            & (uv[:, 1] >= 0)
-            & (uv[:, 1] < frame.height)
-        )
-        n_random = max(args.masks - int(inside.sum()), 0) + args.masks // 20
-        seeds = np.concatenate([uv[inside], rng.uniform([0, 0], [frame.width, frame.height], (n_random, 2))])
-        n_labelled = len(seeds) - args.masks // 20
-        labels = voronoi_labels(seeds, n_labelled, frame.width, frame.height)
-        mask_task = np.concatenate([blob_task[inside], np.full(n_labelled - int(inside.sum()), NO_TASK)])
-        embeddings = mask_embeddings(mask_task, basis, rng)
+        nearest, depth = zbuffer(gaussians.means, frame)
+        labels, mask_task = frame_labels(parts, part_task, nearest, rng)
         put_arrays(
             store,
             frame_key(prefix, i),
-            labels=labels.astype(smallest_label_dtype(n_labelled)),
-            embeddings=embeddings,
+            labels=upsample(labels, frame).astype(smallest_label_dtype(len(mask_task))),
+            embeddings=mask_embeddings(mask_task, basis, rng),
         )
         if args.depth == "synthetic":
             frame.depth_path = scene / "depth" / f"frame_{i:05d}.npy"
             frame.depth_path.parent.mkdir(exist_ok=True)
-            np.save(frame.depth_path, synthetic_depth(gaussians.means, frame))
+            np.save(frame.depth_path, upsample(depth, frame))
     write_transforms(scene / "transforms.json", frames)
     (work / "setup.json").write_text(json.dumps({**vars(args), "setup_seconds": time.perf_counter() - t}))
 
@@ -349,7 +389,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--frames", type=int, default=300)
     parser.add_argument("--width", type=int, default=640)
     parser.add_argument("--height", type=int, default=480)
-    parser.add_argument("--masks", type=int, default=100, help="masks per frame (about)")
+    parser.add_argument(
+        "--masks", type=int, default=100, help="floor cells (sqrt rounded, squared); ~100 masks/frame"
+    )
     parser.add_argument("--tasks", type=int, default=26)
     parser.add_argument("--depth", choices=("synthetic", "render"), default="synthetic")
     parser.add_argument("--seed", type=int, default=0)

@@ -5,18 +5,21 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
-from typing import Any
+from typing import Annotated, Any
 
 import redis
 from celery import Celery
-from fastapi import HTTPException, Request, status
+from fastapi import Depends, HTTPException, Request, status
 
 from bayesian_fields_core.store import PrefixedStore, Store
 from services.common.api_keys import ApiKeyRing
+from services.common.auth import require_tenant
 from services.common.jobs import JobRecord, JobStore
 from services.common.settings import ServiceSettings
 from services.common.storage import tenant_store
 from services.worker.dispatch import enqueue_stages
+
+from .schemas import Problem
 
 _ID = re.compile(r"^[sjb]_[0-9a-f]{22}$")
 
@@ -65,3 +68,14 @@ def check_id(kind: str, ident: str, prefix: str) -> str:
     if not _ID.match(ident) or not ident.startswith(prefix):
         raise not_found(kind, ident)
     return ident
+
+
+#: Route parameter types: the caller's tenant (401 without a valid key) and the app state.
+Tenant = Annotated[str, Depends(require_tenant)]
+State = Annotated[AppState, Depends(get_state)]
+#: Error answers every /v1 route documents.
+ERRORS: dict[int | str, dict[str, Any]] = {
+    401: {"model": Problem},
+    404: {"model": Problem},
+    422: {"model": Problem},
+}

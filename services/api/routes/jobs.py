@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import PurePosixPath
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Depends, Header, HTTPException, Query, Response, status
+from fastapi import APIRouter, Header, HTTPException, Query, Response, status
 from fastapi.responses import FileResponse
 from pydantic import ValidationError
 
@@ -13,7 +13,6 @@ from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.params import PipelineParams
 from bayesian_fields_core.store import ArtifactNotFound, LocalStore, get_json, validate_key
 from bayesian_fields_core.tasks import normalise_tasks
-from services.common.auth import require_tenant
 from services.common.jobs import BatchRecord, JobRecord, JobState, new_id
 
 from ..schemas import (
@@ -27,12 +26,10 @@ from ..schemas import (
     JobResult,
     Problem,
 )
-from ..state import AppState, check_id, get_state, not_found
-from .scenes import ERRORS, _load_scene
+from ..state import ERRORS, AppState, State, Tenant, check_id, not_found
+from .scenes import _load_scene
 
 router = APIRouter(prefix="/v1", tags=["jobs"])
-Tenant = Annotated[str, Depends(require_tenant)]
-State = Annotated[AppState, Depends(get_state)]
 
 #: Model profiles a job may name. The workers map "default" to BFIELDS_MODEL_PROFILE.
 MODEL_PROFILES = ("default",)

@@ -7,12 +7,11 @@ import tempfile
 from pathlib import Path
 from typing import Annotated
 
-from fastapi import APIRouter, Body, Depends, HTTPException, Query, Request, Response, status
+from fastapi import APIRouter, Body, HTTPException, Query, Request, Response, status
 from fastapi.concurrency import run_in_threadpool
 
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.store import ArtifactNotFound, get_json, put_json
-from services.common.auth import require_tenant
 from services.common.jobs import JobState, new_id, utcnow
 
 from ..archives import ArchiveLimits
@@ -28,13 +27,9 @@ from ..schemas import (
     UploadPlan,
     UploadRequest,
 )
-from ..state import AppState, check_id, get_state, not_found
+from ..state import ERRORS, AppState, State, Tenant, check_id, not_found
 
 router = APIRouter(prefix="/v1/scenes", tags=["scenes"])
-Tenant = Annotated[str, Depends(require_tenant)]
-State = Annotated[AppState, Depends(get_state)]
-
-ERRORS = {401: {"model": Problem}, 404: {"model": Problem}, 422: {"model": Problem}}
 
 _MULTIPART_SCHEMA = {
     "requestBody": {

@@ -49,6 +49,7 @@ from bayesian_fields_core.context import JobContext
 from bayesian_fields_core.eval.synthetic.cameras import look_at, pinhole
 from bayesian_fields_core.params import PipelineParams
 from bayesian_fields_core.pipeline import run_stage
+from bayesian_fields_core.results.reader import read_result
 from bayesian_fields_core.scene.nerfstudio import write_transforms
 from bayesian_fields_core.scene.ply import write_ply
 from bayesian_fields_core.scene.types import Frame, Gaussians
@@ -350,6 +351,7 @@ def measure(args: argparse.Namespace, work: Path) -> None:
     rss_cluster = peak_rss_mb()
 
     n_frames = fuse["frames"]
+    primitive_ids = read_result(ctx.store, "result/").primitive_ids
     counts = cluster["counts"]
     print(
         f"scale benchmark: {len(scene.gaussians):,} Gaussians, {n_frames} frames at "
@@ -377,6 +379,12 @@ def measure(args: argparse.Namespace, work: Path) -> None:
         f"({counts['primitives']:,} primitives; aim < 1 s on ~2,000)"
     )
     print("    counts: " + ", ".join(f"{k} {v:,}" for k, v in counts.items()))
+    sizes = np.bincount(primitive_ids[primitive_ids >= 0])
+    sizes = sizes[sizes > 0]
+    print(
+        f"    primitive sizes (Gaussians): median {np.median(sizes):.0f}, "
+        f"{(sizes <= 10).sum():,} with <= 10, largest {sizes.max():,}"
+    )
     print(
         f"  peak RSS MiB: start {rss0:.0f}, after load {rss_load:.0f}, after fuse {rss_fuse:.0f}, "
         f"after cluster {rss_cluster:.0f}"

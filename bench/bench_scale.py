@@ -342,10 +342,14 @@ def measure(args: argparse.Namespace, work: Path) -> None:
         scene_prefix=SCENE_PREFIX,
         scene_dir=work / "scene",
     )
+    ticks: list[float] = []  # fuse reports progress once per frame: per-frame times for medians
+    ctx.progress = lambda stage, fraction: ticks.append(time.perf_counter()) if stage == "fuse" else None
     rss0 = peak_rss_mb()
     scene, load_s, _ = timed(ctx.scene)
     rss_load = peak_rss_mb()
+    fuse_start = time.perf_counter()
     fuse, fuse_s, fuse_cpu = timed(lambda: run_stage("fuse", ctx, force=True))
+    per_frame = np.diff([fuse_start, *ticks])
     rss_fuse = peak_rss_mb()
     cluster, cluster_s, cluster_cpu = timed(lambda: run_stage("cluster", ctx, force=True))
     rss_cluster = peak_rss_mb()
@@ -367,6 +371,10 @@ def measure(args: argparse.Namespace, work: Path) -> None:
         f"  fuse            {fuse_s:8.2f} s  = {fuse_s / n_frames:.3f} s/frame "
         f"(CPU {fuse_cpu / n_frames:.3f} s/frame; aim < 0.5)  visibility computed for {fuse['frames_rendered']} frames, "
         f"masks {fuse['masks']:,}, rejected {fuse['masks_rejected']:,}"
+    )
+    print(
+        f"    per frame: median {np.median(per_frame):.3f} s, p90 {np.percentile(per_frame, 90):.3f} s "
+        f"(the first includes encoding the task texts)"
     )
     timings = cluster["timings"]
     print(

@@ -1,0 +1,61 @@
+"""Posed pinhole cameras for synthetic captures: look-at poses on an orbit around the table.
+
+Poses follow the project convention (OpenCV camera axes, world z up), so the same frames can be
+written as COLMAP text and as nerfstudio transforms and read back identically.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from bayesian_fields_core.eval.synthetic.spec import SceneSpec
+from bayesian_fields_core.scene.geometry import intrinsics, rigid
+from bayesian_fields_core.scene.types import Frame
+
+
+def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = np.array([0.0, 0.0, 1.0])) -> np.ndarray:
+    """World-to-camera (4, 4) for a camera at eye looking at target, x right, y down, z forward."""
+    forward = target - eye
+    forward = forward / np.linalg.norm(forward)
+    right = np.cross(forward, up)
+    norm = np.linalg.norm(right)
+    if norm < 1e-9:
+        raise ValueError("look_at: viewing direction is parallel to the up vector")
+    right /= norm
+    down = np.cross(forward, right)
+    c2w_rot = np.stack([right, down, forward], axis=1)
+    return rigid(c2w_rot.T, -c2w_rot.T @ eye)
+
+
+def pinhole(width: int, height: int, fov_deg: float) -> np.ndarray:
+    """Intrinsics with square pixels, principal point at the centre, given horizontal FOV."""
+    f = 0.5 * width / np.tan(np.deg2rad(fov_deg) / 2)
+    return intrinsics(f, f, width / 2, height / 2)
+
+
+def orbit_frames(
+    spec: SceneSpec, target: np.ndarray, rng: np.random.Generator, prefix: str = "frame"
+) -> list[Frame]:
+    """spec.n_frames cameras evenly spaced in azimuth (capture order), cycling through the heights.
+
+    Positions and the look-at point get a little seeded jitter so no two views are symmetric.
+    """
+    n = spec.n_frames
+    azimuth = 2 * np.pi * np.arange(n) / n + rng.uniform(-0.1, 0.1, n)
+    heights = np.asarray(spec.orbit_heights)[np.arange(n) % len(spec.orbit_heights)]
+    eyes = np.stack(
+        [spec.orbit_radius * np.cos(azimuth), spec.orbit_radius * np.sin(azimuth), heights], axis=1
+    )
+    eyes += rng.uniform(-spec.orbit_jitter, spec.orbit_jitter, (n, 3))
+    targets = target + rng.uniform(-0.05, 0.05, (n, 3)) * np.array([1.0, 1.0, 0.5])
+    K = pinhole(spec.width, spec.height, spec.fov_deg)
+    return [
+        Frame(
+            name=f"{prefix}_{i:05d}.png",
+            K=K.copy(),
+            world_to_camera=look_at(eyes[i], targets[i]),
+            width=spec.width,
+            height=spec.height,
+        )
+        for i in range(n)
+    ]

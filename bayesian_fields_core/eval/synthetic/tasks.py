@@ -1,0 +1,77 @@
+"""Task lists with ground truth for a synthetic scene, at several granularities.
+
+Fine tasks name one colour+kind ("get the red cube"; plural when the scene repeats it), coarse
+tasks name a colour or a kind across objects ("move all the yellow things", "get all the mugs"),
+and absent tasks name something the scene does not hold, whose scores calibrate mu0.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from dataclasses import dataclass
+
+import numpy as np
+
+from bayesian_fields_core.eval.synthetic.builder import Instance
+from bayesian_fields_core.eval.synthetic.spec import SceneSpec
+from bayesian_fields_core.eval.vocabulary import COLOURS, COMPOUND_KINDS, plural
+
+
+@dataclass(frozen=True)
+class TaskSpec:
+    """A task's text, its granularity ("fine", "coarse", "absent") and its GT instance ids."""
+
+    text: str
+    granularity: str
+    instance_ids: tuple[int, ...]
+
+
+def fine_task_text(colour: str, kind: str, count: int) -> str:
+    """ "get the red cube" / "pick up the blue mug" (compounds) / "get the red cubes" (repeats)."""
+    noun = plural(kind) if count > 1 else kind
+    verb = "pick up" if kind in COMPOUND_KINDS else "get"
+    return f"{verb} the {colour} {noun}"
+
+
+def make_tasks(spec: SceneSpec, instances: list[Instance], rng: np.random.Generator) -> list[TaskSpec]:
+    """Fine, coarse and absent tasks, capped by the spec, in a seeded but stable order."""
+    objects = [i for i in instances if i.category == "object"]
+    by_pair: dict[tuple[str, str], list[int]] = defaultdict(list)
+    by_colour: dict[str, list[int]] = defaultdict(list)
+    by_kind: dict[str, list[int]] = defaultdict(list)
+    for obj in objects:
+        assert obj.colour is not None
+        by_pair[(obj.colour, obj.kind)].append(obj.id)
+        by_colour[obj.colour].append(obj.id)
+        by_kind[obj.kind].append(obj.id)
+
+    pairs = sorted(by_pair)
+    fine = [
+        TaskSpec(fine_task_text(c, k, len(by_pair[(c, k)])), "fine", tuple(by_pair[(c, k)]))
+        for c, k in (pairs[i] for i in rng.permutation(len(pairs))[: spec.max_fine_tasks])
+    ]
+    kinds_of = {c: {k for (cc, k) in by_pair if cc == c} for c in by_colour}
+    colours_of = {k: {c for (c, kk) in by_pair if kk == k} for k in by_kind}
+    coarse = [
+        TaskSpec(f"move all the {c} things", "coarse", tuple(by_colour[c]))
+        for c in sorted(by_colour)
+        if len(kinds_of[c]) > 1
+    ]
+    coarse += [
+        TaskSpec(f"get all the {plural(k)}", "coarse", tuple(by_kind[k]))
+        for k in sorted(by_kind)
+        if len(colours_of[k]) > 1
+    ]
+    coarse = [coarse[i] for i in rng.permutation(len(coarse))[: spec.max_coarse_tasks]]
+
+    # Absent: prefer a colour the scene never uses, so the task is unrelated to every object.
+    unused = [c for c in COLOURS if c not in by_colour]
+    absent = []
+    for _ in range(spec.n_absent_tasks):
+        kind = str(rng.choice(list(spec.kinds)))
+        colours = unused or [c for c in COLOURS if (c, kind) not in by_pair]
+        colour = str(rng.choice(colours))
+        text = fine_task_text(colour, kind, 1)
+        if all(t.text != text for t in absent):
+            absent.append(TaskSpec(text, "absent", ()))
+    return fine + coarse + absent

@@ -273,3 +273,58 @@ def sample_part(rng: np.random.Generator, part: Part, density: float) -> tuple[n
         keep = np.hypot(pts[:, 0], pts[:, 1]) >= part.min_radius
         pts, normals = pts[keep], normals[keep]
     return pts, normals
+
+
+@dataclass(frozen=True)
+class Caption:
+    """A phrasing and what it refers to: colour and/or kind (None = any), e.g. "red things"."""
+
+    text: str
+    colour: str | None
+    kind: str | None
+
+    def matches(self, colour: str | None, kind: str) -> bool:
+        """Whether an instance of this colour and kind is a right answer for the caption."""
+        return (self.colour is None or self.colour == colour) and (self.kind is None or self.kind == kind)
+
+
+# Task-like phrasings; {c} colour, {k} kind, {K} plural kind, {b} background kind.
+COLOUR_KIND_TEMPLATES = (
+    "{c} {k}",
+    "the {c} {k}",
+    "a {c} {k}",
+    "get the {c} {k}",
+    "pick up the {c} {k}",
+    "grab the {c} {k}",
+    "find the {c} {k}",
+    "get the {c} {K}",
+)
+KIND_TEMPLATES = ("{k}", "the {k}", "get the {k}", "pick up the {k}", "{K}", "all the {K}", "get all the {K}")
+COLOUR_TEMPLATES = (
+    "{c} things",
+    "all the {c} things",
+    "move all the {c} things",
+    "{c} objects",
+    "something {c}",
+)
+BACKGROUND_TEMPLATES = ("{b}", "the {b}", "a {b}")
+
+
+def captions_for(colour: str | None, kind: str) -> list[Caption]:
+    """Every phrasing that rightly describes an instance (an object, or a background kind)."""
+    if kind in BACKGROUND_KINDS:
+        return [Caption(t.format(b=kind), None, kind) for t in BACKGROUND_TEMPLATES]
+    if colour is None:
+        raise ValueError(f"object kind {kind!r} needs a colour")
+    k, big_k = kind, plural(kind)
+    out = [Caption(t.format(c=colour, k=k, K=big_k), colour, kind) for t in COLOUR_KIND_TEMPLATES]
+    out += [Caption(t.format(k=k, K=big_k), None, kind) for t in KIND_TEMPLATES]
+    out += [Caption(t.format(c=colour), colour, None) for t in COLOUR_TEMPLATES]
+    return out
+
+
+def all_words() -> list[str]:
+    """Every word of every phrasing of the vocabulary, sorted (the tiny CLIP's word list)."""
+    texts = [c.text for k in BACKGROUND_KINDS for c in captions_for(None, k)]
+    texts += [c.text for col in COLOURS for k in KINDS for c in captions_for(col, k)]
+    return sorted({w for t in texts for w in t.lower().split()})

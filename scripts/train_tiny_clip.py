@@ -1,0 +1,278 @@
+"""Train the project's tiny CLIP (``models/tiny-clip/``) on masked crops of the synthetic vocabulary.
+
+Why: tests, the demo and CI need a real image/text encoder that knows the synthetic scenes' objects
+and is small enough to commit (< 1 MB) and run on a CPU. This script renders the vocabulary's
+objects (alone, and inside whole scenes with occlusions) and background segments, crops them with
+the pipeline's own ``mask_crops``, and trains a transformers ``CLIPModel`` with a multi-positive
+contrastive loss: a caption such as "move all the red things" is right for every red object, so
+every (image, caption) pair whose meaning matches is a positive, not only the sampled pair.
+It then fits ``calibration.json`` (mu0 from unrelated tasks, mu1 and s from right tasks) on
+held-out crops from other seeds, and writes a word-level tokenizer and ``preprocessor_config.json``
+so ``perception.hf_clip.HFClipEncoder`` loads the folder with ``local_files_only``.
+
+Usage: ``.venv/bin/python scripts/train_tiny_clip.py [--out models/tiny-clip] [--steps 1500]``.
+Deterministic for a given seed; a few minutes on 2 CPU cores.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from tokenizers import Tokenizer, models, normalizers, pre_tokenizers, processors
+from transformers import CLIPConfig, CLIPModel, PreTrainedTokenizerFast
+
+from bayesian_fields_core.eval.synthetic.crops import LabelledCrop, object_crops, scene_crops
+from bayesian_fields_core.eval.vocabulary import (
+    BACKGROUND_KINDS,
+    COLOURS,
+    KINDS,
+    Caption,
+    all_words,
+    captions_for,
+)
+from bayesian_fields_core.fusion.calibration import fit_calibration, save_calibration
+from bayesian_fields_core.perception.clip_inputs import CLIP_MEAN, CLIP_STD, ClipImagePreprocessor
+from bayesian_fields_core.perception.hf_clip import hf_clip_model_id
+
+SPECIALS = ["[PAD]", "[UNK]", "<start>", "<end>"]  # <end> must not be id 2 (HF CLIP's legacy pooling)
+IMAGE_SIZE = 48
+CONTEXT = 16
+
+
+def build_tokenizer() -> PreTrainedTokenizerFast:
+    """Word-level tokenizer over the vocabulary's words; adds <start> ... <end> around every text."""
+    vocab = {w: i for i, w in enumerate(SPECIALS + all_words())}
+    tok = Tokenizer(models.WordLevel(vocab=vocab, unk_token="[UNK]"))
+    tok.normalizer = normalizers.Lowercase()
+    tok.pre_tokenizer = pre_tokenizers.Sequence([pre_tokenizers.Whitespace(), pre_tokenizers.Punctuation()])
+    tok.post_processor = processors.TemplateProcessing(
+        single="<start> $A <end>", special_tokens=[("<start>", vocab["<start>"]), ("<end>", vocab["<end>"])]
+    )
+    return PreTrainedTokenizerFast(
+        tokenizer_object=tok,
+        unk_token="[UNK]",
+        pad_token="[PAD]",
+        bos_token="<start>",
+        eos_token="<end>",
+        model_max_length=CONTEXT,
+    )
+
+
+def build_model(tokenizer: PreTrainedTokenizerFast, seed: int) -> CLIPModel:
+    """About 0.2M parameters: 64-wide towers, 48 px images in 8 px patches."""
+    torch.manual_seed(seed)
+    config = CLIPConfig(
+        text_config={
+            "vocab_size": len(tokenizer),
+            "hidden_size": 64,
+            "intermediate_size": 128,
+            "num_hidden_layers": 2,
+            "num_attention_heads": 4,
+            "max_position_embeddings": CONTEXT,
+            "pad_token_id": tokenizer.pad_token_id,
+            "bos_token_id": tokenizer.bos_token_id,
+            "eos_token_id": tokenizer.eos_token_id,
+        },
+        vision_config={
+            "image_size": IMAGE_SIZE,
+            "patch_size": 8,
+            "hidden_size": 64,
+            "intermediate_size": 128,
+            "num_hidden_layers": 3,
+            "num_attention_heads": 4,
+        },
+        projection_dim=64,
+    )
+    return CLIPModel(config)
+
+
+def preprocessor() -> ClipImagePreprocessor:
+    return ClipImagePreprocessor(IMAGE_SIZE, (IMAGE_SIZE, IMAGE_SIZE), CLIP_MEAN, CLIP_STD)
+
+
+def preprocessor_config() -> dict:
+    return {
+        "image_processor_type": "CLIPImageProcessor",
+        "do_resize": True,
+        "size": {"shortest_edge": IMAGE_SIZE},
+        "do_center_crop": True,
+        "crop_size": {"height": IMAGE_SIZE, "width": IMAGE_SIZE},
+        "do_rescale": True,
+        "rescale_factor": 1 / 255,
+        "do_normalize": True,
+        "image_mean": list(CLIP_MEAN),
+        "image_std": list(CLIP_STD),
+        "resample": 3,
+        "do_convert_rgb": True,
+    }
+
+
+def make_crops(seed: int, n_objects: int, n_scenes: int, views_per_scene: int) -> list[LabelledCrop]:
+    rng = np.random.default_rng(seed)
+    return object_crops(rng, n_objects, views_per_object=4) + scene_crops(rng, n_scenes, views_per_scene)
+
+
+def caption_table() -> tuple[list[Caption], np.ndarray, list[tuple[str | None, str]]]:
+    """All captions, the (classes, captions) match matrix, and the classes (colour, kind)."""
+    classes: list[tuple[str | None, str]] = [(c, k) for k in KINDS for c in COLOURS] + [
+        (None, b) for b in BACKGROUND_KINDS
+    ]
+    captions = list({cap.text: cap for cls in classes for cap in captions_for(*cls)}.values())
+    match = np.array([[cap.matches(c, k) for cap in captions] for c, k in classes])
+    return captions, match, classes
+
+
+def encode(
+    model: CLIPModel, pixels: torch.Tensor | None, ids: torch.Tensor | None, mask: torch.Tensor | None
+):
+    """Unit image and/or text embeddings through the projection heads (what get_*_features do)."""
+    img = txt = None
+    if pixels is not None:
+        img = model.visual_projection(model.vision_model(pixel_values=pixels).pooler_output)
+        img = img / img.norm(dim=-1, keepdim=True)
+    if ids is not None:
+        txt = model.text_projection(model.text_model(input_ids=ids, attention_mask=mask).pooler_output)
+        txt = txt / txt.norm(dim=-1, keepdim=True)
+    return img, txt
+
+
+def multi_positive_loss(logits: torch.Tensor, positive: torch.Tensor) -> torch.Tensor:
+    """Symmetric InfoNCE where every matching pair counts: -log of the softmax mass on positives."""
+    neg_inf = torch.finfo(logits.dtype).min
+
+    def one_side(lg: torch.Tensor, pos: torch.Tensor) -> torch.Tensor:
+        return -(torch.logsumexp(lg.masked_fill(~pos, neg_inf), dim=1) - torch.logsumexp(lg, dim=1)).mean()
+
+    return 0.5 * (one_side(logits, positive) + one_side(logits.T, positive.T))
+
+
+def augment(x: torch.Tensor, gen: torch.Generator) -> torch.Tensor:
+    """Horizontal flips and mild brightness changes (colour itself is a label, so no hue jitter)."""
+    flip = torch.rand(x.shape[0], generator=gen) < 0.5
+    x = torch.where(flip[:, None, None, None], x.flip(-1), x)
+    b = 1.0 + 0.2 * (torch.rand(x.shape[0], 1, 1, 1, generator=gen) - 0.5)
+    mean = torch.tensor(CLIP_MEAN).view(1, 3, 1, 1)
+    std = torch.tensor(CLIP_STD).view(1, 3, 1, 1)
+    return b * x + (b - 1.0) * mean / std
+
+
+def train(args: argparse.Namespace) -> None:
+    torch.set_num_threads(args.threads)
+    t0 = time.perf_counter()
+    tokenizer = build_tokenizer()
+    model = build_model(tokenizer, args.seed)
+    print(f"model: {sum(p.numel() for p in model.parameters()):,} parameters")
+
+    captions, match, classes = caption_table()
+    class_index = {cls: i for i, cls in enumerate(classes)}
+    crops = make_crops(args.seed, args.objects, args.scenes, args.views)
+    held = make_crops(args.seed + 1000, args.objects // 6, max(args.scenes // 4, 1), args.views)
+    print(
+        f"data: {len(crops)} training crops, {len(held)} held-out crops in {time.perf_counter() - t0:.0f} s"
+    )
+
+    prep = preprocessor()
+    pixels = torch.from_numpy(prep([c.image for c in crops]))
+    labels = torch.tensor([class_index[(c.colour, c.kind)] for c in crops])
+    enc = tokenizer([c.text for c in captions], padding=True, return_tensors="pt")
+    cap_ids, cap_mask = enc["input_ids"], enc["attention_mask"]
+    match_t = torch.from_numpy(match)
+    # Per class, the captions it may be paired with (sampled uniformly per step).
+    cap_choices = [torch.from_numpy(np.flatnonzero(row)) for row in match]
+
+    gen = torch.Generator().manual_seed(args.seed)
+    opt = torch.optim.AdamW(model.parameters(), lr=args.lr, weight_decay=0.05)
+    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=args.lr, total_steps=args.steps, pct_start=0.1)
+    model.train()
+    for step in range(args.steps):
+        idx = torch.randint(len(crops), (args.batch,), generator=gen)
+        y = labels[idx]
+        pick = torch.stack(
+            [cap_choices[c][torch.randint(len(cap_choices[c]), (1,), generator=gen)][0] for c in y.tolist()]
+        )
+        img, txt = encode(model, augment(pixels[idx], gen), cap_ids[pick], cap_mask[pick])
+        logits = model.logit_scale.exp().clamp(max=100.0) * img @ txt.T
+        loss = multi_positive_loss(logits, match_t[y][:, pick])
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        sched.step()
+        if step % 200 == 0 or step == args.steps - 1:
+            print(f"step {step:5d} loss {loss.item():.3f} ({time.perf_counter() - t0:.0f} s)")
+    model.eval()
+    save(model, tokenizer, Path(args.out), held, captions, match, class_index)
+    print(f"done in {time.perf_counter() - t0:.0f} s")
+
+
+def save(
+    model: CLIPModel,
+    tokenizer: PreTrainedTokenizerFast,
+    out: Path,
+    held: list[LabelledCrop],
+    captions: list[Caption],
+    match: np.ndarray,
+    class_index: dict,
+) -> None:
+    """Write the model folder, then measure and calibrate it on the held-out crops."""
+    out.mkdir(parents=True, exist_ok=True)
+    model.save_pretrained(str(out))
+    tokenizer.save_pretrained(str(out))
+    (out / "preprocessor_config.json").write_text(json.dumps(preprocessor_config(), indent=2) + "\n")
+
+    from bayesian_fields_core.perception.hf_clip import HFClipEncoder
+
+    encoder = HFClipEncoder(out)  # measure through the production loader, as the pipeline will
+    img = encoder.encode_images([c.image for c in held])
+    txt = encoder.encode_texts([c.text for c in captions])
+    scores = img @ txt.T
+    y = np.array([class_index[(c.colour, c.kind)] for c in held])
+    canon = [
+        i
+        for i, c in enumerate(captions)
+        if c.colour is not None and c.kind is not None and c.text.count(" ") == 1
+    ]
+    canon += [i for i, c in enumerate(captions) if c.colour is None and c.text in BACKGROUND_KINDS]
+    canon_match = match[:, canon]
+    top1 = float(np.mean(canon_match[y, np.argmax(scores[:, canon], axis=1)]))
+    # Task-like phrasings: positives are right tasks, negatives unrelated tasks (no shared colour or kind).
+    tasks = [
+        i for i, c in enumerate(captions) if c.text.split()[0] in ("get", "pick", "move", "grab", "find")
+    ]
+    pos = scores[:, tasks][match[y][:, tasks]]
+    related = np.array(
+        [[captions[j].colour == c.colour or captions[j].kind == c.kind for j in tasks] for c in held]
+    )
+    neg = scores[:, tasks][~match[y][:, tasks] & ~related]
+    cal = fit_calibration(pos, neg, hf_clip_model_id(out))
+    save_calibration(out / "calibration.json", cal)
+    report = {
+        "held_out_crops": len(held),
+        "top1_canonical": round(top1, 4),
+        "mu0": cal.mu0,
+        "mu1": cal.mu1,
+        "s": cal.s,
+    }
+    print(json.dumps(report))
+
+
+def main(argv: list[str] | None = None) -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--out", default="models/tiny-clip")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--steps", type=int, default=1500)
+    p.add_argument("--batch", type=int, default=128)
+    p.add_argument("--lr", type=float, default=3e-3)
+    p.add_argument("--objects", type=int, default=600, help="single objects rendered (4 views each)")
+    p.add_argument("--scenes", type=int, default=10, help="whole scenes for context and background crops")
+    p.add_argument("--views", type=int, default=10, help="random views per scene")
+    p.add_argument("--threads", type=int, default=2)
+    train(p.parse_args(argv))
+
+
+if __name__ == "__main__":
+    main()

@@ -65,6 +65,18 @@ def _tangent_frames(normals: np.ndarray) -> np.ndarray:
     return np.stack([t1, t2, n], axis=2)
 
 
+def lambert(normals: np.ndarray, spec: SceneSpec) -> np.ndarray:
+    """Baked diffuse shading factor per surfel: ambient + (1 - ambient) * max(0, n . light).
+
+    Trained splats bake the capture's lighting into their colours; without it every face of a
+    cube has one flat colour and shapes are told apart by their silhouettes only.
+    """
+    light = np.asarray(spec.light_direction, dtype=np.float64)
+    light = light / np.linalg.norm(light)
+    unit = normals / np.linalg.norm(normals, axis=1, keepdims=True)
+    return spec.ambient + (1.0 - spec.ambient) * np.clip(unit @ light, 0.0, None)
+
+
 def surfels_to_gaussians(
     points: np.ndarray,
     normals: np.ndarray,
@@ -76,13 +88,15 @@ def surfels_to_gaussians(
     """Flat Gaussians on a surface: in-plane std sigma, thickness sigma * flatness, normal-aligned.
 
     sigma is per point (different surfaces have different densities); scales get a little
-    log-normal jitter and colours a little noise, as a trained splat would.
+    log-normal jitter, colours baked diffuse shading and a little noise, as a trained splat would.
     """
     n = points.shape[0]
     jitter = np.exp(rng.normal(0.0, 0.1, (n, 1)))
     scales = sigma[:, None] * jitter * np.array([[1.0, 1.0, spec.flatness]])
     quats = Rotation.from_matrix(_tangent_frames(normals)).as_quat(scalar_first=True)
-    colour = np.clip(rgb + rng.normal(0.0, spec.colour_noise, (n, 3)), 0.0, 1.0)
+    colour = np.clip(
+        rgb * lambert(normals, spec)[:, None] + rng.normal(0.0, spec.colour_noise, (n, 3)), 0.0, 1.0
+    )
     sh = np.zeros((n, sh_coefficient_count(spec.sh_degree), 3), dtype=np.float32)
     sh[:, 0, :] = (colour - 0.5) / SH_C0
     logit = np.log(spec.opacity / (1.0 - spec.opacity))

@@ -48,6 +48,8 @@ class SceneSpec(BaseModel):
     flatness: float = Field(0.1, gt=0, le=1)
     opacity: float = Field(0.95, gt=0, lt=1)
     colour_noise: float = Field(0.03, ge=0, description="std of per-Gaussian RGB noise")
+    light_direction: tuple[float, float, float] = (0.35, 0.55, 1.0)
+    ambient: float = Field(0.55, ge=0, le=1, description="share of the colour lit regardless of the normal")
     sh_degree: int = Field(0, ge=0, le=3, description="higher-degree coefficients are written as zeros")
     # Cameras: an orbit around the table centre, alternating between the given heights.
     width: int = Field(320, ge=16)

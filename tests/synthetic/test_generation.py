@@ -200,3 +200,22 @@ def test_command_line(tmp_path: Path) -> None:
     assert gt["spec"]["seed"] == 3 and gt["spec"]["orbit_heights"] == [1.2, 1.4]
     assert yaml.safe_load((out / "tasks.yaml").read_text())["tasks"]
     assert main([str(tmp_path / "bad"), "--n-objects", "0"]) == 2
+
+
+def test_bundled_sample_scene_is_current_and_small() -> None:
+    import importlib.util
+
+    repo = Path(__file__).resolve().parents[2]
+    folder = repo / "samples" / "tabletop"
+    spec_mod = importlib.util.spec_from_file_location(
+        "make_sample_scene", repo / "scripts" / "make_sample_scene.py"
+    )
+    module = importlib.util.module_from_spec(spec_mod)
+    spec_mod.loader.exec_module(module)
+    assert module.folder_size(folder) < 5_000_000
+    scene = load_scene(folder)
+    gt = load_ground_truth(folder)
+    assert len(scene.frames) == module.SAMPLE_SPEC.n_frames
+    np.testing.assert_array_equal(scene.gaussians.means, build_scene(module.SAMPLE_SPEC).gaussians.means)
+    assert gt.instance_ids.shape == (len(scene.gaussians),)
+    assert load_tasks(folder / "tasks.yaml") == gt.task_texts

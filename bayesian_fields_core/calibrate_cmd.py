@@ -57,11 +57,13 @@ def read_score_file(path: Path) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(pos), np.asarray(neg)
 
 
-def scene_scores(scene_dirs: list[Path], profile: str | None) -> tuple[np.ndarray, np.ndarray, str]:
+def scene_scores(
+    scene_dirs: list[Path], profile: str | None, max_frames: int | None = None
+) -> tuple[np.ndarray, np.ndarray, str]:
     """Positive/negative cosine scores from synthetic scenes with ground truth."""
     from .eval.ground_truth_scores import collect_scores
 
-    return collect_scores(scene_dirs, profile, positive_overlap=POSITIVE_OVERLAP)
+    return collect_scores(scene_dirs, profile, positive_overlap=POSITIVE_OVERLAP, max_frames=max_frames)
 
 
 def calibrate(args: argparse.Namespace) -> None:
@@ -69,7 +71,7 @@ def calibrate(args: argparse.Namespace) -> None:
         pos, neg = read_score_file(Path(args.scores))
         model_id = args.model_id or "unknown"
     else:
-        pos, neg, encoder_id = scene_scores([Path(p) for p in args.scene], args.profile)
+        pos, neg, encoder_id = scene_scores([Path(p) for p in args.scene], args.profile, args.max_frames)
         model_id = args.model_id or encoder_id
     cal = fit_calibration(pos, neg, model_id)
     save_calibration(args.out, cal)

@@ -57,6 +57,8 @@ def objects_from_primitives(
     params: PipelineParams,
 ) -> ObjectMap:
     """Steps 8-12 from primitives and their conditionals (shared by the method and baselines)."""
+    if pyx.shape[0] == 0:
+        return _empty_object_map(len(means), primitive_ids, pyx.shape[1], params.top_k)
     timings: dict[str, float] = {}
     t = time.perf_counter()
     edges = overlap_edges(means, primitive_ids, padding=params.edge_padding)
@@ -130,6 +132,35 @@ def objects_from_primitives(
             "knn_removed_gaussians": removed,
         },
         timings=timings,
+    )
+
+
+def _empty_object_map(
+    n_gaussians: int, primitive_ids: np.ndarray, n_columns: int, k: int
+) -> ObjectMap:
+    """The map of a scene where every mask was rejected: no objects, so no task has a match.
+
+    A legitimate outcome (e.g. a task list unrelated to the scene), not an error: the result
+    still records the tasks, with empty selections.
+    """
+    return ObjectMap(
+        object_ids=np.full(n_gaussians, -1, dtype=np.int64),
+        primitive_ids=primitive_ids,
+        probabilities=np.zeros((0, n_columns)),
+        selection=np.full((n_columns - 1, k), -1, dtype=np.int64),
+        sizes=np.zeros(0, dtype=np.int64),
+        centroids=np.zeros((0, 3)),
+        boxes=[],
+        counts={
+            "primitives": 0,
+            "nodes_after_identical_merge": 0,
+            "edges": 0,
+            "clusters": 0,
+            "objects": 0,
+            "selected_objects": 0,
+            "knn_removed_gaussians": 0,
+        },
+        timings={},
     )
 
 

@@ -241,3 +241,18 @@ def test_two_clean_runs_are_identical(baseline: dict, scene_dir: Path, profile: 
         assert [(o.object_id, o.num_gaussians) for o in again.selections[task]] == [
             (o.object_id, o.num_gaussians) for o in first.selections[task]
         ]
+
+
+def test_scene_where_every_mask_is_rejected_gives_an_empty_result(
+    baseline: dict, scene_dir: Path, profile: dict, tmp_path: Path
+) -> None:
+    """Tasks nothing in the scene matches: OR-phi rejects every mask, the job still succeeds."""
+    hopeless = dict(profile, calibration={"mu0": 0.9, "mu1": 1.0, "s": 0.05})
+    ctx = make_ctx(scene_dir, tmp_path / "job", baseline["root"] / "cache", counting_models(hopeless))
+    reports = run_job(ctx)
+    assert reports["fuse"]["masks_rejected"] == reports["fuse"]["masks"] > 0
+    assert reports["cluster"]["counts"]["primitives"] == 0
+    result = _result(tmp_path / "job")
+    assert result.probabilities.shape == (0, len(TASKS) + 1)
+    assert (result.object_ids == -1).all()
+    assert all(len(result.selections[task]) == 0 for task in TASKS)

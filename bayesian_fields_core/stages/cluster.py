@@ -135,9 +135,7 @@ def objects_from_primitives(
     )
 
 
-def _empty_object_map(
-    n_gaussians: int, primitive_ids: np.ndarray, n_columns: int, k: int
-) -> ObjectMap:
+def _empty_object_map(n_gaussians: int, primitive_ids: np.ndarray, n_columns: int, k: int) -> ObjectMap:
     """The map of a scene where every mask was rejected: no objects, so no task has a match.
 
     A legitimate outcome (e.g. a task list unrelated to the scene), not an error: the result

@@ -49,7 +49,9 @@ def _depth_for_frame(ctx: JobContext, renderer_factory: Any, frame: Any) -> np.n
             raise ValueError(f"depth_source='input' but frame {frame.name} has no depth image")
         return depth
     # The renderer (torch, resident tensors) is built only when a frame needs rendered depth.
-    out = renderer_factory().render(frame.K, frame.world_to_camera, frame.width, frame.height, depth_only=True)
+    out = renderer_factory().render(
+        frame.K, frame.world_to_camera, frame.width, frame.height, depth_only=True
+    )
     return out.median_depth if ctx.params.depth_source == "median" else out.depth
 
 

@@ -43,7 +43,9 @@ def test_calibrate_from_the_sample_scene_separates_the_classes(
     assert 0 < cal["s"] < 1
 
 
-def test_calibrate_rejects_a_scene_without_ground_truth(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_calibrate_rejects_a_scene_without_ground_truth(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     assert main(["calibrate", "--scene", str(tmp_path), "--out", str(tmp_path / "c.json")]) == 2
     assert "gt.json" in capsys.readouterr().err
     assert not (tmp_path / "c.json").exists()

@@ -68,8 +68,14 @@ def scene_scores(
 
 def calibrate(args: argparse.Namespace) -> None:
     if args.scores:
+        if not args.model_id:
+            # A calibration is only used with the CLIP it was fitted for; without an id no profile
+            # would ever accept the file.
+            raise InputError(
+                "--scores needs --model-id (the encoder's model id, e.g. tiny-clip@b8b6386ff433)"
+            )
         pos, neg = read_score_file(Path(args.scores))
-        model_id = args.model_id or "unknown"
+        model_id = args.model_id
     else:
         pos, neg, encoder_id = scene_scores([Path(p) for p in args.scene], args.profile, args.max_frames)
         model_id = args.model_id or encoder_id

@@ -197,7 +197,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--suite-dir", default="bench/_generated/suite", help="where suite scenes are generated/cached"
     )
     ev.add_argument("--out", default="bench/_generated/eval", help="where runs are written")
-    ev.add_argument("--scenes", type=int, default=3, help="number of suite scenes")
+    ev.add_argument("--scenes", type=int, default=5, help="number of suite scenes (3 to 5)")
     ev.add_argument("--profile", help="model profile YAML")
     ev.add_argument("--markdown", action="store_true", help="print the table as Markdown")
     ev.set_defaults(func=cmd_eval)

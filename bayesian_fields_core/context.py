@@ -42,7 +42,7 @@ class Models:
     produced it. Loading is lazy so a CPU worker running only `cluster` never loads CLIP.
     """
 
-    def __init__(self, profile: Any, *, device: str = "cpu") -> None:
+    def __init__(self, profile: Any, *, device: str | None = None) -> None:
         from .perception import registry
 
         self._registry = registry
@@ -66,6 +66,12 @@ class Models:
         if self._encoder is None:
             self._encoder = self._registry.build_encoder(self.profile.encoder, device=self.device)
         return self._encoder
+
+    @property
+    def render_device(self) -> str:
+        """Where depth is rendered when the job names no device: the models' device if one was
+        forced (a worker's), else the CPU."""
+        return self.device or "cpu"
 
     @property
     def calibration(self) -> Any:

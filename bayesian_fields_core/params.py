@@ -51,15 +51,21 @@ class PipelineParams(BaseModel):
     )
 
     # --- objects (steps 7-12) --------------------------------------------------------------------
-    null_mode: Literal["product", "complement_max", "constant"] = Field(
-        "product", description="Null task: prod(1-p_y) (default), 1-max p_y, or a constant null_constant."
+    null_mode: Literal["product", "one_minus_max"] = Field(
+        "product", description="Null task: prod(1-p_y) (default) or 1-max p_y."
     )
-    null_constant: float = Field(0.5, ge=0, description="Null task score when null_mode='constant'.")
     edge_padding: float = Field(
         0.0, ge=0, description="Grow primitive boxes by this many metres before overlap tests."
     )
     identical_tolerance: float = Field(
         1e-6, ge=0, description="Max abs difference for 'identical' p(y|x) vectors."
+    )
+    aib_px: Literal["uniform", "size"] = Field(
+        "uniform",
+        description=(
+            "p(x) of the primitives in the AIB: 'uniform' (Clio, METHOD step 9) or 'size' "
+            "(proportional to Gaussian count, so a sliver of a few Gaussians weighs little)."
+        ),
     )
     aib_delta: float = Field(
         1e-5, gt=0, description="AIB stops when the relative information loss exceeds this (Clio)."
@@ -68,6 +74,25 @@ class PipelineParams(BaseModel):
         0.1, ge=0, le=1, description="Drop objects below this probability for every task."
     )
     top_k: int = Field(5, ge=1, description="Objects kept per task.")
+    min_object_gaussians: int = Field(
+        50,
+        ge=1,
+        description=(
+            "Objects with fewer Gaussians are never selected: a handful of Gaussians seen through "
+            "one relevant mask saturate their probability but are slivers, not objects (ours)."
+        ),
+    )
+    selection_score: Literal["evidence", "relevance", "conditional"] = Field(
+        "evidence",
+        description=(
+            "Score that ranks a task's objects. 'relevance' = p(y=1|object), the mean fused "
+            "probability of its Gaussians (paper Eq. 8); 'evidence' = the mean fused log-odds, "
+            "which orders objects alike while they are uncertain and still separates them once "
+            "their probabilities saturate at 1; 'conditional' = the normalised p(y|object) the "
+            "AIB clusters on, which penalises objects relevant to several tasks at once. Pruning "
+            "uses relevance, or the conditional with 'conditional'."
+        ),
+    )
     knn_filter: bool = Field(True, description="Statistical outlier removal on each selected object.")
     knn_k: int = Field(20, ge=1, description="Neighbours for the kNN filter (Open3D default 20).")
     knn_std_ratio: float = Field(2.0, gt=0, description="Keep points with mean kNN distance <= mean + r*std.")
@@ -79,4 +104,11 @@ class PipelineParams(BaseModel):
     store_primitive_ids: bool = Field(True, description="Store per-Gaussian primitive ids in the result.")
 
     # --- execution ------------------------------------------------------------------------------
-    device: str = Field("cpu", description="Torch device for rendering and CLIP ('cpu', 'cuda', 'cuda:1').")
+    device: str | None = Field(
+        None,
+        description=(
+            "Torch device for rendering and the models ('cpu', 'cuda', 'cuda:1'). None: the CLI "
+            "uses each model's profile device and renders on the CPU; a service worker always uses "
+            "its own device (BFIELDS_WORKER_DEVICE) and ignores a job's value."
+        ),
+    )

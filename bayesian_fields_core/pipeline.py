@@ -38,14 +38,20 @@ def run_stage(name: str, ctx: JobContext, *, force: bool = False) -> dict[str, A
 
 
 def run_job(ctx: JobContext, *, force: bool = False) -> dict[str, dict[str, Any]]:
-    """Run every stage in order; returns {stage: report}."""
+    """Run every stage in order; returns {stage: report}.
+
+    The calibration is checked against the encoder first (from files, nothing is loaded), so a
+    calibration made for another CLIP fails in a second, not after the whole perception stage.
+    """
+    _ = ctx.models.calibration
     return {name: run_stage(name, ctx, force=force) for name in STAGES}
 
 
-def load_models(profile: Any = None, *, device: str = "cpu") -> Models:
+def load_models(profile: Any = None, *, device: str | None = None) -> Models:
     """Models of a model profile (path, dict or `ModelProfile`); built lazily on first use.
 
     None selects the bundled default profile (classical segmenter + the project's tiny CLIP).
+    `device` overrides the profile's per-model devices; None keeps them.
     """
     from .perception import registry
 

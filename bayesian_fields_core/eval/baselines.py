@@ -111,9 +111,12 @@ def clio_style(ctx: JobContext, text: np.ndarray, params: BaselineParams, mu0: f
     members = membership_matrix(primitive_ids, n_prim)
     prim_emb = np.asarray(members @ emb)
     prim_emb /= np.maximum(np.linalg.norm(prim_emb, axis=1, keepdims=True), 1e-12)
-    cos = np.clip(prim_emb @ text.T, 0.0, None)
+    # Clio normalises raw cosine scores (positive for its CLIP) with the null task at a fixed
+    # score. Cosines of other models can be negative, so both go through the order-preserving
+    # map (cos + 1) / 2 onto [0, 1] first; the rows stay valid distributions for any model.
+    cos = (prim_emb @ text.T + 1.0) / 2.0
     null = params.clio_null_score if params.clio_null_score is not None else mu0
-    rows = np.concatenate([cos, np.full((n_prim, 1), null)], axis=1)
+    rows = np.concatenate([cos, np.full((n_prim, 1), (null + 1.0) / 2.0)], axis=1)
     pyx = rows / rows.sum(axis=1, keepdims=True)
     # Clio has no floater filter: the baseline keeps every Gaussian of its objects.
     return objects_from_primitives(
@@ -143,6 +146,7 @@ def _finish(
         object_ids=object_ids,
         primitive_ids=np.full(len(object_ids), -1, dtype=np.int64),
         probabilities=table,
+        relevance=None,
         selection=selection,
         sizes=sizes,
         centroids=centroids,

@@ -48,15 +48,20 @@ class SceneCase:
 
 
 def estimates_from_selection(
-    tasks: list[str], probabilities: np.ndarray, selection: dict[str, list[tuple[int, Any]]]
+    tasks: list[str], selection: dict[str, list[tuple[int, Any]]]
 ) -> list[EstimatedObject]:
-    """Estimated objects for Clio's metrics: each selected object with its box and its
-    probability for the tasks that selected it (0 for the others, so it is never queried there)."""
+    """Estimated objects for Clio's metrics, queried in the map's own order.
+
+    Each task's selection is already ranked by the map (the method ranks by `selection_score`,
+    which need not be the stored conditional), so an object's score for a task is its rank
+    turned into a decreasing number (1 for the best, then 1/2, 1/3...), and 0 for tasks that did
+    not select it, so it is never queried there.
+    """
     by_object: dict[int, EstimatedObject] = {}
-    for t, task in enumerate(tasks):
-        for object_id, box in selection.get(task, []):
+    for task in tasks:
+        for rank, (object_id, box) in enumerate(selection.get(task, [])):
             est = by_object.setdefault(object_id, EstimatedObject(box=box, probabilities={}))
-            est.probabilities[task] = float(probabilities[object_id, t])
+            est.probabilities[task] = 1.0 / (rank + 1)
     return list(by_object.values())
 
 
@@ -69,7 +74,7 @@ def _estimates_from_map(tasks: list[str], object_map: ObjectMap) -> list[Estimat
         ]
         for t, task in enumerate(tasks)
     }
-    return estimates_from_selection(tasks, object_map.probabilities, selection)
+    return estimates_from_selection(tasks, selection)
 
 
 def pool_scores(per_scene: list[ClioScores]) -> ClioScores:
@@ -150,7 +155,7 @@ def evaluate_scene(
         seconds = perceive_s + float(reports["fuse"]["seconds"]) + float(reports["cluster"]["seconds"])
         result = read_result(store, "result/")
         selection = {task: [(o.object_id, o.box) for o in objs] for task, objs in result.selections.items()}
-        estimates = estimates_from_selection(case.tasks, result.probabilities, selection)
+        estimates = estimates_from_selection(case.tasks, selection)
         rows[row] = clio_metrics(estimates, case.ground_truth, num_objects=result.num_objects, time_s=seconds)
         log(f"  {case.name}: {row.strip():<40} strict {rows[row].strict_osr:.2f}  iou {rows[row].iou:.2f}")
 
@@ -180,7 +185,7 @@ def run_suite(
     *,
     suite_dir: Path,
     out_dir: Path,
-    n_scenes: int = 3,
+    n_scenes: int = 5,
     profile: str | None = None,
     markdown: bool = False,
     base_params: dict[str, Any] | None = None,

@@ -45,18 +45,13 @@ def membership_matrix(labels: np.ndarray, num_groups: int) -> sp.csr_matrix:
     )
 
 
-def primitive_probabilities(
-    primitive_ids: np.ndarray,
-    gaussian_probs: np.ndarray,
-    *,
-    null_mode: NullMode = "product",
-    num_primitives: int | None = None,
-) -> np.ndarray:
-    """(P, T+1) float64 rows `p(y|x)`: mean Gaussian probabilities, null appended, normalised.
+def primitive_relevance(
+    primitive_ids: np.ndarray, gaussian_probs: np.ndarray, num_primitives: int | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """((P, T) float64 mean Gaussian probability per primitive, (P,) Gaussian counts).
 
-    `primitive_ids` (N,) with -1 for Gaussians in no primitive; `gaussian_probs` (N, T).
-    A primitive without Gaussians (only possible with an explicit larger `num_primitives`) gets
-    zero task mass, hence all its mass on the null task.
+    The unnormalised `p(y = 1 | x)`: each task's own relevance, before the null is appended and
+    the row normalised for the AIB.
     """
     primitive_ids = np.asarray(primitive_ids)
     if gaussian_probs.ndim != 2 or gaussian_probs.shape[0] != primitive_ids.shape[0]:
@@ -71,5 +66,22 @@ def primitive_probabilities(
     task = (
         np.asarray(members @ gaussian_probs.astype(np.float64, copy=False)) / np.maximum(counts, 1)[:, None]
     )
+    return task, counts
+
+
+def primitive_probabilities(
+    primitive_ids: np.ndarray,
+    gaussian_probs: np.ndarray,
+    *,
+    null_mode: NullMode = "product",
+    num_primitives: int | None = None,
+) -> np.ndarray:
+    """(P, T+1) float64 rows `p(y|x)`: mean Gaussian probabilities, null appended, normalised.
+
+    `primitive_ids` (N,) with -1 for Gaussians in no primitive; `gaussian_probs` (N, T).
+    A primitive without Gaussians (only possible with an explicit larger `num_primitives`) gets
+    zero task mass, hence all its mass on the null task.
+    """
+    task, _ = primitive_relevance(primitive_ids, gaussian_probs, num_primitives)
     rows = np.concatenate([task, null_probability(task, null_mode)[:, None]], axis=1)
     return rows / rows.sum(axis=1, keepdims=True)

@@ -23,7 +23,7 @@ from ..errors import InputError
 from ..objects.obb import OrientedBox
 
 FORMAT_NAME = "bayesian-fields-result"
-FORMAT_VERSION = "1.0"
+FORMAT_VERSION = "1.1"
 """MAJOR.MINOR. A reader accepts any MINOR of its MAJOR (minors only add optional fields and files);
 a new MAJOR (a changed meaning, dtype rule or layout) is refused with a clear error."""
 
@@ -31,6 +31,7 @@ SUMMARY_KEY = "summary.json"
 OBJECT_IDS_KEY = "object_ids.bin"
 PRIMITIVE_IDS_KEY = "primitive_ids.bin"
 PROBABILITIES_KEY = "probabilities.bin"
+RELEVANCE_KEY = "relevance.bin"
 OBJECT_EXPORT_DIR = "exports/objects/"
 SCENE_EXPORT_KEY = "exports/scene_objects.ply"
 
@@ -88,6 +89,10 @@ class Result:
     object_ids: (N,) integer, the object of each Gaussian, -1 = none (pruned, never observed, or
         removed as a floater of a selected object by the kNN filter).
     probabilities: (O, T + 1) float32, p(task | object) per object; the last column is the null task.
+        The normalised conditional the AIB clustered on (a distribution over tasks + null).
+    relevance: optional (O, T) float32, p(y = 1 | object): each task's own probability that the
+        object is relevant (the mean fused probability of its Gaussians), the score objects are
+        pruned and selected by (format 1.1; None in 1.0 results).
     selections: task -> its top-k objects, most probable first.
     primitive_ids: optional (N,) integer primitive of each Gaussian, -1 = none.
     parameters / models / timings_s: provenance: pipeline parameters, model ids, seconds per stage.
@@ -99,6 +104,7 @@ class Result:
     probabilities: np.ndarray
     selections: dict[str, list[SelectedObject]]
     primitive_ids: np.ndarray | None = None
+    relevance: np.ndarray | None = None
     parameters: dict[str, Any] = field(default_factory=dict)
     models: dict[str, Any] = field(default_factory=dict)
     timings_s: dict[str, float] = field(default_factory=dict)
@@ -129,6 +135,13 @@ class Result:
             raise InputError(
                 f"result: object_ids must lie in [-1, {probs.shape[0]}), got [{ids.min()}, {ids.max()}]"
             )
+        if self.relevance is not None:
+            rel = np.asarray(self.relevance)
+            if rel.shape != (probs.shape[0], len(self.tasks)) or not np.isfinite(rel).all():
+                raise InputError(
+                    f"result: relevance must be finite, (objects, tasks) = ({probs.shape[0]}, {len(self.tasks)}),"
+                    f" got {rel.shape}"
+                )
         if self.primitive_ids is not None:
             prim = np.asarray(self.primitive_ids)
             if prim.shape != ids.shape or not np.issubdtype(prim.dtype, np.integer):

@@ -17,6 +17,7 @@ from .format import (
     OBJECT_IDS_KEY,
     PRIMITIVE_IDS_KEY,
     PROBABILITIES_KEY,
+    RELEVANCE_KEY,
     SUMMARY_KEY,
     Result,
     SelectedObject,
@@ -70,6 +71,12 @@ def _array(store: Store, prefix: str, summary: dict[str, Any], name: str, file: 
     return arr
 
 
+def _relevance(store: Store, prefix: str, summary: dict[str, Any]) -> np.ndarray | None:
+    """The optional relevance table (format 1.1); None for 1.0 results, which lack it."""
+    rel = _array(store, prefix, summary, "relevance", RELEVANCE_KEY)
+    return None if rel is None else rel.astype(np.float32, copy=False)
+
+
 def read_result(store: Store, prefix: str) -> Result:
     """The `Result` stored under `prefix` (ids as int64 with -1 = none, probabilities float32)."""
     prefix = normalise_prefix(prefix)
@@ -92,6 +99,7 @@ def read_result(store: Store, prefix: str) -> Result:
         probabilities=probabilities.astype(np.float32, copy=False),
         selections=selections,
         primitive_ids=_array(store, prefix, summary, "primitive_ids", PRIMITIVE_IDS_KEY),
+        relevance=_relevance(store, prefix, summary),
         parameters=summary.get("parameters", {}),
         models=summary.get("models", {}),
         timings_s=summary.get("timings_s", {}),
@@ -113,14 +121,14 @@ def object_gaussians(result: Result, gaussians: Gaussians, object_id: int) -> Ga
 
 def result_sizes(store: Store, prefix: str) -> dict[str, int]:
     """Bytes of every file of the result under `prefix`, keyed relative to the prefix, plus totals:
-    `total/object_map` (object ids + probabilities + summary: the map a consumer needs, the paper's
+    `total/object_map` (object ids + probabilities + relevance + summary: the map a consumer needs, the paper's
     "Objects" column), `total/with_primitives` (plus the optional primitive ids) and
     `total/exports` (the .ply files)."""
     prefix = normalise_prefix(prefix)
     sizes = {key[len(prefix) :]: store.size(key) for key in store.list(prefix)}
     if SUMMARY_KEY not in sizes:
         raise InputError(f"{prefix}{SUMMARY_KEY}: no result here")
-    object_map = sum(sizes.get(k, 0) for k in (SUMMARY_KEY, OBJECT_IDS_KEY, PROBABILITIES_KEY))
+    object_map = sum(sizes.get(k, 0) for k in (SUMMARY_KEY, OBJECT_IDS_KEY, PROBABILITIES_KEY, RELEVANCE_KEY))
     totals = {
         "total/object_map": object_map,
         "total/with_primitives": object_map + sizes.get(PRIMITIVE_IDS_KEY, 0),

@@ -23,6 +23,7 @@ from .format import (
     OBJECT_IDS_KEY,
     PRIMITIVE_IDS_KEY,
     PROBABILITIES_KEY,
+    RELEVANCE_KEY,
     SCENE_EXPORT_KEY,
     SUMMARY_KEY,
     Result,
@@ -84,6 +85,12 @@ def write_result(
     probs = np.asarray(result.probabilities, dtype=np.float32)
     arrays["probabilities"], data = encode_array(probs, file=PROBABILITIES_KEY)
     put(PROBABILITIES_KEY, data)
+    if result.relevance is not None:
+        rel = np.asarray(result.relevance, dtype=np.float32)
+        arrays["relevance"], data = encode_array(rel, file=RELEVANCE_KEY)
+        put(RELEVANCE_KEY, data)
+    else:
+        store.delete(prefix + RELEVANCE_KEY)
 
     exports: dict[str, Any] = {"objects": {}, "scene": None}
     if gaussians is not None and export_ply:

@@ -18,7 +18,7 @@ from ..objects.edges import merge_identical, overlap_edges
 from ..objects.knn_filter import statistical_outlier_mask
 from ..objects.obb import OrientedBox, minimum_obb
 from ..objects.primitives import PrimitiveBuilder
-from ..objects.probabilities import primitive_probabilities
+from ..objects.probabilities import primitive_probabilities, primitive_relevance
 from ..objects.select import prune_mask, top_k
 from ..params import PipelineParams
 from ..results.format import Result, SelectedObject
@@ -35,13 +35,15 @@ class ObjectMap:
     """The clustered map before serialisation.
 
     object_ids: (N,) int64 object of each Gaussian, -1 = none (kNN-removed floaters of selected
-    objects are none). probabilities: (C, T+1) p(y|object), null last. selection: (T, k) object
+    objects are none). probabilities: (C, T+1) p(y|object), null last. relevance: (C, T)
+    p(y=1|object) when the caller supplied per-primitive relevance, else None. selection: (T, k) object
     ids per task, best first, -1 padded. boxes / centroids / sizes: per object, after filtering.
     """
 
     object_ids: np.ndarray
     primitive_ids: np.ndarray
     probabilities: np.ndarray
+    relevance: np.ndarray | None
     selection: np.ndarray
     sizes: np.ndarray
     centroids: np.ndarray
@@ -55,14 +57,25 @@ def objects_from_primitives(
     primitive_ids: np.ndarray,
     pyx: np.ndarray,
     params: PipelineParams,
+    relevance: np.ndarray | None = None,
+    evidence: np.ndarray | None = None,
 ) -> ObjectMap:
-    """Steps 8-12 from primitives and their conditionals (shared by the method and baselines)."""
+    """Steps 8-12 from primitives and their conditionals (shared by the method and baselines).
+
+    `relevance` (P, T) is each primitive's unnormalised p(y=1|x); with `selection_score =
+    'relevance'` objects are pruned and ranked by its Gaussian-weighted mean over the object.
+    Without it (the Clio-style baseline, which has no such quantity) the conditional is used.
+    `evidence` (P, T), each primitive's mean fused log-odds, ranks objects instead when given.
+    """
     if pyx.shape[0] == 0:
         return _empty_object_map(len(means), primitive_ids, pyx.shape[1], params.top_k)
     timings: dict[str, float] = {}
     t = time.perf_counter()
     edges = overlap_edges(means, primitive_ids, padding=params.edge_padding)
-    merged = merge_identical(pyx, edges, atol=params.identical_tolerance)
+    weights = None
+    if params.aib_px == "size":
+        weights = np.bincount(primitive_ids[primitive_ids >= 0], minlength=pyx.shape[0]).astype(np.float64)
+    merged = merge_identical(pyx, edges, atol=params.identical_tolerance, weights=weights)
     timings["edges"] = time.perf_counter() - t
     t = time.perf_counter()
     clustering = aib(merged.pyx, merged.edges, params.aib_delta, weights=merged.weights)
@@ -71,16 +84,30 @@ def objects_from_primitives(
     t = time.perf_counter()
     object_of_primitive = clustering.labels[merged.labels]
     raw_pyx = clustering.pyx
-    keep = prune_mask(raw_pyx, params.prune_threshold)
+    object_relevance_all = (
+        None
+        if relevance is None
+        else _object_relevance(relevance, primitive_ids, clustering.labels[merged.labels])
+    )
+    if object_relevance_all is None:
+        ranking = raw_pyx
+    else:
+        # top_k / prune_mask take (C, T+1) tables; the null column is never ranked.
+        ranking = np.concatenate([object_relevance_all, np.zeros((len(raw_pyx), 1))], axis=1)
+    keep = prune_mask(ranking, params.prune_threshold)
+    if evidence is not None:
+        object_evidence = _object_relevance(evidence, primitive_ids, clustering.labels[merged.labels])
+        ranking = np.concatenate([object_evidence, np.zeros((len(raw_pyx), 1))], axis=1)
     # Renumber surviving objects 0..K-1; pruned objects become -1.
     new_id = np.full(raw_pyx.shape[0], -1, dtype=np.int64)
     new_id[keep] = np.arange(int(keep.sum()))
     object_of_primitive = new_id[object_of_primitive]
     probabilities = raw_pyx[keep]
+    object_relevance = None if object_relevance_all is None else object_relevance_all[keep]
     object_ids = np.where(primitive_ids >= 0, object_of_primitive[np.maximum(primitive_ids, 0)], -1)
     sizes = np.bincount(object_ids[object_ids >= 0], minlength=len(probabilities))
     selection = (
-        top_k(probabilities, sizes, params.top_k)
+        top_k(ranking[keep], sizes, params.top_k, candidates=sizes >= params.min_object_gaussians)
         if len(probabilities)
         else np.full((raw_pyx.shape[1] - 1, params.top_k), -1, dtype=np.int64)
     )
@@ -118,6 +145,7 @@ def objects_from_primitives(
         object_ids=object_ids,
         primitive_ids=primitive_ids,
         probabilities=probabilities,
+        relevance=object_relevance,
         selection=selection,
         sizes=sizes,
         centroids=centroids,
@@ -145,6 +173,7 @@ def _empty_object_map(n_gaussians: int, primitive_ids: np.ndarray, n_columns: in
         object_ids=np.full(n_gaussians, -1, dtype=np.int64),
         primitive_ids=primitive_ids,
         probabilities=np.zeros((0, n_columns)),
+        relevance=np.zeros((0, n_columns - 1)),
         selection=np.full((n_columns - 1, k), -1, dtype=np.int64),
         sizes=np.zeros(0, dtype=np.int64),
         centroids=np.zeros((0, 3)),
@@ -160,6 +189,19 @@ def _empty_object_map(n_gaussians: int, primitive_ids: np.ndarray, n_columns: in
         },
         timings={},
     )
+
+
+def _object_relevance(
+    relevance: np.ndarray, primitive_ids: np.ndarray, cluster_of_primitive: np.ndarray
+) -> np.ndarray:
+    """(C, T) p(y=1|cluster): the Gaussian-weighted mean of its primitives' relevance, i.e. the
+    mean fused probability over all the cluster's Gaussians."""
+    counts = np.bincount(primitive_ids[primitive_ids >= 0], minlength=len(relevance)).astype(np.float64)
+    n_clusters = int(cluster_of_primitive.max(initial=-1)) + 1
+    weight = np.bincount(cluster_of_primitive, weights=counts, minlength=n_clusters)
+    out = np.zeros((n_clusters, relevance.shape[1]))
+    np.add.at(out, cluster_of_primitive, relevance * counts[:, None])
+    return out / np.maximum(weight, 1e-12)[:, None]
 
 
 def build_primitives(ctx: JobContext) -> np.ndarray:
@@ -186,7 +228,8 @@ def run(ctx: JobContext) -> dict[str, Any]:
     t0 = time.perf_counter()
     timings: dict[str, float] = {}
     gaussians = ctx.scene().gaussians
-    probs = get_arrays(ctx.store, ctx.job_key(FUSION_KEY))["probabilities"]
+    fused = get_arrays(ctx.store, ctx.job_key(FUSION_KEY))
+    probs = fused["probabilities"]
     ctx.progress("cluster", 0.05)
 
     t = time.perf_counter()
@@ -196,8 +239,14 @@ def run(ctx: JobContext) -> dict[str, Any]:
 
     t = time.perf_counter()
     pyx = primitive_probabilities(primitive_ids, probs, null_mode=ctx.params.null_mode)
+    score = ctx.params.selection_score
+    relevance = evidence = None
+    if score != "conditional":
+        relevance, _ = primitive_relevance(primitive_ids, probs, pyx.shape[0])
+    if score == "evidence":
+        evidence, _ = primitive_relevance(primitive_ids, fused["logodds"], pyx.shape[0])
     timings["probabilities"] = time.perf_counter() - t
-    object_map = objects_from_primitives(gaussians.means, primitive_ids, pyx, ctx.params)
+    object_map = objects_from_primitives(gaussians.means, primitive_ids, pyx, ctx.params, relevance, evidence)
     timings.update(object_map.timings)
     ctx.progress("cluster", 0.8)
 
@@ -238,7 +287,11 @@ def build_result(ctx: JobContext, object_map: ObjectMap, timings: dict[str, floa
             chosen.append(
                 SelectedObject(
                     object_id=int(obj),
-                    probability=float(object_map.probabilities[obj, t]),
+                    probability=float(
+                        object_map.relevance[obj, t]
+                        if object_map.relevance is not None
+                        else object_map.probabilities[obj, t]
+                    ),
                     num_gaussians=int(object_map.sizes[obj]),
                     centroid=object_map.centroids[obj],
                     box=box,
@@ -249,6 +302,7 @@ def build_result(ctx: JobContext, object_map: ObjectMap, timings: dict[str, floa
         tasks=list(ctx.tasks),
         object_ids=object_map.object_ids,
         probabilities=object_map.probabilities.astype(np.float32),
+        relevance=None if object_map.relevance is None else object_map.relevance.astype(np.float32),
         selections=selections,
         primitive_ids=object_map.primitive_ids if ctx.params.store_primitive_ids else None,
         parameters=ctx.params.model_dump(mode="json"),

@@ -15,6 +15,7 @@ import time
 from typing import Any
 
 import numpy as np
+from scipy.special import logit
 
 from ..context import JobContext
 from ..fusion.averaging import CosineAverager
@@ -107,7 +108,7 @@ def run(ctx: JobContext) -> dict[str, Any]:
         if renderer is None:
             from ..render import GaussianRenderer
 
-            renderer = GaussianRenderer(gaussians, device=ctx.params.device)
+            renderer = GaussianRenderer(gaussians, device=ctx.params.device or ctx.models.render_device)
         return renderer
 
     accepted_chunks: list[np.ndarray] = []
@@ -137,11 +138,15 @@ def run(ctx: JobContext) -> dict[str, Any]:
         probs = probabilities(logodds)
     else:
         probs = averaging.probabilities(lik, unobserved=ctx.params.prior)
+        logodds = logit(np.clip(probs.astype(np.float64), 1e-12, 1 - 1e-12)).astype(np.float32)
     observed = None if averaging is None else averaging.counts > 0
     put_arrays(
         ctx.store,
         ctx.job_key(FUSION_KEY),
         probabilities=probs.astype(np.float32),
+        # Probabilities saturate at 1.0 in float32 after a few dozen agreeing views; the log-odds
+        # keep the evidence that ranks saturated objects (selection_score='evidence').
+        logodds=logodds.astype(np.float32, copy=False),
         **({} if observed is None else {"observed": observed}),
     )
     accepted_all = np.concatenate(accepted_chunks) if accepted_chunks else np.zeros(0, bool)

@@ -79,16 +79,25 @@ class _Runtime:
         with self._lock:
             if profile not in self._models:
                 source: Any = self.settings.model_profile if profile == "default" else profile
-                device = "cpu" if self.settings.worker_device == "cpu" else _auto_device()
+                device = _worker_device(self.settings.worker_device)
                 log.info("loading model profile %s on %s", profile, device)
                 self._models[profile] = load_models(source, device=device)
             return self._models[profile]
 
 
-def _auto_device() -> str:
+def _worker_device(setting: str) -> str:
+    """The torch device of this worker: 'cpu', 'cuda' (refused loudly when absent, so a GPU pool
+    scheduled on a node without a working GPU fails instead of crawling on the CPU), or 'auto'."""
+    if setting == "cpu":
+        return "cpu"
     import torch
 
-    return "cuda" if torch.cuda.is_available() else "cpu"
+    if torch.cuda.is_available():
+        return "cuda"
+    if setting == "cuda":
+        raise RuntimeError("BFIELDS_WORKER_DEVICE=cuda but torch sees no CUDA device")
+    log.warning("BFIELDS_WORKER_DEVICE=auto: no CUDA device, running on the CPU")
+    return "cpu"
 
 
 _runtime: _Runtime | None = None
@@ -232,7 +241,9 @@ def _run_locked(rt: _Runtime, record: JobRecord, stage: str) -> str:
             job_prefix=record.job_prefix,
             scene_prefix=record.scene_prefix,
             tasks=record.tasks,
-            params=PipelineParams.model_validate(record.parameters),
+            # The worker's own device (BFIELDS_WORKER_DEVICE) wins over a job's: clients cannot
+            # know which hardware a pool has.
+            params=PipelineParams.model_validate({**record.parameters, "device": None}),
             models=rt.models(record.model_profile),
             progress=progress,
             should_cancel=should_cancel,

@@ -170,11 +170,28 @@ def test_calibrate_rejects_bad_csv(
     scores = tmp_path / "scores.csv"
     scores.write_text(content)
     out = tmp_path / "cal.json"
-    assert main(["calibrate", "--scores", str(scores), "--out", str(out)]) == 2
+    assert main(["calibrate", "--scores", str(scores), "--model-id", "m@1", "--out", str(out)]) == 2
     assert message in _one_line_error(capsys)
     assert not out.exists()
 
 
 def test_calibrate_rejects_a_missing_scores_file(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    assert main(["calibrate", "--scores", str(tmp_path / "none.csv"), "--out", str(tmp_path / "c.json")]) == 2
+    args = [
+        "calibrate",
+        "--scores",
+        str(tmp_path / "none.csv"),
+        "--model-id",
+        "m@1",
+        "--out",
+        str(tmp_path / "c.json"),
+    ]
+    assert main(args) == 2
     assert "none.csv" in _one_line_error(capsys)
+
+
+def test_calibrate_scores_need_a_model_id(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    scores = tmp_path / "scores.csv"
+    scores.write_text("score,label\n0.30,1\n0.26,1\n0.19,0\n0.21,0\n")
+    assert main(["calibrate", "--scores", str(scores), "--out", str(tmp_path / "c.json")]) == 2
+    assert "--model-id" in _one_line_error(capsys)
+    assert not (tmp_path / "c.json").exists()

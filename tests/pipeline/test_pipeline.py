@@ -71,15 +71,26 @@ def test_end_to_end_result_is_complete_and_consistent(baseline: dict, scene_dir:
 
     selected = [obj for objs in result.selections.values() for obj in objs]
     assert selected, "no task selected any object"
+    assert result.relevance is not None and result.relevance.shape == (n_objects, len(TASKS))
+    assert (result.relevance >= 0).all() and (result.relevance <= 1).all()
+    # Each object's Gaussians before the kNN filter: those of the primitives it is made of.
+    prims = result.primitive_ids
+    kept = result.object_ids >= 0
+    object_of_primitive = np.full(prims.max() + 1, -1)
+    object_of_primitive[prims[kept]] = result.object_ids[kept]
+    unfiltered = np.where(prims >= 0, object_of_primitive[np.maximum(prims, 0)], -1)
+    logodds = get_arrays(ctx.store, ctx.job_key(FUSION_KEY))["logodds"]
     for task, objects in result.selections.items():
         t = TASKS.index(task)
         assert len(objects) <= ctx.params.top_k
-        probs = [o.probability for o in objects]
-        assert probs == sorted(probs, reverse=True)
+        # Ranked by evidence (mean fused log-odds), reported with their relevance p(y=1|object).
+        evidence = [float(logodds[unfiltered == o.object_id, t].mean()) for o in objects]
+        assert evidence == sorted(evidence, reverse=True)
         for obj in objects:
             members = means[result.object_ids == obj.object_id].astype(np.float64)
             assert obj.num_gaussians == len(members) > 0
-            assert obj.probability == pytest.approx(float(result.probabilities[obj.object_id, t]), abs=1e-6)
+            assert (unfiltered == obj.object_id).sum() >= ctx.params.min_object_gaussians
+            assert obj.probability == pytest.approx(float(result.relevance[obj.object_id, t]), abs=1e-6)
             np.testing.assert_allclose(obj.centroid, members.mean(axis=0), atol=1e-5)
             grown = type(obj.box)(obj.box.center, obj.box.rotation, obj.box.extents + 1e-5)
             assert grown.contains(members).all()

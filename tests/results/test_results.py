@@ -195,3 +195,23 @@ def test_invalid_results_are_refused(setup):
         write_result(store, "r", good)
     with pytest.raises(InputError, match="Gaussians"):
         write_result(store, "r", make_result(rng, g), gaussians=g.subset(np.arange(10)))
+
+
+def test_relevance_round_trip_and_optional(setup):
+    """Format 1.1's relevance table comes back exactly; a result without it still reads (1.0)."""
+    store, _, res = setup
+    res.relevance = np.random.default_rng(3).random((NUM_OBJECTS, len(TASKS))).astype(np.float32)
+    written = write_result(store, "r", res)
+    back = read_result(store, "r")
+    np.testing.assert_array_equal(back.relevance, res.relevance)
+    assert back.format_version == "1.1"
+    assert result_sizes(store, "r")["total/object_map"] == sum(
+        written[k] for k in ("summary.json", "object_ids.bin", "probabilities.bin", "relevance.bin")
+    )
+    res.relevance = None
+    write_result(store, "r", res)
+    assert read_result(store, "r").relevance is None
+    assert not store.exists("r/relevance.bin")  # no stale table from the earlier write
+    res.relevance = np.zeros((NUM_OBJECTS, len(TASKS) + 1), dtype=np.float32)
+    with pytest.raises(InputError, match="relevance"):
+        write_result(store, "r", res)

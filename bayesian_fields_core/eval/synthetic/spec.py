@@ -82,7 +82,7 @@ class SceneSpec(BaseModel):
 
 
 def suite_specs() -> list[SceneSpec]:
-    """Three modest scenes (~35-60k Gaussians, 24-32 frames at 320x240) for ``bfields eval``.
+    """Five modest scenes (~35-60k Gaussians, 24-32 frames at 320x240) for ``bfields eval``.
 
     They differ in seed, clutter, colour reuse and grouping, so the suite exercises fine tasks
     with duplicates, coarse colour/kind tasks, compounds and absent-object tasks.
@@ -105,5 +105,19 @@ def suite_specs() -> list[SceneSpec]:
             orbit_radius=1.4,
             orbit_heights=(1.2, 1.5, 1.75),
             n_absent_tasks=2,
+        ),
+        SceneSpec(
+            name="tabletop-d", seed=41, n_objects=10, n_duplicates=2, n_colours=5, n_groups=2, n_frames=28
+        ),
+        SceneSpec(
+            name="tabletop-e",
+            seed=53,
+            n_objects=12,
+            n_duplicates=2,
+            n_colours=6,
+            n_groups=3,
+            n_frames=28,
+            orbit_radius=1.5,
+            orbit_heights=(1.25, 1.6),
         ),
     ]

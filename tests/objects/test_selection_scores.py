@@ -1,0 +1,72 @@
+"""How the cluster stage ranks a task's objects: relevance, evidence, conditional, min size."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from bayesian_fields_core.objects.probabilities import primitive_probabilities, primitive_relevance
+from bayesian_fields_core.params import PipelineParams
+from bayesian_fields_core.stages.cluster import _object_relevance, objects_from_primitives
+
+# Three far-apart primitives (no box overlaps, so the AIB merges nothing):
+#  A: 100 Gaussians relevant to both tasks (p = 0.99, 0.99)
+#  B:  60 Gaussians relevant to task 0 only (p = 0.90, 0.01)
+#  C:  10 Gaussians, a sliver that saturated on task 0 (p = 1.0 - 1e-6, 0.01)
+SIZES = (100, 60, 10)
+PROBS = ((0.99, 0.99), (0.90, 0.01), (1.0 - 1e-6, 0.01))
+
+
+def _scene() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(0)
+    ids = np.repeat(np.arange(3), SIZES)
+    means = rng.normal(scale=0.05, size=(len(ids), 3)) + np.array([[0, 0, 0], [5, 0, 0], [0, 5, 0]])[ids]
+    probs = np.asarray(PROBS, dtype=np.float64)[ids]
+    return means, ids, probs
+
+
+def _select(params: PipelineParams, **scores: np.ndarray) -> list[int]:
+    means, ids, probs = _scene()
+    pyx = primitive_probabilities(ids, probs)
+    object_map = objects_from_primitives(means, ids, pyx, params, **scores)
+    assert object_map.counts["objects"] == 3
+    # Objects keep the primitives' order here (nothing merged or pruned), so ids compare directly.
+    return [int(o) for o in object_map.selection[0] if o >= 0]
+
+
+def test_conditional_penalises_the_object_relevant_to_two_tasks() -> None:
+    # Normalised over tasks + null, A's mass is split between its two tasks: ~0.5 < B's ~0.9.
+    order = _select(
+        PipelineParams(knn_filter=False, top_k=3, selection_score="conditional", min_object_gaussians=1)
+    )
+    assert order[:2] == [2, 1] and order[2] == 0
+
+
+def test_relevance_ranks_by_the_task_probability_and_skips_slivers() -> None:
+    means, ids, probs = _scene()
+    relevance, counts = primitive_relevance(ids, probs)
+    np.testing.assert_allclose(relevance, np.asarray(PROBS))
+    np.testing.assert_array_equal(counts, SIZES)
+    params = PipelineParams(knn_filter=False, top_k=3, min_object_gaussians=1)
+    assert _select(params, relevance=relevance) == [2, 0, 1]  # the sliver's 1.0 wins without a floor
+    params = PipelineParams(knn_filter=False, top_k=3, min_object_gaussians=50)
+    assert _select(params, relevance=relevance) == [0, 1]  # C (10 Gaussians) is never selected
+
+
+def test_evidence_orders_saturated_objects_by_their_log_odds() -> None:
+    means, ids, _ = _scene()
+    # Both objects saturate at p = 1.0 in float32, but A carries far more evidence than B.
+    logodds = np.array([[40.0, -5.0], [20.0, -5.0], [30.0, -5.0]])[ids]
+    probs = np.ones_like(logodds)
+    relevance, _ = primitive_relevance(ids, probs)
+    evidence, _ = primitive_relevance(ids, logodds)
+    params = PipelineParams(knn_filter=False, top_k=3, min_object_gaussians=50)
+    pyx = primitive_probabilities(ids, probs)
+    selected = objects_from_primitives(means, ids, pyx, params, relevance, evidence).selection[0]
+    assert selected.tolist()[:2] == [0, 1]
+
+
+def test_object_relevance_is_the_gaussian_weighted_mean() -> None:
+    relevance = np.array([[1.0], [0.0], [0.5]])
+    primitive_ids = np.repeat(np.arange(3), [3, 1, 2])
+    clusters = np.array([0, 0, 1])  # primitives 0 and 1 merged into cluster 0
+    np.testing.assert_allclose(_object_relevance(relevance, primitive_ids, clusters), [[0.75], [0.5]])

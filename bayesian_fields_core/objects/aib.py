@@ -177,18 +177,19 @@ def _merge_heap(nodes: _Nodes, edges: np.ndarray, stop: _Stop) -> tuple[list[tup
     ]
     heapq.heapify(heap)
 
-    def rescan(k: int) -> None:
-        """Recompute node k's best edge over all its neighbours and push it."""
+    def edges_of(k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+        """(neighbours, lo, hi, costs) of node k's edges after recording its best; None if it has none."""
         version[k] += 1
         if not neighbours[k]:
             best_cost[k], best_arg[k] = np.inf, -1
-            return
+            return None
         ms = np.fromiter(neighbours[k], dtype=np.int64, count=len(neighbours[k]))
         lo, hi = np.minimum(ms, k), np.maximum(ms, k)
         c = nodes.pair_costs(lo, hi)
         top = int(np.lexsort((hi, lo, c))[0])
         best_cost[k], best_arg[k] = c[top], ms[top]
         heapq.heappush(heap, (float(c[top]), int(lo[top]), int(hi[top]), k, int(version[k])))
+        return ms, lo, hi, c
 
     merges: list[tuple[int, int]] = []
     costs: list[float] = []
@@ -210,16 +211,10 @@ def _merge_heap(nodes: _Nodes, edges: np.ndarray, stop: _Stop) -> tuple[list[tup
         neighbours[i] |= neighbours[j]
         neighbours[i] -= {i, j}
         neighbours[j] = set()
-        version[i] += 1
-        if not neighbours[i]:
-            best_cost[i], best_arg[i] = np.inf, -1
+        found = edges_of(i)  # every edge of i changed: i's own best comes from these
+        if found is None:
             continue
-        ks = np.fromiter(neighbours[i], dtype=np.int64, count=len(neighbours[i]))
-        lo, hi = np.minimum(ks, i), np.maximum(ks, i)
-        c = nodes.pair_costs(lo, hi)  # every edge of i changed: i's own best comes from these
-        top = int(np.lexsort((hi, lo, c))[0])
-        best_cost[i], best_arg[i] = c[top], ks[top]
-        heapq.heappush(heap, (float(c[top]), int(lo[top]), int(hi[top]), i, int(version[i])))
+        ks, lo, hi, c = found
         pointed = (best_arg[ks] == i) | (best_arg[ks] == j)
         cur_lo = np.minimum(ks, best_arg[ks])
         cur_hi = np.maximum(ks, best_arg[ks])
@@ -237,7 +232,7 @@ def _merge_heap(nodes: _Nodes, edges: np.ndarray, stop: _Stop) -> tuple[list[tup
             best_cost[k], best_arg[k] = c[n], i
             heapq.heappush(heap, (float(c[n]), int(lo[n]), int(hi[n]), k, int(version[k])))
         for k in ks[stale].tolist():
-            rescan(k)
+            edges_of(k)
     return merges, costs
 
 

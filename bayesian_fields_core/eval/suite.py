@@ -24,6 +24,7 @@ from ..stages.cluster import ObjectMap
 from ..store import LocalStore
 from ..tasks import load_tasks
 from .baselines import BaselineParams, clio_style, semantic_gaussians
+from .bootstrap import paired_differences
 from .clio import ClioScores, EstimatedObject, GTObject, TaskScores, clio_metrics, format_table
 
 FULL = "Bayesian Fields (ours)"
@@ -202,6 +203,15 @@ def run_suite(
     print()
     print(f"Synthetic suite: {len(cases)} scenes, {pooled[FULL].num_gt} (task, GT object) pairs")
     print(format_table(pooled, markdown=markdown))
+    print()
+    print(f"Full method minus each row, paired bootstrap over the {len(pooled[FULL].per_task)} tasks (95%):")
+    for row, scores in pooled.items():
+        if row == FULL:
+            continue
+        diff = paired_differences(pooled[FULL], scores)
+        marks = "".join("*" if d.significant else " " for d in diff.values())
+        print(f"  {row.strip():<56} strict {diff['strict_osr']}  IoU {diff['iou']}  {marks}")
+    print("  (* = the interval excludes 0)")
     return pooled
 
 

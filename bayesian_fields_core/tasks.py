@@ -13,8 +13,11 @@ MAX_TASKS = 256
 MAX_TASK_CHARS = 200
 
 
-def normalise_tasks(raw: object, *, source: str = "tasks") -> list[str]:
-    """Validate a task list: strings, non-empty, unique, bounded in count and length.
+def normalise_tasks(
+    raw: object, *, source: str = "tasks", max_tasks: int = MAX_TASKS, max_chars: int = MAX_TASK_CHARS
+) -> list[str]:
+    """Validate a task list: strings, non-empty, unique, bounded in count and length (the service
+    passes its configured limits).
 
     Accepts a list of strings, a list of {"task": ...} / {"name": ...} entries (the form the
     synthetic scenes' tasks.yaml uses, which carries extra fields) or {"tasks": [...]}.
@@ -30,13 +33,13 @@ def normalise_tasks(raw: object, *, source: str = "tasks") -> list[str]:
         if not isinstance(item, str) or not item.strip():
             raise InputError(f"task #{i + 1} is not a non-empty string", source=source)
         text = " ".join(item.split())
-        if len(text) > MAX_TASK_CHARS:
-            raise InputError(f"task #{i + 1} is longer than {MAX_TASK_CHARS} characters", source=source)
+        if len(text) > max_chars:
+            raise InputError(f"task #{i + 1} is longer than {max_chars} characters", source=source)
         tasks.append(text)
     if not tasks:
         raise InputError("the task list is empty", source=source)
-    if len(tasks) > MAX_TASKS:
-        raise InputError(f"{len(tasks)} tasks; at most {MAX_TASKS} are allowed", source=source)
+    if len(tasks) > max_tasks:
+        raise InputError(f"{len(tasks)} tasks; at most {max_tasks} are allowed", source=source)
     duplicates = sorted({t for t in tasks if tasks.count(t) > 1})
     if duplicates:
         raise InputError(f"duplicate tasks: {duplicates}", source=source)

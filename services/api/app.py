@@ -14,7 +14,7 @@ from fastapi.responses import JSONResponse
 from bayesian_fields_core.errors import InputError
 from services.common.api_keys import ApiKeyRing
 from services.common.jobs import JobStore
-from services.common.settings import ServiceSettings, get_settings
+from services.common.settings import ServiceSettings, apply_log_level, get_settings
 from services.common.storage import build_store
 from services.worker.celery_app import make_celery
 
@@ -33,6 +33,7 @@ Everything a key can see lives in its tenant's namespace; other tenants' ids ans
 
 def create_app(settings: ServiceSettings | None = None) -> FastAPI:
     settings = settings or get_settings()
+    apply_log_level(settings)
     store = build_store(settings)
     client = redis.Redis.from_url(settings.redis_url, socket_timeout=10, socket_connect_timeout=5)
     state = AppState(

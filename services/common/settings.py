@@ -125,10 +125,11 @@ class ServiceSettings(BaseSettings):
     max_active_jobs_per_tenant: int = Field(
         16, gt=0, description="Queued + running jobs a tenant may have; more are refused with 429."
     )
-    job_retention_days: int = Field(30, gt=0, description="Days finished jobs and results are kept.")
 
     # ---- misc ------------------------------------------------------------------------------------
-    log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = Field("INFO", description="Log level.")
+    log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = Field(
+        "INFO", description="Level of the services' own loggers (services.*, bayesian_fields_core.*)."
+    )
 
     @field_validator("redis_url")
     @classmethod
@@ -168,3 +169,11 @@ def get_settings() -> ServiceSettings:
     """The process-wide settings, read once from the environment (`get_settings.cache_clear()` to
     re-read, e.g. in tests)."""
     return ServiceSettings()
+
+
+def apply_log_level(settings: ServiceSettings) -> None:
+    """Set BFIELDS_LOG_LEVEL on the project's loggers (handlers stay with uvicorn / Celery)."""
+    import logging
+
+    for name in ("services", "bayesian_fields_core"):
+        logging.getLogger(name).setLevel(settings.log_level)

@@ -14,12 +14,13 @@ from __future__ import annotations
 
 from celery import Celery
 
-from services.common.settings import ServiceSettings, get_settings
+from services.common.settings import ServiceSettings, apply_log_level, get_settings
 
 from .dispatch import STAGE_QUEUE_ROLE, STAGE_TASKS
 
 
 def make_celery(settings: ServiceSettings, *, include_tasks: bool = False) -> Celery:
+    apply_log_level(settings)
     """A Celery app bound to the settings' Redis; `include_tasks` registers the stage tasks."""
     app = Celery(
         "bfields", broker=settings.redis_url, include=["services.worker.tasks"] if include_tasks else []

@@ -28,6 +28,9 @@ SERVICE_ENV = {
     "BFIELDS_STAGE_LOCK_TTL_S": "6",
     "BFIELDS_RECOVERY_INTERVAL_S": "2",
     "BFIELDS_RECOVERY_GRACE_S": "3",
+    # Below the defaults (256 / 200) so the tests prove the configured limits are the ones applied.
+    "BFIELDS_MAX_TASKS": "20",
+    "BFIELDS_MAX_TASK_CHARS": "60",
 }
 
 

@@ -76,6 +76,8 @@ def test_job_validation(client_a: httpx.Client, stored_scene: dict) -> None:
         ({"scene_id": sid, "tasks": ["a"], "parameters": {"top_kk": 3}}, "top_kk"),
         ({"scene_id": sid, "tasks": ["a"], "parameters": {"top_k": 0}}, "top_k"),
         ({"scene_id": sid, "tasks": ["a"], "model_profile": "huge"}, "huge"),
+        ({"scene_id": sid, "tasks": [f"task {i}" for i in range(21)]}, "at most 20"),
+        ({"scene_id": sid, "tasks": ["get the " + "very " * 12 + "red cube"]}, "longer than 60"),
     ]
     for body, fragment in bad:
         resp = client_a.post("/v1/jobs", json=body)

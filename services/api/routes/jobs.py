@@ -53,11 +53,7 @@ def _build_job(state: AppState, tenant: str, scene_id: str, tasks: list[str], pa
         )
     s = state.settings
     try:
-        tasks = normalise_tasks(tasks, source="tasks")
-        if len(tasks) > s.max_tasks or any(len(t) > s.max_task_chars for t in tasks):
-            raise InputError(
-                f"at most {s.max_tasks} tasks of at most {s.max_task_chars} characters", source="tasks"
-            )
+        tasks = normalise_tasks(tasks, source="tasks", max_tasks=s.max_tasks, max_chars=s.max_task_chars)
         params = PipelineParams.model_validate(parameters).model_dump(mode="json", exclude_unset=True)
     except InputError as exc:
         raise HTTPException(422, str(exc)) from None

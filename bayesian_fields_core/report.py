@@ -45,7 +45,7 @@ def print_result(
         ("task", "left"),
         ("rank", "right"),
         ("object", "right"),
-        ("p(task|object)", "right"),
+        ("p(relevant)", "right"),
         ("Gaussians", "right"),
         ("centroid (m)", "left"),
     ):

@@ -58,12 +58,18 @@ def read_score_file(path: Path) -> tuple[np.ndarray, np.ndarray]:
 
 
 def scene_scores(
-    scene_dirs: list[Path], profile: str | None, max_frames: int | None = None
+    scene_dirs: list[Path], profile: str | None, max_frames: int | None = None, negatives: str = "absent"
 ) -> tuple[np.ndarray, np.ndarray, str]:
     """Positive/negative cosine scores from synthetic scenes with ground truth."""
     from .eval.ground_truth_scores import collect_scores
 
-    return collect_scores(scene_dirs, profile, positive_overlap=POSITIVE_OVERLAP, max_frames=max_frames)
+    return collect_scores(
+        scene_dirs,
+        profile,
+        positive_overlap=POSITIVE_OVERLAP,
+        max_frames=max_frames,
+        negatives=negatives,  # type: ignore[arg-type]
+    )
 
 
 def calibrate(args: argparse.Namespace) -> None:
@@ -77,7 +83,9 @@ def calibrate(args: argparse.Namespace) -> None:
         pos, neg = read_score_file(Path(args.scores))
         model_id = args.model_id
     else:
-        pos, neg, encoder_id = scene_scores([Path(p) for p in args.scene], args.profile, args.max_frames)
+        pos, neg, encoder_id = scene_scores(
+            [Path(p) for p in args.scene], args.profile, args.max_frames, args.negatives
+        )
         model_id = args.model_id or encoder_id
     cal = fit_calibration(pos, neg, model_id)
     save_calibration(args.out, cal)

@@ -207,6 +207,12 @@ def build_parser() -> argparse.ArgumentParser:
     src.add_argument("--scores", help="CSV/JSON of (score, label) pairs; label 1 = relevant")
     src.add_argument("--scene", action="append", help="synthetic scene folder(s) with gt.json (repeatable)")
     cal.add_argument("--profile", help="model profile YAML (default bundled)")
+    cal.add_argument(
+        "--negatives",
+        choices=("absent", "unrelated"),
+        default="absent",
+        help="with --scene: negatives from tasks with no object in the scene (paper) or every unrelated pair",
+    )
     cal.add_argument("--max-frames", type=int, help="with --scene: use at most this many frames per scene")
     cal.add_argument("--model-id", help="model id recorded in the file (default: the encoder's)")
     cal.add_argument("--out", required=True, help="calibration JSON to write")

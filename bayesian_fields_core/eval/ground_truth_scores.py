@@ -7,8 +7,9 @@ produces can be labelled through the Gaussians it sees:
 
 - positive: at least `positive_overlap` of the mask's visible Gaussians belong to the task's
   GT objects (the mask shows a relevant object, not just a sliver of one);
-- negative: none of them does (this includes every pair of a task with no object in the scene,
-  the paper's recipe for mu0);
+- negative, with `negatives="absent"` (the paper's recipe for mu0, Sec. 5): any mask scored
+  against a task that has no object in the scene; with `negatives="unrelated"`: a mask none of
+  whose Gaussians belongs to the task's objects (many more pairs, mostly easy background ones);
 - anything in between is ambiguous and left out.
 
 The masks and their Gaussians come from the pipeline's own `perceive` and `fuse` stages, so the
@@ -19,7 +20,7 @@ from __future__ import annotations
 
 import tempfile
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -30,6 +31,8 @@ from ..pipeline import load_models, run_stage
 from ..stages.perceive import frame_key
 from ..store import LocalStore, get_arrays
 from .synthetic import load_ground_truth
+
+Negatives = Literal["absent", "unrelated"]
 
 
 def label_masks(
@@ -59,12 +62,14 @@ def scene_scores(
     work_dir: Path,
     positive_overlap: float,
     max_frames: int | None = None,
+    negatives: Negatives = "absent",
 ) -> tuple[np.ndarray, np.ndarray]:
     """(positive scores, negative scores) of one scene."""
     gt = load_ground_truth(scene_dir)
     tasks = gt.task_texts
     if not tasks:
         raise InputError("ground truth lists no tasks", source=str(scene_dir / "gt.json"))
+    absent = np.array([not task.objects for task in gt.tasks])
     relevant = np.zeros((len(gt.instance_ids), len(tasks)), dtype=bool)
     for t, task in enumerate(gt.tasks):
         ids = [o.instance_id for o in task.objects]
@@ -103,6 +108,9 @@ def scene_scores(
             relevant,
             positive_overlap,
         )
+        if negatives == "absent":
+            seen = np.bincount(vis["mask_ids"].astype(np.int64), minlength=emb.shape[0]) > 0
+            is_neg = seen[:, None] & absent[None, :]
         pos.append(scores[is_pos])
         neg.append(scores[is_neg])
     return np.concatenate(pos or [np.zeros(0)]), np.concatenate(neg or [np.zeros(0)])
@@ -114,6 +122,7 @@ def collect_scores(
     *,
     positive_overlap: float = 0.5,
     max_frames: int | None = None,
+    negatives: Negatives = "absent",
 ) -> tuple[np.ndarray, np.ndarray, str]:
     """(positive scores, negative scores, encoder model id) pooled over scenes with ground truth."""
     if not 0.0 < positive_overlap <= 1.0:
@@ -123,7 +132,9 @@ def collect_scores(
     neg: list[np.ndarray] = []
     with tempfile.TemporaryDirectory(prefix="bfields-calibrate-") as tmp:
         for n, scene_dir in enumerate(scene_dirs):
-            p, q = scene_scores(Path(scene_dir), models, Path(tmp) / str(n), positive_overlap, max_frames)
+            p, q = scene_scores(
+                Path(scene_dir), models, Path(tmp) / str(n), positive_overlap, max_frames, negatives
+            )
             pos.append(p)
             neg.append(q)
     return np.concatenate(pos), np.concatenate(neg), str(models.encoder.model_id)

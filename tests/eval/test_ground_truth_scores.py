@@ -49,3 +49,27 @@ def test_calibrate_rejects_a_scene_without_ground_truth(
     assert main(["calibrate", "--scene", str(tmp_path), "--out", str(tmp_path / "c.json")]) == 2
     assert "gt.json" in capsys.readouterr().err
     assert not (tmp_path / "c.json").exists()
+
+
+def test_negative_sources_differ_as_documented(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The paper's recipe (tasks with no object in the scene) against every unrelated pair."""
+    counts = {}
+    for source in ("absent", "unrelated"):
+        out = tmp_path / f"{source}.json"
+        args = [
+            "calibrate",
+            "--scene",
+            str(SAMPLE),
+            "--max-frames",
+            "3",
+            "--negatives",
+            source,
+            "--out",
+            str(out),
+        ]
+        assert main(args) == 0
+        counts[source] = json.loads(out.read_text())
+    # The sample has one absent task ("pick up the red lamp"), so its negatives are one score per
+    # observed mask; the unrelated pairs include that task and every other one.
+    assert counts["absent"]["num_positive"] == counts["unrelated"]["num_positive"]
+    assert 0 < counts["absent"]["num_negative"] < counts["unrelated"]["num_negative"]

@@ -15,11 +15,15 @@ import argparse
 import csv
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .errors import InputError
 from .fusion.calibration import fit_calibration, save_calibration
+
+if TYPE_CHECKING:
+    from .eval.ground_truth_scores import Negatives
 
 POSITIVE_OVERLAP = 0.5  # share of a mask's Gaussians inside a GT object for a positive pair
 
@@ -58,7 +62,10 @@ def read_score_file(path: Path) -> tuple[np.ndarray, np.ndarray]:
 
 
 def scene_scores(
-    scene_dirs: list[Path], profile: str | None, max_frames: int | None = None, negatives: str = "absent"
+    scene_dirs: list[Path],
+    profile: str | None,
+    max_frames: int | None = None,
+    negatives: Negatives = "absent",
 ) -> tuple[np.ndarray, np.ndarray, str]:
     """Positive/negative cosine scores from synthetic scenes with ground truth."""
     from .eval.ground_truth_scores import collect_scores
@@ -68,7 +75,7 @@ def scene_scores(
         profile,
         positive_overlap=POSITIVE_OVERLAP,
         max_frames=max_frames,
-        negatives=negatives,  # type: ignore[arg-type]
+        negatives=negatives,
     )
 
 

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import scipy.sparse as sp
 
 from ..context import JobContext
 from ..objects.aib import aib
@@ -71,10 +72,11 @@ def objects_from_primitives(
         return _empty_object_map(len(means), primitive_ids, pyx.shape[1], params.top_k)
     timings: dict[str, float] = {}
     t = time.perf_counter()
+    gaussian_counts = np.bincount(primitive_ids[primitive_ids >= 0], minlength=pyx.shape[0]).astype(
+        np.float64
+    )
     edges = overlap_edges(means, primitive_ids, padding=params.edge_padding)
-    weights = None
-    if params.aib_px == "size":
-        weights = np.bincount(primitive_ids[primitive_ids >= 0], minlength=pyx.shape[0]).astype(np.float64)
+    weights = gaussian_counts if params.aib_px == "size" else None
     merged = merge_identical(pyx, edges, atol=params.identical_tolerance, weights=weights)
     timings["edges"] = time.perf_counter() - t
     t = time.perf_counter()
@@ -84,20 +86,12 @@ def objects_from_primitives(
     t = time.perf_counter()
     object_of_primitive = clustering.labels[merged.labels]
     raw_pyx = clustering.pyx
-    object_relevance_all = (
-        None
-        if relevance is None
-        else _object_relevance(relevance, primitive_ids, clustering.labels[merged.labels])
-    )
-    if object_relevance_all is None:
-        ranking = raw_pyx
-    else:
-        # top_k / prune_mask take (C, T+1) tables; the null column is never ranked.
-        ranking = np.concatenate([object_relevance_all, np.zeros((len(raw_pyx), 1))], axis=1)
+    cluster_mean = _cluster_mean_operator(object_of_primitive, gaussian_counts, len(raw_pyx))
+    object_relevance_all = None if relevance is None else cluster_mean @ relevance
+    ranking = raw_pyx if object_relevance_all is None else _with_null_column(object_relevance_all)
     keep = prune_mask(ranking, params.prune_threshold)
     if evidence is not None:
-        object_evidence = _object_relevance(evidence, primitive_ids, clustering.labels[merged.labels])
-        ranking = np.concatenate([object_evidence, np.zeros((len(raw_pyx), 1))], axis=1)
+        ranking = _with_null_column(cluster_mean @ evidence)
     # Renumber surviving objects 0..K-1; pruned objects become -1.
     new_id = np.full(raw_pyx.shape[0], -1, dtype=np.int64)
     new_id[keep] = np.arange(int(keep.sum()))
@@ -191,17 +185,23 @@ def _empty_object_map(n_gaussians: int, primitive_ids: np.ndarray, n_columns: in
     )
 
 
-def _object_relevance(
-    relevance: np.ndarray, primitive_ids: np.ndarray, cluster_of_primitive: np.ndarray
-) -> np.ndarray:
-    """(C, T) p(y=1|cluster): the Gaussian-weighted mean of its primitives' relevance, i.e. the
-    mean fused probability over all the cluster's Gaussians."""
-    counts = np.bincount(primitive_ids[primitive_ids >= 0], minlength=len(relevance)).astype(np.float64)
-    n_clusters = int(cluster_of_primitive.max(initial=-1)) + 1
-    weight = np.bincount(cluster_of_primitive, weights=counts, minlength=n_clusters)
-    out = np.zeros((n_clusters, relevance.shape[1]))
-    np.add.at(out, cluster_of_primitive, relevance * counts[:, None])
-    return out / np.maximum(weight, 1e-12)[:, None]
+def _cluster_mean_operator(
+    cluster_of_primitive: np.ndarray, gaussian_counts: np.ndarray, num_clusters: int
+) -> sp.csr_matrix:
+    """(C, P) sparse operator: times a per-primitive (P, T) mean it gives each cluster's
+    Gaussian-weighted mean, i.e. the mean over all the cluster's Gaussians."""
+    weight = np.bincount(cluster_of_primitive, weights=gaussian_counts, minlength=num_clusters)
+    share = gaussian_counts / np.maximum(weight[cluster_of_primitive], 1e-12)
+    return sp.csr_matrix(
+        (share, (cluster_of_primitive, np.arange(len(cluster_of_primitive)))),
+        shape=(num_clusters, len(cluster_of_primitive)),
+    )
+
+
+def _with_null_column(task_scores: np.ndarray) -> np.ndarray:
+    """(C, T) task scores as the (C, T+1) table `prune_mask` / `top_k` read; the null column is
+    never ranked, so its value does not matter."""
+    return np.concatenate([task_scores, np.zeros((len(task_scores), 1))], axis=1)
 
 
 def build_primitives(ctx: JobContext) -> np.ndarray:

@@ -6,7 +6,7 @@ import numpy as np
 
 from bayesian_fields_core.objects.probabilities import primitive_probabilities, primitive_relevance
 from bayesian_fields_core.params import PipelineParams
-from bayesian_fields_core.stages.cluster import _object_relevance, objects_from_primitives
+from bayesian_fields_core.stages.cluster import _cluster_mean_operator, objects_from_primitives
 
 # Three far-apart primitives (no box overlaps, so the AIB merges nothing):
 #  A: 100 Gaussians relevant to both tasks (p = 0.99, 0.99)
@@ -69,4 +69,5 @@ def test_object_relevance_is_the_gaussian_weighted_mean() -> None:
     relevance = np.array([[1.0], [0.0], [0.5]])
     primitive_ids = np.repeat(np.arange(3), [3, 1, 2])
     clusters = np.array([0, 0, 1])  # primitives 0 and 1 merged into cluster 0
-    np.testing.assert_allclose(_object_relevance(relevance, primitive_ids, clusters), [[0.75], [0.5]])
+    counts = np.bincount(primitive_ids).astype(np.float64)
+    np.testing.assert_allclose(_cluster_mean_operator(clusters, counts, 2) @ relevance, [[0.75], [0.5]])

@@ -5,10 +5,10 @@ Sec. 4.3). Boxes are closed intervals, so touching boxes and degenerate ones (a 
 Gaussian, or a planar one) still connect; `padding` grows every box by that many scene units on
 each side for scenes whose primitives leave small gaps.
 
-Edges come from a sweep-and-prune: boxes sorted by their x-minimum, every box's candidates are the
-later boxes starting before its x-maximum (found with one `searchsorted`), and the y/z tests run
-vectorised over all candidate pairs in bounded chunks. Cost is linear in the candidate pairs, not
-quadratic in the primitives.
+Edges come from a sweep-and-prune: boxes sorted by their minimum along the axis where that leaves
+the fewest candidates, every box's candidates are the later boxes starting before its maximum, and
+a compiled loop tests the other two axes. Cost is linear in the candidate pairs, not quadratic in
+the primitives (8 M candidates, 774 k edges: about 0.1 s; the vectorised numpy version took 1 s).
 """
 
 from __future__ import annotations
@@ -20,10 +20,8 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.jit import compiled
 from bayesian_fields_core.objects.probabilities import membership_matrix
-
-MAX_PAIRS_PER_CHUNK = 4_000_000
-"""Bound on candidate pairs tested at once (about 100 MB of temporaries)."""
 
 DEFAULT_IDENTICAL_ATOL = 1e-6
 """Largest per-entry difference of two `p(y|x)` rows that still counts as identical."""
@@ -49,35 +47,49 @@ def primitive_boxes(means: np.ndarray, primitive_ids: np.ndarray) -> tuple[np.nd
     return np.minimum.reduceat(pts, starts, axis=0), np.maximum.reduceat(pts, starts, axis=0)
 
 
+@compiled
+def _sweep(lo: np.ndarray, hi: np.ndarray, order: np.ndarray, end: np.ndarray, axis: int) -> np.ndarray:
+    """Pairs of boxes overlapping on all axes; `order` sorts them by `lo[:, axis]` and `end[a]` is
+    the first sorted position whose minimum lies beyond box `order[a]`'s maximum on that axis."""
+    n = order.shape[0]
+    out = np.empty((max(n, 16), 2), dtype=np.int64)
+    count = 0
+    for a in range(n):
+        p = order[a]
+        for b in range(a + 1, end[a]):
+            q = order[b]
+            hit = True
+            for d in range(3):
+                if d != axis and (lo[q, d] > hi[p, d] or lo[p, d] > hi[q, d]):
+                    hit = False
+                    break
+            if hit:
+                if count == out.shape[0]:
+                    grown = np.empty((2 * count, 2), dtype=np.int64)
+                    grown[:count] = out
+                    out = grown
+                out[count, 0], out[count, 1] = min(p, q), max(p, q)
+                count += 1
+    return out[:count]
+
+
 def box_overlap_edges(lo: np.ndarray, hi: np.ndarray, *, padding: float = 0.0) -> np.ndarray:
-    """(E, 2) int64 pairs `i < j` of boxes whose closed, padded extents overlap on all axes."""
-    lo = np.asarray(lo, dtype=np.float64) - padding
-    hi = np.asarray(hi, dtype=np.float64) + padding
+    """(E, 2) int64 pairs `i < j` of boxes whose closed, padded extents overlap on all axes,
+    sorted."""
+    lo = np.ascontiguousarray(np.asarray(lo, dtype=np.float64) - padding)
+    hi = np.ascontiguousarray(np.asarray(hi, dtype=np.float64) + padding)
     n = lo.shape[0]
     if n < 2:
         return np.zeros((0, 2), dtype=np.int64)
-    order = np.argsort(lo[:, 0], kind="stable")
-    slo, shi = lo[order], hi[order]
-    # Box a (sorted position) overlaps in x every later box b with slo[b] <= shi[a].
-    end = np.searchsorted(slo[:, 0], shi[:, 0], side="right")
-    counts = np.maximum(end - np.arange(n) - 1, 0)
-    cumulative = np.cumsum(counts)
-    found: list[np.ndarray] = []
-    start = 0
-    while start < n:
-        # Take rows until the chunk holds about MAX_PAIRS_PER_CHUNK candidate pairs (>= one row).
-        base = cumulative[start - 1] if start else 0
-        stop = max(int(np.searchsorted(cumulative, base + MAX_PAIRS_PER_CHUNK, side="right")), start + 1)
-        rows = np.arange(start, stop)
-        row_counts = counts[start:stop]
-        a = np.repeat(rows, row_counts)
-        offsets = np.arange(a.size) - np.repeat(np.cumsum(row_counts) - row_counts, row_counts)
-        b = a + 1 + offsets
-        ok = np.all((slo[a, 1:] <= shi[b, 1:]) & (slo[b, 1:] <= shi[a, 1:]), axis=1)
-        found.append(np.stack([order[a[ok]], order[b[ok]]], axis=1))
-        start = stop
-    pairs = np.concatenate(found) if found else np.zeros((0, 2), dtype=np.int64)
-    pairs = np.sort(pairs, axis=1).astype(np.int64)
+    best = None
+    for axis in range(3):  # sweep along the axis with the fewest candidate pairs
+        order = np.argsort(lo[:, axis], kind="stable")
+        end = np.searchsorted(lo[order, axis], hi[order, axis], side="right")
+        candidates = int(np.maximum(end - np.arange(n) - 1, 0).sum())
+        if best is None or candidates < best[0]:
+            best = (candidates, axis, order, end)
+    _, axis, order, end = best
+    pairs = _sweep(lo, hi, order.astype(np.int64), end.astype(np.int64), axis)
     return pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
 
 
@@ -123,14 +135,34 @@ def merge_identical(
         raise InputError(f"expected ({num},), got {w.shape}", source="edges.weights")
     if edges.size and (edges.min() < 0 or edges.max() >= num):
         raise InputError(f"edge endpoint outside [0, {num})", source="edges.edges")
-    same = np.all(np.abs(pyx[edges[:, 0]] - pyx[edges[:, 1]]) <= atol, axis=1)
-    tied = edges[same]
+    tied = edges[_identical_rows(pyx, edges, atol)]
     graph = coo_matrix((np.ones(tied.shape[0]), (tied[:, 0], tied[:, 1])), shape=(num, num))
     count, labels = connected_components(graph, directed=False)
     labels = labels.astype(np.int64)
     members = membership_matrix(labels, count)
     node_w = members @ w
     node_pyx = (members @ (pyx * w[:, None])) / node_w[:, None]
-    node_edges = np.sort(labels[edges], axis=1)
-    node_edges = np.unique(node_edges[node_edges[:, 0] != node_edges[:, 1]], axis=0)
-    return MergedGraph(labels=labels, pyx=node_pyx, weights=node_w, edges=node_edges.reshape(-1, 2))
+    return MergedGraph(labels=labels, pyx=node_pyx, weights=node_w, edges=unique_pairs(labels[edges], count))
+
+
+def unique_pairs(pairs: np.ndarray, num: int) -> np.ndarray:
+    """(E', 2) int64 distinct undirected pairs `i < j` of nodes `0..num-1`, self-pairs dropped,
+    sorted. One int64 key per pair: a 1-D unique is several times faster than `unique(axis=0)`."""
+    pairs = np.sort(np.asarray(pairs, dtype=np.int64).reshape(-1, 2), axis=1)
+    pairs = pairs[pairs[:, 0] != pairs[:, 1]]
+    keys = np.unique(pairs[:, 0] * max(num, 1) + pairs[:, 1])
+    return np.stack([keys // max(num, 1), keys % max(num, 1)], axis=1)
+
+
+@compiled
+def _identical_rows(pyx: np.ndarray, edges: np.ndarray, atol: float) -> np.ndarray:
+    """(E,) whether the two rows of each edge agree within `atol` in every entry (stops at the
+    first differing entry instead of materialising two (E, Y) gathers)."""
+    same = np.ones(edges.shape[0], dtype=np.bool_)
+    for e in range(edges.shape[0]):
+        a, b = edges[e, 0], edges[e, 1]
+        for y in range(pyx.shape[1]):
+            if abs(pyx[a, y] - pyx[b, y]) > atol:
+                same[e] = False
+                break
+    return same

@@ -5,7 +5,6 @@ import math
 import numpy as np
 import pytest
 
-import bayesian_fields_core.objects.edges as edges_mod
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.objects.aib import aib, merge_cost, mutual_information
 from bayesian_fields_core.objects.edges import (
@@ -45,12 +44,13 @@ def test_non_compact_ids_raise() -> None:
         primitive_boxes(means, np.where(ids == 3, 5, ids))
 
 
-@pytest.mark.parametrize("chunk", [7, 4_000_000])
-def test_sweep_matches_brute_force(monkeypatch: pytest.MonkeyPatch, chunk: int) -> None:
-    monkeypatch.setattr(edges_mod, "MAX_PAIRS_PER_CHUNK", chunk)  # small chunks exercise the loop
+@pytest.mark.parametrize("long_axis", [0, 1, 2])
+def test_sweep_matches_brute_force(long_axis: int) -> None:
     rng = np.random.default_rng(1)
     lo = rng.uniform(0, 10, size=(300, 3))
-    hi = lo + rng.exponential(0.8, size=(300, 3))
+    extent = rng.exponential(0.8, size=(300, 3))
+    extent[:, long_axis] *= 6  # boxes long on one axis: the sweep must pick another one
+    hi = lo + extent
     got = box_overlap_edges(lo, hi)
     overlap = np.all((lo[:, None] <= hi[None]) & (lo[None] <= hi[:, None]), axis=2)
     i, j = np.nonzero(np.triu(overlap, k=1))
@@ -87,13 +87,12 @@ def _chain() -> tuple[np.ndarray, np.ndarray]:
     return pyx, np.array([[0, 1], [1, 2], [2, 3], [3, 4]])
 
 
-@pytest.mark.parametrize("dense_limit", [0, 10_000])  # heap driver, dense driver
-def test_aib_merge_order_and_stop(dense_limit: int) -> None:
+def test_aib_merge_order_and_stop() -> None:
     pyx, edges = _chain()
     # Uniform p(x) = 0.2; Clio's I(X;Y) = ln 2 - mean H(row) = 0.297936.
     # Costs: (0,1): 0. (3,4): 0.4 [H(.15) - (H(.1) + H(.2)) / 2] = 0.0039866 -> relative 0.01338.
     # ({0,1},2): 0.6 [H(.8667) - 2/3 H(.1) - 1/3 H(.2)] = 0.0054910 -> relative 0.01843.
-    result = aib(pyx, edges, delta=0.015, dense_limit=dense_limit)
+    result = aib(pyx, edges, delta=0.015)
     assert result.information == pytest.approx(0.297936, abs=1e-6)
     assert result.merges.tolist() == [[0, 1], [3, 4]]
     np.testing.assert_allclose(result.costs, [0.0, 0.0039866], atol=1e-7)
@@ -102,7 +101,7 @@ def test_aib_merge_order_and_stop(dense_limit: int) -> None:
     np.testing.assert_allclose(result.pyx[2], [0.15, 0.85])
     np.testing.assert_allclose(result.mass, [0.4, 0.2, 0.4])
 
-    everything = aib(pyx, edges, delta=10.0, dense_limit=dense_limit)
+    everything = aib(pyx, edges, delta=10.0)
     assert everything.merges.tolist() == [[0, 1], [3, 4], [0, 2], [0, 3]]
     assert everything.labels.tolist() == [0] * 5
     assert everything.stopped_at == math.inf  # ran out of edges
@@ -132,18 +131,45 @@ def test_aib_rejects_non_distributions() -> None:
         aib(np.array([[0.5, 0.6]]), np.zeros((0, 2)))
 
 
-def test_dense_and_heap_drivers_agree() -> None:
+def _reference_aib(pyx: np.ndarray, edges: np.ndarray, delta: float) -> tuple[list[int], list[float]]:
+    """Textbook greedy AIB, quadratic and obviously right: rescore every live edge each step."""
+    mass = np.full(len(pyx), 1 / len(pyx))
+    cond = pyx.copy()
+    label = list(range(len(pyx)))
+    info = mutual_information(mass, pyx)
+    live = {(int(a), int(b)) for a, b in edges}
+    costs: list[float] = []
+    while live:
+        pairs = sorted(live)
+        cost = [float(merge_cost(mass[a], cond[a], mass[b], cond[b])) for a, b in pairs]
+        best = int(np.argmin(cost))
+        if cost[best] / info > delta:
+            break
+        i, j = pairs[best]
+        costs.append(cost[best])
+        cond[i] = (mass[i] * cond[i] + mass[j] * cond[j]) / (mass[i] + mass[j])
+        mass[i] += mass[j]
+        label = [i if x == j else x for x in label]
+        live = {tuple(sorted((i if a == j else a, i if b == j else b))) for a, b in live}
+        live = {(a, b) for a, b in live if a != b}
+    return label, costs
+
+
+def test_aib_matches_reference_greedy_merging() -> None:
     rng = np.random.default_rng(5)
-    # Repeated rows create exact cost ties, which both drivers must break the same way.
+    # Repeated rows create zero-cost merges and exact cost ties.
     pyx = rng.dirichlet(np.ones(5), size=40)[rng.integers(0, 25, size=60)]
     edges = np.unique(np.sort(rng.integers(0, 60, size=(240, 2)), axis=1), axis=0)
-    dense = aib(pyx, edges, delta=0.05, dense_limit=10_000)
-    heap = aib(pyx, edges, delta=0.05, dense_limit=0)
-    assert len(dense.merges) > 20
-    np.testing.assert_array_equal(dense.merges, heap.merges)
-    np.testing.assert_array_equal(dense.costs, heap.costs)
-    np.testing.assert_array_equal(dense.labels, heap.labels)
-    assert dense.stopped_at == heap.stopped_at
+    edges = edges[edges[:, 0] != edges[:, 1]]
+    result = aib(pyx, edges, delta=0.05)
+    label, costs = _reference_aib(pyx, edges, delta=0.05)
+    assert len(result.merges) > 20
+    assert len(result.merges) == len(costs)
+    np.testing.assert_allclose(np.sort(result.costs), np.sort(costs), atol=1e-12)
+    # Same partition (ids may differ): the co-membership matrices agree.
+    np.testing.assert_array_equal(
+        result.labels[:, None] == result.labels[None, :], np.equal.outer(label, label)
+    )
 
 
 def test_aib_degenerate_graphs() -> None:

@@ -144,6 +144,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
         n_scenes=args.scenes,
         profile=args.profile,
         markdown=args.markdown,
+        lerf_views=args.lerf_views,
     )
     return 0
 
@@ -162,6 +163,17 @@ def cmd_serve(args: argparse.Namespace) -> int:
         raise InputError("the API needs the 'api' extra: pip install 'bayesian-fields[api]'") from None
     uvicorn.run("services.api.app:app", host=args.host, port=args.port, workers=args.workers)
     return 0
+
+
+def _non_negative_int(text: str) -> int:
+    """argparse type: an integer >= 0 (a clear usage error otherwise)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
+    return value
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -200,6 +212,12 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--scenes", type=int, default=5, help="number of suite scenes (3 to 5)")
     ev.add_argument("--profile", help="model profile YAML")
     ev.add_argument("--markdown", action="store_true", help="print the table as Markdown")
+    ev.add_argument(
+        "--lerf-views",
+        type=_non_negative_int,
+        default=4,
+        help="views per scene for the LeRF-protocol table (rendered masks; 0 = skip it)",
+    )
     ev.set_defaults(func=cmd_eval)
 
     cal = sub.add_parser("calibrate", help="fit mu0/mu1/s of the likelihoods and write a calibration file")

@@ -39,7 +39,8 @@ class LerfScores:
 
 
 def select_objects(probabilities: np.ndarray, ratio: float = DEFAULT_RATIO) -> np.ndarray:
-    """Ids (indices) of the objects with probability >= ratio x the best one, ascending."""
+    """Ids (indices) of the objects with probability >= ratio x the best one, ascending; none when
+    no object has a positive probability (the rule would otherwise pick every object)."""
     p = np.asarray(probabilities, dtype=np.float64).reshape(-1)
     if p.size == 0:
         return np.zeros(0, dtype=np.int64)
@@ -47,6 +48,8 @@ def select_objects(probabilities: np.ndarray, ratio: float = DEFAULT_RATIO) -> n
         raise InputError("lerf: object probabilities contain NaN or infinity")
     if not 0.0 < ratio <= 1.0:
         raise InputError(f"lerf: ratio must be in (0, 1], got {ratio}")
+    if p.max() <= 0.0:
+        return np.zeros(0, dtype=np.int64)
     return np.flatnonzero(p >= ratio * p.max())
 
 

@@ -4,6 +4,8 @@ Every row runs on the same scenes, the same masks and the same CLIP embeddings: 
 (full-method) run fills the perception and visibility caches, every other row reuses them, so the
 table isolates fusion and clustering. Scores are pooled over the suite's (task, GT object) pairs;
 Objs and time are per-scene means; time counts perception once per scene for every row.
+A second table scores the same maps by the LeRF protocol (`lerf_views.py`): per-scene mIoU /
+mAcc of rendered object masks and their unweighted mean, as in the paper's Table 3.
 """
 
 from __future__ import annotations
@@ -26,6 +28,8 @@ from ..tasks import load_tasks
 from .baselines import BaselineParams, clio_style, semantic_gaussians
 from .bootstrap import paired_differences
 from .clio import ClioScores, EstimatedObject, GTObject, TaskScores, clio_metrics, format_table
+from .lerf import LerfScores, format_lerf_table
+from .lerf_views import DEFAULT_VIEWS, LerfViews, prepare_views, score_map
 
 FULL = "Bayesian Fields (ours)"
 METHOD_ROWS: dict[str, dict[str, Any]] = {
@@ -36,6 +40,14 @@ METHOD_ROWS: dict[str, dict[str, Any]] = {
 }
 SEMANTIC_GAUSSIANS = "Semantic Gaussians-style (avg. embeddings, best label)"
 CLIO = "Clio-style (AIB on raw cosine)"
+
+
+@dataclass
+class SceneEvaluation:
+    """Every row's scores on one scene: Clio metrics, and LeRF ones when views were rendered."""
+
+    clio: dict[str, ClioScores]
+    lerf: dict[str, LerfScores]
 
 
 @dataclass
@@ -124,14 +136,17 @@ def evaluate_scene(
     out_dir: Path,
     *,
     base_params: dict[str, Any] | None = None,
+    lerf_views: int = DEFAULT_VIEWS,
     log: Callable[[str], None] = print,
-) -> dict[str, ClioScores]:
-    """All rows of the table for one scene."""
+) -> SceneEvaluation:
+    """All rows of both tables for one scene; `lerf_views=0` skips the LeRF protocol."""
     gt_per_task = {t: sum(1 for g in case.ground_truth if g.task == t) for t in case.tasks}
     top_k = max(5, max(gt_per_task.values(), default=1))
     scene_store = LocalStore(out_dir / "cache")
     scene_prefix = f"scenes/{case.name}/"
     rows: dict[str, ClioScores] = {}
+    lerf: dict[str, LerfScores] = {}
+    views: LerfViews | None = None
     perceive_s = 0.0
     visibility_s = 0.0
     full_ctx: JobContext | None = None
@@ -153,12 +168,20 @@ def evaluate_scene(
             full_ctx = ctx
             perceive_s = float(reports["perceive"]["seconds"])
             visibility_s = float(reports["fuse"]["seconds"])
+            if lerf_views > 0:
+                scene = ctx.scene()
+                views = prepare_views(case.folder, scene.gaussians, scene.frames, lerf_views)
         seconds = perceive_s + float(reports["fuse"]["seconds"]) + float(reports["cluster"]["seconds"])
         result = read_result(store, "result/")
         selection = {task: [(o.object_id, o.box) for o in objs] for task, objs in result.selections.items()}
         estimates = estimates_from_selection(case.tasks, selection)
         rows[row] = clio_metrics(estimates, case.ground_truth, num_objects=result.num_objects, time_s=seconds)
-        log(f"  {case.name}: {row.strip():<40} strict {rows[row].strict_osr:.2f}  iou {rows[row].iou:.2f}")
+        if views is not None:
+            task_probabilities = (
+                result.relevance if result.relevance is not None else result.probabilities[:, :-1]
+            )
+            lerf[row] = score_map(views, case.tasks, result.object_ids, task_probabilities)
+        log(_row_line(case.name, row, rows[row], lerf.get(row)))
 
     assert full_ctx is not None
     text = models.encoder.encode_texts(case.tasks).astype(np.float32)
@@ -178,8 +201,18 @@ def evaluate_scene(
             num_objects=len(object_map.probabilities),
             time_s=seconds,
         )
-        log(f"  {case.name}: {row:<40} strict {rows[row].strict_osr:.2f}  iou {rows[row].iou:.2f}")
-    return rows
+        if views is not None:
+            task_probabilities = (
+                object_map.relevance if object_map.relevance is not None else object_map.probabilities[:, :-1]
+            )
+            lerf[row] = score_map(views, case.tasks, object_map.object_ids, task_probabilities)
+        log(_row_line(case.name, row, rows[row], lerf.get(row)))
+    return SceneEvaluation(clio=rows, lerf=lerf)
+
+
+def _row_line(scene: str, row: str, scores: ClioScores, lerf: LerfScores | None) -> str:
+    line = f"  {scene}: {row.strip():<40} strict {scores.strict_osr:.2f}  iou {scores.iou:.2f}"
+    return line if lerf is None else f"{line}  LeRF mIoU {lerf.miou:.2f}  mAcc {lerf.macc:.2f}"
 
 
 def run_suite(
@@ -190,15 +223,21 @@ def run_suite(
     profile: str | None = None,
     markdown: bool = False,
     base_params: dict[str, Any] | None = None,
+    lerf_views: int = DEFAULT_VIEWS,
 ) -> dict[str, ClioScores]:
-    """Generate the suite, evaluate every row on every scene, print the pooled Table 1."""
+    """Generate the suite, evaluate every row on every scene, print the pooled Table 1 and,
+    unless `lerf_views=0`, the LeRF table."""
     models = load_models(profile)
     cases = prepare_scenes(suite_dir, n_scenes)
     per_row: dict[str, list[ClioScores]] = {}
+    lerf_rows: dict[str, dict[str, LerfScores]] = {}
     for case in cases:
         print(f"scene {case.name}: {len(case.tasks)} tasks, {len(case.ground_truth)} GT objects")
-        for row, scores in evaluate_scene(case, models, out_dir, base_params=base_params).items():
+        scene_eval = evaluate_scene(case, models, out_dir, base_params=base_params, lerf_views=lerf_views)
+        for row, scores in scene_eval.clio.items():
             per_row.setdefault(row, []).append(scores)
+        for row, lerf in scene_eval.lerf.items():
+            lerf_rows.setdefault(row, {})[case.name] = lerf
     pooled = {row: pool_scores(scores) for row, scores in per_row.items()}
     print()
     print(f"Synthetic suite: {len(cases)} scenes, {pooled[FULL].num_gt} (task, GT object) pairs")
@@ -212,6 +251,15 @@ def run_suite(
         marks = "".join("*" if d.significant else " " for d in diff.values())
         print(f"  {row.strip():<56} strict {diff['strict_osr']}  IoU {diff['iou']}  {marks}")
     print("  (* = the interval excludes 0)")
+    if lerf_rows:
+        queries = sum(s.num_queries for s in lerf_rows[FULL].values())
+        print()
+        print(f"LeRF protocol, mIoU / mAcc (%): {lerf_views} views per scene, {queries} (task, view) queries")
+        print(
+            format_lerf_table(
+                {row.strip(): per_scene for row, per_scene in lerf_rows.items()}, markdown=markdown
+            )
+        )
     return pooled
 
 

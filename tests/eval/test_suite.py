@@ -5,8 +5,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 
+from bayesian_fields_core.eval.lerf_views import prepare_views, score_map
 from bayesian_fields_core.eval.suite import (
     CLIO,
     FULL,
@@ -16,8 +18,10 @@ from bayesian_fields_core.eval.suite import (
     evaluate_scene,
 )
 from bayesian_fields_core.eval.synthetic import generate_scene, load_clio_boxes
+from bayesian_fields_core.eval.synthetic.ground_truth import load_ground_truth
 from bayesian_fields_core.eval.synthetic.spec import SceneSpec
 from bayesian_fields_core.pipeline import load_models
+from bayesian_fields_core.scene.loader import load_scene
 from bayesian_fields_core.tasks import load_tasks
 
 
@@ -43,7 +47,8 @@ def test_every_row_is_scored_on_the_same_perception(small_case: SceneCase, tmp_p
     torch.set_num_threads(1)
     models = load_models(None)
     lines: list[str] = []
-    rows = evaluate_scene(small_case, models, tmp_path, log=lines.append)
+    evaluation = evaluate_scene(small_case, models, tmp_path, lerf_views=2, log=lines.append)
+    rows = evaluation.clio
     assert set(rows) == {*METHOD_ROWS, SEMANTIC_GAUSSIANS, CLIO}
     n_gt = len(small_case.ground_truth)
     for name, scores in rows.items():
@@ -57,3 +62,28 @@ def test_every_row_is_scored_on_the_same_perception(small_case: SceneCase, tmp_p
     # Perception ran once (one cache) and every method row wrote its own result.
     assert len(list((tmp_path / "cache").rglob("*.npz"))) > 0
     assert len(lines) == len(rows)
+    # The same maps scored by the LeRF protocol on two rendered views.
+    assert set(evaluation.lerf) == set(rows)
+    for name, lerf in evaluation.lerf.items():
+        assert lerf.num_queries == evaluation.lerf[FULL].num_queries > 0, name
+        assert 0.0 <= lerf.miou <= 1.0 and 0.0 <= lerf.macc <= 1.0, name
+    assert evaluation.lerf[FULL].macc >= 0.5
+
+
+def test_lerf_scores_a_perfect_map_one_and_a_wrong_one_low(small_case: SceneCase) -> None:
+    gt = load_ground_truth(small_case.folder)
+    scene = load_scene(small_case.folder)
+    views = prepare_views(small_case.folder, scene.gaussians, scene.frames, 3)
+    # The GT instances as the map's objects, each certain for the tasks it belongs to.
+    n_instances = int(gt.instance_ids.max()) + 1
+    truth = np.zeros((n_instances, len(small_case.tasks)))
+    for task in gt.tasks:
+        truth[[o.instance_id for o in task.objects], small_case.tasks.index(task.text)] = 1.0
+    perfect = score_map(views, small_case.tasks, gt.instance_ids, truth)
+    assert perfect.num_queries >= 3
+    assert perfect.miou == pytest.approx(1.0)
+    assert perfect.macc == 1.0
+    # Every task pointed at some other task's objects: no overlap with the GT masks.
+    wrong = score_map(views, small_case.tasks, gt.instance_ids, np.roll(truth, 1, axis=1))
+    assert wrong.num_queries == perfect.num_queries
+    assert wrong.miou < 0.3

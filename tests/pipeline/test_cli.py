@@ -195,3 +195,16 @@ def test_calibrate_scores_need_a_model_id(tmp_path: Path, capsys: pytest.Capture
     assert main(["calibrate", "--scores", str(scores), "--out", str(tmp_path / "c.json")]) == 2
     assert "--model-id" in _one_line_error(capsys)
     assert not (tmp_path / "c.json").exists()
+
+
+@pytest.mark.parametrize("value", ["-1", "four"])
+def test_eval_rejects_a_bad_view_count(
+    value: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        main(
+            ["eval", "--suite-dir", str(tmp_path / "s"), "--out", str(tmp_path / "o"), "--lerf-views", value]
+        )
+    assert exit_info.value.code == 2
+    assert "--lerf-views" in capsys.readouterr().err
+    assert not (tmp_path / "s").exists()  # rejected before generating anything

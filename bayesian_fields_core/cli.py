@@ -145,6 +145,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
         profile=args.profile,
         markdown=args.markdown,
         lerf_views=args.lerf_views,
+        seeds=args.seeds,
     )
     return 0
 
@@ -174,6 +175,31 @@ def _non_negative_int(text: str) -> int:
     if value < 0:
         raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
     return value
+
+
+def _suite_count(text: str) -> int:
+    """argparse type: how many suite scenes, 3 (the fewest that make a suite) to 5 (all of them)."""
+    from .eval.synthetic.spec import SUITE_SIZE
+
+    value = _non_negative_int(text)
+    if not 3 <= value <= SUITE_SIZE:
+        raise argparse.ArgumentTypeError(f"must be 3 to {SUITE_SIZE}, got {value}")
+    return value
+
+
+def _suite_seeds(text: str) -> list[int]:
+    """argparse type: 1 to 5 distinct non-negative integers separated by commas."""
+    from .eval.synthetic.spec import SUITE_SIZE
+
+    try:
+        seeds = [int(part) for part in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}") from None
+    if not 1 <= len(seeds) <= SUITE_SIZE:
+        raise argparse.ArgumentTypeError(f"give 1 to {SUITE_SIZE} seeds, got {len(seeds)}")
+    if min(seeds) < 0 or len(set(seeds)) != len(seeds):
+        raise argparse.ArgumentTypeError(f"seeds must be distinct and >= 0, got {text!r}")
+    return seeds
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -209,7 +235,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--suite-dir", default="bench/_generated/suite", help="where suite scenes are generated/cached"
     )
     ev.add_argument("--out", default="bench/_generated/eval", help="where runs are written")
-    ev.add_argument("--scenes", type=int, default=5, help="number of suite scenes (3 to 5)")
+    ev.add_argument("--scenes", type=_suite_count, default=5, help="number of suite scenes (3 to 5)")
     ev.add_argument("--profile", help="model profile YAML")
     ev.add_argument("--markdown", action="store_true", help="print the table as Markdown")
     ev.add_argument(
@@ -217,6 +243,13 @@ def build_parser() -> argparse.ArgumentParser:
         type=_non_negative_int,
         default=4,
         help="views per scene for the LeRF-protocol table (rendered masks; 0 = skip it)",
+    )
+    ev.add_argument(
+        "--seeds",
+        type=_suite_seeds,
+        metavar="S1,S2,...",
+        help="held-out scenes: re-seed the first N suite scenes with these seeds (N = their count; "
+        "replaces --scenes)",
     )
     ev.set_defaults(func=cmd_eval)
 

@@ -11,7 +11,7 @@ mAcc of rendered object masks and their unweighted mean, as in the paper's Table
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -109,11 +109,13 @@ def pool_scores(per_scene: list[ClioScores]) -> ClioScores:
     )
 
 
-def prepare_scenes(suite_dir: Path, n_scenes: int) -> list[SceneCase]:
-    """Generate (once; cached on disk) the suite's scenes and read their tasks and GT."""
+def prepare_scenes(suite_dir: Path, n_scenes: int, seeds: Sequence[int] | None = None) -> list[SceneCase]:
+    """Generate (once; cached on disk) the suite's scenes and read their tasks and GT.
+
+    With `seeds`, the re-seeded held-out variants of the first ``len(seeds)`` scenes instead."""
     from .synthetic import generate_scene, load_clio_boxes, suite_specs
 
-    specs = suite_specs()[:n_scenes]
+    specs = suite_specs(seeds) if seeds else suite_specs()[:n_scenes]
     cases = []
     for spec in specs:
         folder = suite_dir / spec.name
@@ -224,11 +226,12 @@ def run_suite(
     markdown: bool = False,
     base_params: dict[str, Any] | None = None,
     lerf_views: int = DEFAULT_VIEWS,
+    seeds: Sequence[int] | None = None,
 ) -> dict[str, ClioScores]:
     """Generate the suite, evaluate every row on every scene, print the pooled Table 1 and,
-    unless `lerf_views=0`, the LeRF table."""
+    unless `lerf_views=0`, the LeRF table. `seeds` evaluates on held-out re-seeded scenes."""
     models = load_models(profile)
-    cases = prepare_scenes(suite_dir, n_scenes)
+    cases = prepare_scenes(suite_dir, n_scenes, seeds)
     per_row: dict[str, list[ClioScores]] = {}
     lerf_rows: dict[str, dict[str, LerfScores]] = {}
     for case in cases:

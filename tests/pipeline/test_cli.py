@@ -208,3 +208,23 @@ def test_eval_rejects_a_bad_view_count(
     assert exit_info.value.code == 2
     assert "--lerf-views" in capsys.readouterr().err
     assert not (tmp_path / "s").exists()  # rejected before generating anything
+
+
+@pytest.mark.parametrize(
+    ("option", "value"),
+    [
+        ("--seeds", "7,7"),
+        ("--seeds", "1,2,3,4,5,6"),
+        ("--seeds", "a,b"),
+        ("--seeds", "-1"),
+        ("--scenes", "9"),
+    ],
+)
+def test_eval_rejects_bad_scene_choices(
+    option: str, value: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        main(["eval", "--suite-dir", str(tmp_path / "s"), "--out", str(tmp_path / "o"), option, value])
+    assert exit_info.value.code == 2
+    assert option in capsys.readouterr().err
+    assert not (tmp_path / "s").exists()

@@ -173,6 +173,23 @@ def test_suite_specs_are_distinct_and_modest() -> None:
         assert any(i.kind in ("mug", "lamp") for i in objects), spec.name
 
 
+def test_reseeded_suite_keeps_layouts_and_changes_the_objects() -> None:
+    base = suite_specs()
+    held_out = suite_specs([101, 211])
+    assert [s.name for s in held_out] == ["tabletop-a-s101", "tabletop-b-s211"]
+    for original, variant in zip(base, held_out, strict=False):
+        assert variant.model_dump(exclude={"name", "seed"}) == original.model_dump(exclude={"name", "seed"})
+    original_objects = [(i.colour, i.kind) for i in build_scene(base[0]).instances if i.category == "object"]
+    variant_objects = [
+        (i.colour, i.kind) for i in build_scene(held_out[0]).instances if i.category == "object"
+    ]
+    assert len(variant_objects) == len(original_objects) and variant_objects != original_objects
+    with pytest.raises(ValueError, match="distinct"):
+        suite_specs([5, 5])
+    with pytest.raises(ValueError, match="1 to 5"):
+        suite_specs(list(range(6)))
+
+
 def test_spec_validation() -> None:
     with pytest.raises(ValueError, match="kinds"):
         SceneSpec(kinds=("cube", "teapot"))

@@ -6,6 +6,8 @@ spec alone (the spec is written into ``gt.json``) and the eval suite is a list o
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from bayesian_fields_core.eval.vocabulary import COLOURS, KINDS
@@ -81,12 +83,34 @@ class SceneSpec(BaseModel):
         return self
 
 
-def suite_specs() -> list[SceneSpec]:
+SUITE_SIZE = 5
+
+
+def suite_specs(seeds: Sequence[int] | None = None) -> list[SceneSpec]:
     """Five modest scenes (~35-60k Gaussians, 24-32 frames at 320x240) for ``bfields eval``.
 
     They differ in seed, clutter, colour reuse and grouping, so the suite exercises fine tasks
     with duplicates, coarse colour/kind tasks, compounds and absent-object tasks.
+
+    `seeds` re-seeds the first ``len(seeds)`` specs (same clutter and camera layout, different
+    objects, colours, placements and tasks) and renames them ``<name>-s<seed>``: held-out scenes
+    for checking that a choice made while looking at the suite carries over to scenes it was
+    not made on.
     """
+    specs = _suite_layouts()
+    if seeds is None:
+        return specs
+    if not 1 <= len(seeds) <= len(specs):
+        raise ValueError(f"give 1 to {len(specs)} seeds, got {len(seeds)}")
+    if len(set(seeds)) != len(seeds):
+        raise ValueError(f"seeds must be distinct, got {list(seeds)}")
+    return [
+        spec.model_copy(update={"seed": int(seed), "name": f"{spec.name}-s{seed}"})
+        for spec, seed in zip(specs, seeds, strict=False)
+    ]
+
+
+def _suite_layouts() -> list[SceneSpec]:
     return [
         SceneSpec(
             name="tabletop-a", seed=11, n_objects=8, n_duplicates=1, n_colours=4, n_groups=2, n_frames=24

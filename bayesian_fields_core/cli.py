@@ -188,17 +188,17 @@ def _suite_count(text: str) -> int:
 
 
 def _suite_seeds(text: str) -> list[int]:
-    """argparse type: 1 to 5 distinct non-negative integers separated by commas."""
-    from .eval.synthetic.spec import SUITE_SIZE
+    """argparse type: comma-separated seeds that `suite_specs` accepts (1 to 5, distinct, >= 0)."""
+    from .eval.synthetic.spec import suite_specs
 
     try:
         seeds = [int(part) for part in text.split(",")]
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}") from None
-    if not 1 <= len(seeds) <= SUITE_SIZE:
-        raise argparse.ArgumentTypeError(f"give 1 to {SUITE_SIZE} seeds, got {len(seeds)}")
-    if min(seeds) < 0 or len(set(seeds)) != len(seeds):
-        raise argparse.ArgumentTypeError(f"seeds must be distinct and >= 0, got {text!r}")
+    try:
+        suite_specs(seeds)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
     return seeds
 
 

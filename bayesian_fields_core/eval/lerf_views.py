@@ -32,13 +32,12 @@ DEFAULT_MIN_PIXELS = 50
 
 @dataclass
 class LerfViews:
-    """GT of the chosen views, rendered once and shared by every map scored on the scene."""
+    """The chosen views and their queries, rendered and masked once per scene and shared by every
+    map scored on it: `gt_masks[v]` maps each task queried in view v to its GT mask."""
 
     gaussians: Gaussians
     frames: list[Frame]
-    gt_images: list[np.ndarray]
-    task_instances: dict[str, np.ndarray]
-    min_pixels: int
+    gt_masks: list[dict[str, np.ndarray]]
 
 
 def prepare_views(
@@ -49,24 +48,23 @@ def prepare_views(
     *,
     min_pixels: int = DEFAULT_MIN_PIXELS,
 ) -> LerfViews:
-    """Pick `n_views` frames evenly and render the scene's GT instance-id image in each."""
+    """Pick `n_views` frames evenly, render the scene's GT instance-id image in each and keep
+    the GT mask of every task whose objects cover at least `min_pixels` there."""
     if n_views < 1 or not frames:
         raise InputError(f"lerf: need at least one view and one frame, got {n_views} of {len(frames)}")
     gt = load_ground_truth(folder)
     picks = np.unique(np.linspace(0, len(frames) - 1, min(n_views, len(frames))).round().astype(int))
     chosen = [frames[i] for i in picks]
     renderer = IdImageRenderer(gaussians, gt.instance_ids)
-    return LerfViews(
-        gaussians=gaussians,
-        frames=chosen,
-        gt_images=[renderer.render(f.K, f.world_to_camera, f.width, f.height) for f in chosen],
-        task_instances={
-            t.text: np.array([o.instance_id for o in t.objects], dtype=np.int64)
-            for t in gt.tasks
-            if t.objects
-        },
-        min_pixels=min_pixels,
-    )
+    task_instances = {
+        t.text: np.array([o.instance_id for o in t.objects], dtype=np.int64) for t in gt.tasks if t.objects
+    }
+    gt_masks = []
+    for frame in chosen:
+        ids = renderer.render(frame.K, frame.world_to_camera, frame.width, frame.height)
+        masks = {task: np.isin(ids, instances) for task, instances in task_instances.items()}
+        gt_masks.append({task: m for task, m in masks.items() if np.count_nonzero(m) >= min_pixels})
+    return LerfViews(gaussians=gaussians, frames=chosen, gt_masks=gt_masks)
 
 
 def score_map(
@@ -85,14 +83,10 @@ def score_map(
         raise InputError(f"lerf: expected (O, {len(tasks)}) task probabilities, got {probabilities.shape}")
     renderer = IdImageRenderer(views.gaussians, object_ids)
     ious: list[float] = []
-    for frame, gt_image in zip(views.frames, views.gt_images, strict=True):
+    for frame, gt_masks in zip(views.frames, views.gt_masks, strict=True):
         ids = renderer.render(frame.K, frame.world_to_camera, frame.width, frame.height)
         for t, task in enumerate(tasks):
-            instances = views.task_instances.get(task)
-            if instances is None:
-                continue
-            gt_mask = np.isin(gt_image, instances)
-            if np.count_nonzero(gt_mask) < views.min_pixels:
-                continue
-            ious.append(query_iou(probabilities[:, t], ids, gt_mask, ratio=ratio))
+            gt_mask = gt_masks.get(task)
+            if gt_mask is not None:
+                ious.append(query_iou(probabilities[:, t], ids, gt_mask, ratio=ratio))
     return lerf_scores(ious)

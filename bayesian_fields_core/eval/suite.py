@@ -179,10 +179,7 @@ def evaluate_scene(
         estimates = estimates_from_selection(case.tasks, selection)
         rows[row] = clio_metrics(estimates, case.ground_truth, num_objects=result.num_objects, time_s=seconds)
         if views is not None:
-            task_probabilities = (
-                result.relevance if result.relevance is not None else result.probabilities[:, :-1]
-            )
-            lerf[row] = score_map(views, case.tasks, result.object_ids, task_probabilities)
+            lerf[row] = score_map(views, case.tasks, result.object_ids, result.task_scores)
         log(_row_line(case.name, row, rows[row], lerf.get(row)))
 
     assert full_ctx is not None
@@ -204,10 +201,7 @@ def evaluate_scene(
             time_s=seconds,
         )
         if views is not None:
-            task_probabilities = (
-                object_map.relevance if object_map.relevance is not None else object_map.probabilities[:, :-1]
-            )
-            lerf[row] = score_map(views, case.tasks, object_map.object_ids, task_probabilities)
+            lerf[row] = score_map(views, case.tasks, object_map.object_ids, object_map.task_scores)
         log(_row_line(case.name, row, rows[row], lerf.get(row)))
     return SceneEvaluation(clio=rows, lerf=lerf)
 

@@ -82,6 +82,12 @@ class SelectedObject:
             raise InputError(f"result summary: selected object missing field {exc.args[0]!r}") from None
 
 
+def task_scores(probabilities: np.ndarray, relevance: np.ndarray | None) -> np.ndarray:
+    """(O, T) the per-task object score that selection, LeRF queries and reports rank by:
+    p(y = 1 | object) when known, else p(task | object) without the null column."""
+    return np.asarray(relevance) if relevance is not None else np.asarray(probabilities)[:, :-1]
+
+
 @dataclass
 class Result:
     """A task-driven semantic map.
@@ -118,6 +124,12 @@ class Result:
     @property
     def num_objects(self) -> int:
         return int(np.asarray(self.probabilities).shape[0])
+
+    @property
+    def task_scores(self) -> np.ndarray:
+        """(O, T) each task's score of each object: `relevance`, or for 1.0 results (which have
+        none) the conditional without its null column."""
+        return task_scores(self.probabilities, self.relevance)
 
     def validate(self) -> None:
         """Raise InputError unless every array and selection is consistent."""

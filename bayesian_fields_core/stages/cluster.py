@@ -22,7 +22,7 @@ from ..objects.primitives import PrimitiveBuilder
 from ..objects.probabilities import primitive_probabilities, primitive_relevance
 from ..objects.select import prune_mask, top_k
 from ..params import PipelineParams
-from ..results.format import Result, SelectedObject
+from ..results.format import Result, SelectedObject, task_scores
 from ..store import get_arrays
 from .fuse import ACCEPTED_KEY, FUSION_KEY
 from .markers import write_marker
@@ -51,6 +51,11 @@ class ObjectMap:
     boxes: list[OrientedBox | None]
     counts: dict[str, int] = field(default_factory=dict)
     timings: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def task_scores(self) -> np.ndarray:
+        """(C, T) each task's score of each object (see `results.format.task_scores`)."""
+        return task_scores(self.probabilities, self.relevance)
 
 
 def objects_from_primitives(
@@ -278,6 +283,7 @@ def run(ctx: JobContext) -> dict[str, Any]:
 def build_result(ctx: JobContext, object_map: ObjectMap, timings: dict[str, float]) -> Result:
     """The serialisable result: id maps, probability table, per-task selections, provenance."""
     selections: dict[str, list[SelectedObject]] = {}
+    scores = object_map.task_scores
     for t, task in enumerate(ctx.tasks):
         chosen = []
         for obj in object_map.selection[t]:
@@ -287,11 +293,7 @@ def build_result(ctx: JobContext, object_map: ObjectMap, timings: dict[str, floa
             chosen.append(
                 SelectedObject(
                     object_id=int(obj),
-                    probability=float(
-                        object_map.relevance[obj, t]
-                        if object_map.relevance is not None
-                        else object_map.probabilities[obj, t]
-                    ),
+                    probability=float(scores[obj, t]),
                     num_gaussians=int(object_map.sizes[obj]),
                     centroid=object_map.centroids[obj],
                     box=box,

@@ -102,8 +102,8 @@ def suite_specs(seeds: Sequence[int] | None = None) -> list[SceneSpec]:
         return specs
     if not 1 <= len(seeds) <= len(specs):
         raise ValueError(f"give 1 to {len(specs)} seeds, got {len(seeds)}")
-    if len(set(seeds)) != len(seeds):
-        raise ValueError(f"seeds must be distinct, got {list(seeds)}")
+    if min(seeds) < 0 or len(set(seeds)) != len(seeds):
+        raise ValueError(f"seeds must be distinct and >= 0, got {list(seeds)}")
     return [
         spec.model_copy(update={"seed": int(seed), "name": f"{spec.name}-s{seed}"})
         for spec, seed in zip(specs, seeds, strict=False)

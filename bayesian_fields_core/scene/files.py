@@ -30,3 +30,26 @@ def require_files(paths: Iterable[Path | None], *, what: str, source: str, shown
             f"{len(missing)} {what} referenced by the cameras do not exist: {', '.join(missing[:shown])}{more}",
             source=source,
         )
+
+
+def resolve_inside(root: str | Path, name: str, *, what: str, source: str) -> Path:
+    """`root / name` with symlinks resolved, refused unless it stays inside `root`.
+
+    Why: camera files name image and depth paths, and an upload's camera file must never make the
+    API or a worker open a host file. The check is purely lexical-after-resolve and runs before any
+    existence test, so the error is the same whether the outside file exists or not (no
+    file-existence oracle). Absolute names, `..` components and symlinks that leave the folder
+    are all refused with the same message.
+    """
+    base = Path(root).resolve()
+    if "\x00" in name:
+        raise InputError(f"{what} path contains a NUL byte", source=source)
+    candidate = Path(name)
+    if candidate.is_absolute():
+        raise InputError(
+            f"{what} path {name!r} is absolute; paths must be relative to the scene folder", source=source
+        )
+    resolved = (base / candidate).resolve()
+    if not resolved.is_relative_to(base):
+        raise InputError(f"{what} path {name!r} leaves the scene folder", source=source)
+    return resolved

@@ -1,102 +1,158 @@
 """Find and load a scene folder: one splat `.ply` plus one camera file, with their images.
 
-Splat, first match wins:
-  1. `point_cloud.ply`, 2. `splat.ply` (at the top of the folder),
-  3. the only `*.ply` at the top (several -> error listing them),
-  4. `point_cloud/iteration_<N>/point_cloud.ply` with the largest N (a 3DGS training output).
-Cameras, first match wins:
+Layout, first match wins (`scene/layout.py` decides, so loader, upload validation and client agree):
+  0. `scene.yaml` in the folder names the splat, cameras, images, optional depth and an optional
+     splat-to-camera similarity (`scene/scene_yaml.py`); nothing else is guessed then.
+Splat:
+  1. `point_cloud.ply`, 2. `splat.ply` (at the top of the folder; `splat.ply` is what
+     `ns-export gaussian-splat` writes),
+  3. `point_cloud/iteration_<N>/point_cloud.ply` with the largest N (an INRIA 3DGS output folder),
+  4. `ply/point_cloud_<step>.ply` with the largest step (a gsplat `simple_trainer` result folder),
+  5. the only `*.ply` at the top (several -> error listing them). In a 3DGS output folder
+     (cameras.json with cfg_args or point_cloud/), `input.ply` (the SfM points) never counts.
+Cameras:
   1. `transforms.json` (nerfstudio / Instant-NGP / Blender),
   2. `sparse/0/` then `sparse/` (COLMAP, binary or text),
-  3. `cameras.json` (INRIA 3DGS output).
+  3. `cameras.json` (INRIA 3DGS output). Its images: `images/` beside it, else the `images`
+     folder named by `cfg_args` inside the scene folder, else (only with `allow_source_path`,
+     which the CLI sets and the service never does) that folder under cfg_args' `source_path`.
+     Intrinsics follow the images when their size is 3DGS's resize of the camera size
+     (`scene/inria_output.py`).
+Frame transform (splat -> cameras), first found: the `splat_transform` argument (CLI
+`--splat-transform`), scene.yaml's, `dataparser_transforms.json` beside the splat or at the top
+(nerfstudio), `splat_transform.json` at the top (`{"camera_to_splat": 4x4}` from gsplat's
+normalisation, or `{"splat_to_camera": 4x4}`). The Gaussians are mapped into the cameras' frame;
+`Scene.splat_to_capture` keeps the similarity so results can be reported in both frames.
 The capture formats come before `cameras.json` because a 3DGS output folder copied next to its
-dataset carries both, and `cameras.json` may hold a downscaled training resolution.
-Images are resolved against `images/` (COLMAP, cameras.json) or the transforms.json folder.
+dataset carries both, and the capture's own file has exact intrinsics.
 """
 
 from __future__ import annotations
 
-import re
 from pathlib import Path
 
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.scene.colmap import read_colmap
-from bayesian_fields_core.scene.files import require_files
+from bayesian_fields_core.scene.files import require_files, resolve_inside
 from bayesian_fields_core.scene.inria import read_cameras_json
+from bayesian_fields_core.scene.inria_output import rescale_to_images
+from bayesian_fields_core.scene.layout import (
+    CAMERA_SOURCES,
+    SPLAT_NAMES,
+    SceneLayout,
+    find_camera_file,
+    find_splat_file,
+    resolve_layout,
+)
 from bayesian_fields_core.scene.nerfstudio import read_transforms
 from bayesian_fields_core.scene.ply import DEFAULT_MAX_GAUSSIANS, read_ply
+from bayesian_fields_core.scene.similarity import Similarity
 from bayesian_fields_core.scene.types import Frame, Scene
 
-SPLAT_NAMES = ("point_cloud.ply", "splat.ply")
-CAMERA_SOURCES = ("transforms.json", "sparse/0", "sparse", "cameras.json")
-_ITERATION = re.compile(r"iteration_(\d+)$")
+DEPTH_EXTENSIONS = (".png", ".tif", ".tiff", ".npy")
+"""Tried in order for a scene.yaml depth folder: `<depth>/<image path without extension><ext>`."""
+
+__all__ = [
+    "CAMERA_SOURCES",
+    "SPLAT_NAMES",
+    "find_cameras",
+    "find_splat",
+    "load_frames",
+    "load_scene",
+    "resolve_layout",
+]
 
 
 def find_splat(folder: str | Path) -> Path:
     """The splat file of a scene folder, by the preference order in the module docstring."""
     folder = Path(folder)
-    if not folder.is_dir():
-        raise InputError("scene folder does not exist", source=str(folder))
-    for name in SPLAT_NAMES:
-        if (folder / name).is_file():
-            return folder / name
-    plys = sorted(p for p in folder.glob("*.ply") if p.is_file())
-    if len(plys) == 1:
-        return plys[0]
-    if len(plys) > 1:
-        raise InputError(
-            f"several .ply files and none named {' or '.join(SPLAT_NAMES)}: {', '.join(p.name for p in plys)}",
-            source=str(folder),
-        )
-    iterations = [
-        (int(m.group(1)), d / "point_cloud.ply")
-        for d in (folder / "point_cloud").glob("iteration_*")
-        if (m := _ITERATION.match(d.name)) and (d / "point_cloud.ply").is_file()
-    ]
-    if iterations:
-        return max(iterations)[1]
-    raise InputError(
-        "no splat found (point_cloud.ply, splat.ply, a single *.ply, or "
-        "point_cloud/iteration_<N>/point_cloud.ply)",
-        source=str(folder),
-    )
+    if (folder / "scene.yaml").is_file():
+        return resolve_layout(folder).splat
+    return find_splat_file(folder)[0]
 
 
 def find_cameras(folder: str | Path) -> tuple[str, Path]:
     """(kind, path) of the camera file: kind is 'transforms', 'colmap' or 'inria'."""
     folder = Path(folder)
-    for source in CAMERA_SOURCES:
-        path = folder / source
-        if source.endswith(".json"):
-            if path.is_file():
-                return ("transforms" if source == "transforms.json" else "inria"), path
-        elif any((path / f"images{ext}").is_file() for ext in (".bin", ".txt")):
-            return "colmap", path
-    raise InputError(
-        "no cameras found (transforms.json, sparse/0/ or sparse/ with a COLMAP model, or cameras.json)",
-        source=str(folder),
-    )
+    if (folder / "scene.yaml").is_file():
+        layout = resolve_layout(folder)
+        return layout.camera_kind, layout.camera_path
+    return find_camera_file(folder)
 
 
-def load_frames(folder: str | Path) -> tuple[str, Path, list[Frame]]:
-    """(kind, camera path, frames) of a scene folder, after checking every referenced file exists."""
-    folder = Path(folder)
-    kind, path = find_cameras(folder)
+def _attach_depth(frames: list[Frame], layout: SceneLayout) -> list[Frame]:
+    """Depth paths from a scene.yaml depth folder, each resolved inside the scene folder."""
+    assert layout.depth_dir is not None
+    source = str(layout.root / "scene.yaml")
+    rel = layout.depth_dir.relative_to(layout.root.resolve()).as_posix()
+    missing = []
+    for frame in frames:
+        stem = Path(frame.name).with_suffix("").as_posix()
+        found = None
+        for ext in DEPTH_EXTENSIONS:
+            candidate = resolve_inside(layout.root, f"{rel}/{stem}{ext}", what="depth", source=source)
+            if candidate.is_file():
+                found = candidate
+                break
+        if found is None:
+            missing.append(f"{rel}/{stem}.*")
+        frame.depth_path = found
+        frame.depth_scale = layout.depth_scale
+    if missing:
+        raise InputError(f"{len(missing)} depth maps are missing: {', '.join(missing[:5])}", source=source)
+    return frames
+
+
+def frames_of_layout(layout: SceneLayout) -> list[Frame]:
+    """The frames a layout's camera file describes, checked against the files they reference."""
+    kind, path = layout.camera_kind, layout.camera_path
     if kind == "transforms":
         frames = read_transforms(path)
     elif kind == "colmap":
-        frames = read_colmap(path, folder / "images")
+        frames = read_colmap(path, layout.images_dir)
     else:
-        frames = read_cameras_json(path, folder / "images")
+        frames = read_cameras_json(path, layout.images_dir)
     require_files((f.image_path for f in frames), what="image files", source=str(path))
+    if layout.rescale_intrinsics:
+        frames = rescale_to_images(frames, source=str(path))
+    if layout.depth_dir is not None:
+        frames = _attach_depth(frames, layout)
     require_files(
         (f.depth_path for f in frames if f.depth_path is not None), what="depth files", source=str(path)
     )
-    return kind, path, frames
+    return frames
 
 
-def load_scene(folder: str | Path, *, max_gaussians: int = DEFAULT_MAX_GAUSSIANS) -> Scene:
-    """Load the splat and the frames (in capture order) of a scene folder."""
+def load_frames(folder: str | Path, *, allow_source_path: bool = False) -> tuple[str, Path, list[Frame]]:
+    """(kind, camera path, frames) of a scene folder, after checking every referenced file exists."""
+    layout = resolve_layout(folder, allow_source_path=allow_source_path)
+    return layout.camera_kind, layout.camera_path, frames_of_layout(layout)
+
+
+def load_scene(
+    folder: str | Path,
+    *,
+    max_gaussians: int = DEFAULT_MAX_GAUSSIANS,
+    allow_source_path: bool = False,
+    splat_transform: str | Path | Similarity | None = None,
+) -> Scene:
+    """Load the splat and the frames (in capture order) of a scene folder.
+
+    The Gaussians come back in the cameras' frame: when the layout has a splat -> camera
+    similarity it is applied here and kept as `Scene.splat_to_capture`.
+    `allow_source_path`: follow a 3DGS cfg_args `source_path` outside the folder (CLI only).
+    """
     folder = Path(folder)
-    splat = find_splat(folder)
-    _, _, frames = load_frames(folder)
-    return Scene(gaussians=read_ply(splat, max_gaussians=max_gaussians), frames=frames, root=folder)
+    layout = resolve_layout(folder, allow_source_path=allow_source_path, splat_transform=splat_transform)
+    frames = frames_of_layout(layout)
+    gaussians = read_ply(layout.splat, max_gaussians=max_gaussians)
+    if layout.splat_to_capture is not None:
+        gaussians = layout.splat_to_capture.gaussians(gaussians)
+    return Scene(
+        gaussians=gaussians,
+        frames=frames,
+        root=folder,
+        splat_path=layout.splat,
+        layout=layout.trainer,
+        splat_to_capture=layout.splat_to_capture,
+    )

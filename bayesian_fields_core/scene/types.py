@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -89,8 +90,24 @@ class Frame:
 
 @dataclass
 class Scene:
-    """A splat plus its frames in capture order; root is the folder the files came from."""
+    """A splat plus its frames in capture order; root is the folder the files came from.
+
+    `gaussians` are in the frames' (capture) frame. `splat_to_capture` (a
+    `scene.similarity.Similarity`) is the transform the loader applied to the splat file's
+    Gaussians to get there, None when the file was already in that frame; results map boxes and
+    centroids back with its inverse. `layout` names the recognised layout ('inria', 'nerfstudio',
+    'gsplat', 'scene.yaml', 'matrix' or 'plain').
+    """
 
     gaussians: Gaussians
     frames: list[Frame]
     root: Path | None = None
+    splat_path: Path | None = None
+    layout: str = "plain"
+    splat_to_capture: Any = None
+
+    def splat_frame_gaussians(self) -> Gaussians:
+        """The Gaussians in the splat file's own frame (what exports are written in)."""
+        if self.splat_to_capture is None:
+            return self.gaussians
+        return self.splat_to_capture.inverse().gaussians(self.gaussians)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import shutil
+
 import numpy as np
 import pytest
 from PIL import Image
@@ -64,7 +66,9 @@ def test_splat_discovery(tmp_path):
         (tmp_path / "point_cloud" / f"iteration_{it}").mkdir(parents=True)
         write_ply(tmp_path / "point_cloud" / f"iteration_{it}" / "point_cloud.ply", g)
     assert find_splat(tmp_path) == tmp_path / "point_cloud" / "iteration_30000" / "point_cloud.ply"
-    write_ply(tmp_path / "scene.ply", g)
+    write_ply(tmp_path / "scene.ply", g)  # a trained 3DGS iteration beats a stray top-level .ply
+    assert find_splat(tmp_path) == tmp_path / "point_cloud" / "iteration_30000" / "point_cloud.ply"
+    shutil.rmtree(tmp_path / "point_cloud")
     assert find_splat(tmp_path) == tmp_path / "scene.ply"
     write_ply(tmp_path / "other.ply", g)
     with pytest.raises(InputError, match="several .ply files.*other.ply, scene.ply"):
@@ -73,8 +77,9 @@ def test_splat_discovery(tmp_path):
     assert find_splat(tmp_path) == tmp_path / "splat.ply"
     write_ply(tmp_path / "point_cloud.ply", g)
     assert find_splat(tmp_path) == tmp_path / "point_cloud.ply"
+    (tmp_path / "empty").mkdir()
     with pytest.raises(InputError, match="no splat found"):
-        find_splat(tmp_path / "point_cloud")
+        find_splat(tmp_path / "empty")
 
 
 def test_missing_images_are_listed(tmp_path, frames):

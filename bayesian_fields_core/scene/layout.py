@@ -1,0 +1,303 @@
+"""Which files of a scene folder are the splat, the cameras and the images, and how they line up.
+
+One decision per folder, made here so the loader, the upload validation and the client agree. The
+preference order is documented in `scene/loader.py`.
+
+Strategy for frames (why the Gaussians move, not the cameras): when a trainer stored the splat in
+a frame of its own (nerfstudio dataparser, gsplat normalisation), we map the Gaussians into the
+cameras' (capture) frame with `Similarity.gaussians` (positions, quaternions, log-scales, SH bands)
+rather than moving the cameras into the splat frame. Every length the pipeline uses is then in the
+capture's units: `depth_tolerance`, `edge_padding`, the 1 mm minimum box side, and input depth
+maps, which come with the cameras and need no rescaling. A run on a transformed splat is therefore
+the run on the untransformed scene, whatever trainer made it. Results (boxes, centroids) are
+reported in the user's splat frame (mapped back with the inverse) and also in the capture frame.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.scene.files import resolve_inside
+from bayesian_fields_core.scene.inria_output import CFG_ARGS, is_inria_output, read_cfg_args
+from bayesian_fields_core.scene.scene_yaml import SCENE_YAML, SceneSpecFile, read_scene_yaml
+from bayesian_fields_core.scene.similarity import Similarity
+from bayesian_fields_core.scene.trainer_transforms import (
+    DATAPARSER_TRANSFORMS,
+    SPLAT_TRANSFORM,
+    nerfstudio_to_transforms_frame,
+    read_transform_file,
+)
+
+SPLAT_NAMES = ("point_cloud.ply", "splat.ply")
+CAMERA_SOURCES = ("transforms.json", "sparse/0", "sparse", "cameras.json")
+INRIA_SFM_POINTS = "input.ply"
+"""3DGS copies the SfM points here: never a splat in a 3DGS output folder."""
+_ITERATION = re.compile(r"iteration_(\d+)$")
+_GSPLAT_PLY = re.compile(r"point_cloud_(\d+)\.ply$")
+
+
+@dataclass
+class SceneLayout:
+    """Where a scene's parts are.
+
+    trainer: 'inria', 'nerfstudio', 'gsplat', 'scene.yaml', 'matrix' (a generic transform file)
+    or 'plain'. camera_kind: 'transforms', 'colmap' or 'inria'. images_dir: where image names
+    resolve for COLMAP / cameras.json (None: the reader's default). image_root: the folder those
+    names must stay inside. splat_to_capture: the similarity applied to the Gaussians (None: the
+    splat is already in the cameras' frame). rescale_intrinsics: cameras.json sizes may differ
+    from the images by 3DGS's rules (`inria_output.rescale_to_images`).
+    """
+
+    root: Path
+    trainer: str
+    splat: Path
+    camera_kind: str
+    camera_path: Path
+    images_dir: Path | None = None
+    image_root: Path | None = None
+    depth_dir: Path | None = None
+    depth_scale: float = 1.0
+    splat_to_capture: Similarity | None = None
+    transform_source: Path | None = None
+    rescale_intrinsics: bool = False
+
+
+def _max_numbered(paths: list[tuple[int, Path]]) -> Path | None:
+    return max(paths)[1] if paths else None
+
+
+def _inria_iteration(folder: Path) -> Path | None:
+    return _max_numbered(
+        [
+            (int(m.group(1)), d / "point_cloud.ply")
+            for d in (folder / "point_cloud").glob("iteration_*")
+            if (m := _ITERATION.match(d.name)) and (d / "point_cloud.ply").is_file()
+        ]
+    )
+
+
+def _gsplat_ply(folder: Path) -> Path | None:
+    return _max_numbered(
+        [
+            (int(m.group(1)), p)
+            for p in (folder / "ply").glob("point_cloud_*.ply")
+            if (m := _GSPLAT_PLY.match(p.name))
+        ]
+    )
+
+
+def find_splat_file(folder: Path) -> tuple[Path, str]:
+    """(splat, trainer guess) by the loader's preference order; InputError when none or ambiguous."""
+    if not folder.is_dir():
+        raise InputError("scene folder does not exist", source=str(folder))
+    for name in SPLAT_NAMES:
+        if (folder / name).is_file():
+            return folder / name, "plain"
+    if (splat := _inria_iteration(folder)) is not None:
+        return splat, "inria"
+    if (splat := _gsplat_ply(folder)) is not None:
+        return splat, "gsplat"
+    inria = is_inria_output(folder)
+    plys = sorted(
+        p for p in folder.glob("*.ply") if p.is_file() and not (inria and p.name == INRIA_SFM_POINTS)
+    )
+    if len(plys) == 1:
+        return plys[0], "plain"
+    if len(plys) > 1:
+        raise InputError(
+            f"several .ply files and none named {' or '.join(SPLAT_NAMES)}: {', '.join(p.name for p in plys)}"
+            " (name the splat in a scene.yaml)",
+            source=str(folder),
+        )
+    extra = (
+        " (input.ply is 3DGS's SfM point cloud, not a splat)"
+        if inria and (folder / INRIA_SFM_POINTS).is_file()
+        else ""
+    )
+    raise InputError(
+        "no splat found (point_cloud.ply, splat.ply, point_cloud/iteration_<N>/point_cloud.ply, "
+        f"ply/point_cloud_<step>.ply, a single *.ply, or scene.yaml){extra}",
+        source=str(folder),
+    )
+
+
+def find_camera_file(folder: Path) -> tuple[str, Path]:
+    """(kind, path) of the cameras: transforms.json, then sparse/0, sparse (COLMAP), cameras.json."""
+    for source in CAMERA_SOURCES:
+        path = folder / source
+        if source.endswith(".json"):
+            if path.is_file():
+                return ("transforms" if source == "transforms.json" else "inria"), path
+        elif any((path / f"images{ext}").is_file() for ext in (".bin", ".txt")):
+            return "colmap", path
+    raise InputError(
+        "no cameras found (transforms.json, sparse/0/ or sparse/ with a COLMAP model, cameras.json, or scene.yaml)",
+        source=str(folder),
+    )
+
+
+def camera_kind_of(path: Path) -> str:
+    """The reader for a camera path named in a scene.yaml."""
+    if path.is_dir():
+        if any((path / f"images{ext}").is_file() for ext in (".bin", ".txt")):
+            return "colmap"
+        raise InputError("camera folder has no COLMAP model (images.bin / images.txt)", source=str(path))
+    if path.name == "cameras.json":
+        return "inria"
+    if path.suffix == ".json":
+        return "transforms"
+    raise InputError(
+        "cameras must be a transforms.json, a cameras.json or a COLMAP model folder", source=str(path)
+    )
+
+
+def _capture_transform(transform_file: Path, camera_kind: str, camera_path: Path) -> tuple[Similarity, str]:
+    """Splat -> cameras' frame from a transform file, for the camera file actually read."""
+    to_original, kind = read_transform_file(transform_file)
+    if kind == "nerfstudio" and camera_kind == "transforms":
+        applied, applied_scale = nerfstudio_to_transforms_frame(camera_path)
+        pre = Similarity(applied_scale, np.eye(3), np.zeros(3))
+        return pre.then(to_original).then(applied), kind
+    return to_original, kind
+
+
+def _default_transform_file(folder: Path, splat: Path) -> Path | None:
+    for candidate in (
+        splat.parent / DATAPARSER_TRANSFORMS,
+        folder / DATAPARSER_TRANSFORMS,
+        folder / SPLAT_TRANSFORM,
+    ):
+        if candidate.is_file():
+            return candidate
+    return None
+
+
+def _inria_images(
+    folder: Path, camera_path: Path, *, allow_source_path: bool
+) -> tuple[Path | None, Path | None]:
+    """(images_dir, root) for a cameras.json: `images/` beside it, else what cfg_args names.
+
+    cfg_args' `images` (default 'images') is tried inside the scene folder first; its absolute
+    `source_path` (where 3DGS read the dataset) is followed only with `allow_source_path` (the
+    CLI), because an upload must never make the service open a host folder.
+    """
+    beside = camera_path.parent / "images"
+    cfg = folder / CFG_ARGS
+    if beside.is_dir() or not cfg.is_file():
+        return None, None
+    args = read_cfg_args(cfg)
+    images = args.get("images") or "images"
+    if not isinstance(images, str):
+        raise InputError(f"images must be a string, got {images!r}", source=str(cfg))
+    inside = resolve_inside(folder, images, what="images folder", source=str(cfg))
+    if inside.is_dir():
+        return inside, folder
+    source = args.get("source_path")
+    if not isinstance(source, str) or not source:
+        return None, None
+    source_dir = Path(source)
+    if not source_dir.is_absolute():
+        source_dir = folder / source_dir
+    source_dir = source_dir.resolve()
+    if not source_dir.is_relative_to(folder.resolve()) and not allow_source_path:
+        raise InputError(
+            f"the images are not in the scene folder and cfg_args names source_path {source!r} outside it; "
+            f"copy {images}/ into the scene folder (the CLI may follow source_path, the service never does)",
+            source=str(cfg),
+        )
+    return resolve_inside(source_dir, images, what="images folder", source=str(cfg)), source_dir
+
+
+def _from_scene_yaml(folder: Path, spec: SceneSpecFile, source: str) -> SceneLayout:
+    splat = resolve_inside(folder, spec.splat, what="splat", source=source)
+    if not splat.is_file():
+        raise InputError(f"splat {spec.splat!r} does not exist", source=source)
+    cameras = resolve_inside(folder, spec.cameras, what="cameras", source=source)
+    if not cameras.exists():
+        raise InputError(f"cameras {spec.cameras!r} do not exist", source=source)
+    kind = camera_kind_of(cameras)
+    images_dir = None
+    if spec.images is not None:
+        if kind == "transforms":
+            raise InputError(
+                "images: not used with a transforms.json (its file_path entries are relative to its folder); remove it",
+                source=source,
+            )
+        images_dir = resolve_inside(folder, spec.images, what="images folder", source=source)
+    elif kind != "transforms":
+        images_dir = resolve_inside(folder, "images", what="images folder", source=source)
+    depth_dir = resolve_inside(folder, spec.depth, what="depth folder", source=source) if spec.depth else None
+    layout = SceneLayout(
+        root=folder,
+        trainer="scene.yaml",
+        splat=splat,
+        camera_kind=kind,
+        camera_path=cameras,
+        images_dir=images_dir,
+        image_root=folder,
+        depth_dir=depth_dir,
+        depth_scale=spec.depth_scale,
+        rescale_intrinsics=kind == "inria",
+    )
+    if spec.splat_to_camera is not None:
+        layout.splat_to_capture = Similarity.from_matrix(
+            spec.splat_to_camera, source=f"{source} splat_to_camera"
+        )
+        layout.transform_source = folder / SCENE_YAML
+    elif spec.transform_file is not None:
+        path = resolve_inside(folder, spec.transform_file, what="transform file", source=source)
+        layout.splat_to_capture, _ = _capture_transform(path, kind, cameras)
+        layout.transform_source = path
+    return layout
+
+
+def resolve_layout(
+    folder: str | Path,
+    *,
+    allow_source_path: bool = False,
+    splat_transform: str | Path | Similarity | None = None,
+) -> SceneLayout:
+    """The layout of a scene folder (see the loader's docstring for the order of the rules).
+
+    `splat_transform`: a transform file (any format of `read_transform_file`) or a `Similarity`
+    splat -> cameras' frame; it overrides what the folder holds. An identity transform is
+    dropped (no "capture frame" copy of the results then).
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise InputError("scene folder does not exist", source=str(folder))
+    spec_path = folder / SCENE_YAML
+    if spec_path.is_file():
+        layout = _from_scene_yaml(folder, read_scene_yaml(spec_path), str(spec_path))
+    else:
+        splat, trainer = find_splat_file(folder)
+        kind, camera_path = find_camera_file(folder)
+        layout = SceneLayout(
+            root=folder, trainer=trainer, splat=splat, camera_kind=kind, camera_path=camera_path
+        )
+        if kind == "inria":
+            layout.trainer = "inria"
+            layout.rescale_intrinsics = True
+            layout.images_dir, layout.image_root = _inria_images(
+                folder, camera_path, allow_source_path=allow_source_path
+            )
+        transform_file = _default_transform_file(folder, splat)
+        if transform_file is not None:
+            layout.splat_to_capture, layout.trainer = _capture_transform(transform_file, kind, camera_path)
+            layout.transform_source = transform_file
+    if isinstance(splat_transform, Similarity):
+        layout.splat_to_capture, layout.transform_source = splat_transform, None
+    elif splat_transform is not None:
+        path = Path(splat_transform)
+        layout.splat_to_capture, layout.trainer = _capture_transform(
+            path, layout.camera_kind, layout.camera_path
+        )
+        layout.transform_source = path
+    if layout.splat_to_capture is not None and layout.splat_to_capture.is_identity:
+        layout.splat_to_capture = None
+    return layout

@@ -119,6 +119,8 @@ def cmd_run(args: argparse.Namespace) -> int:
             scene_store=LocalStore(cache_dir),
             scene_prefix=f"scenes/{scene_fingerprint(scene_dir)}/",
             scene_dir=scene_dir,
+            allow_source_path=True,
+            splat_transform=Path(args.splat_transform) if args.splat_transform else None,
             progress=progress.update,
         )
         reports = run_job(ctx, force=True)
@@ -220,6 +222,13 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--params", help="YAML file of pipeline parameters")
     run.add_argument("--param", action="append", default=[], metavar="NAME=VALUE", help="one parameter")
     run.add_argument("--cache-dir", help=f"perception cache (default {DEFAULT_CACHE_DIR})")
+    run.add_argument(
+        "--splat-transform",
+        metavar="FILE",
+        help="splat -> cameras transform: a nerfstudio dataparser_transforms.json, or JSON "
+        '{"camera_to_splat": 4x4} (gsplat normalisation) / {"splat_to_camera": 4x4}; '
+        "overrides the scene folder's (README: Bring your own scene)",
+    )
     run.add_argument("--json", action="store_true", help="print the summary as JSON")
     run.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
     run.set_defaults(func=cmd_run)

@@ -104,6 +104,10 @@ class JobContext:
     scene_store / scene_prefix: where the scene's input files (``input/``) and its
     task-independent caches (``cache/<fingerprint>/``) live; defaults to `store`.
     scene_dir: a local folder holding the scene; when None the input is fetched from the store.
+    allow_source_path: let the loader follow a 3DGS cfg_args `source_path` outside the scene
+    folder (the CLI sets it; the service never does: a job reads only its upload).
+    splat_transform: a splat -> camera transform file overriding the folder's (CLI
+    `--splat-transform`); None = what the folder holds.
     """
 
     store: Store
@@ -115,6 +119,8 @@ class JobContext:
     scene_store: Store | None = None
     scene_dir: Path | None = None
     work_dir: Path | None = None
+    allow_source_path: bool = False
+    splat_transform: Path | None = None
     progress: ProgressFn = _no_progress
     should_cancel: CancelFn = _never_cancel
     _scene: Scene | None = field(default=None, repr=False)
@@ -166,7 +172,9 @@ class JobContext:
             from .scene.loader import load_scene
 
             folder = self.scene_dir if self.scene_dir is not None else self._materialise_scene()
-            self._scene = load_scene(folder)
+            self._scene = load_scene(
+                folder, allow_source_path=self.allow_source_path, splat_transform=self.splat_transform
+            )
         return self._scene
 
     def selected_frames(self) -> list[tuple[int, Frame]]:

@@ -23,12 +23,23 @@ def result_summary(result: Result, reports: dict[str, dict[str, Any]], out: Path
                     "probability": round(o.probability, 4),
                     "num_gaussians": o.num_gaussians,
                     "centroid": [round(float(c), 4) for c in o.centroid],
+                    **(
+                        {"capture_centroid": [round(float(c), 4) for c in o.capture_centroid]}
+                        if o.capture_centroid is not None
+                        else {}
+                    ),
                 }
                 for o in objects
             ]
             for task, objects in result.selections.items()
         },
         "counts": result.counts(),
+        "frames": {
+            "layout": result.layout,
+            "splat_to_capture": None if result.splat_to_capture is None else result.splat_to_capture.tolist(),
+            "centroids": "splat file frame"
+            + ("; capture_centroid: cameras' frame" if result.splat_to_capture is not None else ""),
+        },
         "stage_seconds": {name: round(float(r.get("seconds", 0.0)), 3) for name, r in reports.items()},
     }
 
@@ -63,6 +74,11 @@ def print_result(
                 "(" + ", ".join(f"{c:+.2f}" for c in obj.centroid) + ")",
             )
     console.print(table)
+    if result.splat_to_capture is not None:
+        console.print(
+            f"centroids are in the splat file's frame ({result.layout} layout: the splat was mapped into the "
+            "cameras' frame for the run); --json also gives capture_centroid, summary.json capture_frame boxes"
+        )
     counts = result.counts()
     timing = ", ".join(f"{name} {float(r.get('seconds', 0.0)):.1f}s" for name, r in reports.items())
     perceive = reports.get("perceive", {})

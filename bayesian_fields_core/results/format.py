@@ -23,7 +23,7 @@ from ..errors import InputError
 from ..objects.obb import OrientedBox
 
 FORMAT_NAME = "bayesian-fields-result"
-FORMAT_VERSION = "1.1"
+FORMAT_VERSION = "1.2"
 """MAJOR.MINOR. A reader accepts any MINOR of its MAJOR (minors only add optional fields and files);
 a new MAJOR (a changed meaning, dtype rule or layout) is refused with a clear error."""
 
@@ -44,8 +44,11 @@ NULL_TASK = "<null>"
 @dataclass
 class SelectedObject:
     """One of a task's top-k objects. `num_gaussians`, `centroid` (mean Gaussian centre) and `box`
-    describe the object's Gaussians after floater removal; `export` is the key of its `.ply`
-    (relative to the result prefix) when one was written."""
+    describe the object's Gaussians after floater removal, in the frame of the splat file the user
+    gave; `export` is the key of its `.ply` (relative to the result prefix) when one was written.
+    `capture_centroid` / `capture_box` (format 1.2): the same in the cameras' (capture) frame, set
+    only when the loader mapped the splat into that frame (nerfstudio, gsplat, a scene.yaml
+    transform); None when both frames are one."""
 
     object_id: int
     probability: float
@@ -53,9 +56,11 @@ class SelectedObject:
     centroid: np.ndarray
     box: OrientedBox
     export: str | None = None
+    capture_centroid: np.ndarray | None = None
+    capture_box: OrientedBox | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        return {
+        out: dict[str, Any] = {
             "object_id": int(self.object_id),
             "probability": float(self.probability),
             "num_gaussians": int(self.num_gaussians),
@@ -63,6 +68,12 @@ class SelectedObject:
             "box": self.box.to_dict(),
             "export": self.export,
         }
+        if self.capture_centroid is not None and self.capture_box is not None:
+            out["capture_frame"] = {
+                "centroid": np.asarray(self.capture_centroid, dtype=np.float64).tolist(),
+                "box": self.capture_box.to_dict(),
+            }
+        return out
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> SelectedObject:
@@ -70,6 +81,13 @@ class SelectedObject:
             centroid = np.asarray(data["centroid"], dtype=np.float64)
             if centroid.shape != (3,):
                 raise InputError(f"result summary: centroid must have 3 values, got {centroid.shape}")
+            capture = data.get("capture_frame")
+            capture_centroid = capture_box = None
+            if capture is not None:
+                capture_centroid = np.asarray(capture["centroid"], dtype=np.float64)
+                if capture_centroid.shape != (3,):
+                    raise InputError("result summary: capture_frame centroid must have 3 values")
+                capture_box = OrientedBox.from_dict(capture["box"])
             return cls(
                 object_id=int(data["object_id"]),
                 probability=float(data["probability"]),
@@ -77,6 +95,8 @@ class SelectedObject:
                 centroid=centroid,
                 box=OrientedBox.from_dict(data["box"]),
                 export=data.get("export"),
+                capture_centroid=capture_centroid,
+                capture_box=capture_box,
             )
         except KeyError as exc:
             raise InputError(f"result summary: selected object missing field {exc.args[0]!r}") from None
@@ -103,6 +123,9 @@ class Result:
     primitive_ids: optional (N,) integer primitive of each Gaussian, -1 = none.
     parameters / models / timings_s: provenance: pipeline parameters, model ids, seconds per stage.
     num_primitives: primitive count when known without `primitive_ids` (the memory table needs it).
+    splat_to_capture: optional (4, 4) similarity the loader applied to the splat file's Gaussians
+        to put them in the cameras' frame (format 1.2; None = one frame). Selections carry both.
+    layout: the scene layout the loader recognised ('inria', 'nerfstudio', 'gsplat', ...), or ''.
     """
 
     tasks: list[str]
@@ -115,6 +138,8 @@ class Result:
     models: dict[str, Any] = field(default_factory=dict)
     timings_s: dict[str, float] = field(default_factory=dict)
     num_primitives: int | None = None
+    splat_to_capture: np.ndarray | None = None
+    layout: str = ""
     format_version: str = FORMAT_VERSION
 
     @property

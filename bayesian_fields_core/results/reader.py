@@ -77,6 +77,25 @@ def _relevance(store: Store, prefix: str, summary: dict[str, Any]) -> np.ndarray
     return None if rel is None else rel.astype(np.float32, copy=False)
 
 
+def _frames(summary: dict[str, Any], prefix: str) -> tuple[np.ndarray | None, str]:
+    """(splat -> capture 4x4 or None, layout) from the optional `frames` block (format 1.2)."""
+    frames = summary.get("frames")
+    if frames is None:
+        return None, ""
+    if not isinstance(frames, dict):
+        raise InputError(f"{prefix}{SUMMARY_KEY}: frames must be an object")
+    matrix = frames.get("splat_to_capture")
+    if matrix is None:
+        return None, str(frames.get("layout", ""))
+    try:
+        m = np.asarray(matrix, dtype=np.float64)
+    except (TypeError, ValueError):
+        m = np.zeros(0)
+    if m.shape != (4, 4) or not np.isfinite(m).all():
+        raise InputError(f"{prefix}{SUMMARY_KEY}: frames.splat_to_capture must be a finite 4x4 matrix")
+    return m, str(frames.get("layout", ""))
+
+
 def read_result(store: Store, prefix: str) -> Result:
     """The `Result` stored under `prefix` (ids as int64 with -1 = none, probabilities float32)."""
     prefix = normalise_prefix(prefix)
@@ -93,6 +112,7 @@ def read_result(store: Store, prefix: str) -> Result:
         }
     except (KeyError, TypeError) as exc:
         raise InputError(f"{prefix}{SUMMARY_KEY}: malformed tasks or selections ({exc!r})") from None
+    splat_to_capture, layout = _frames(summary, prefix)
     result = Result(
         tasks=tasks,
         object_ids=object_ids,
@@ -104,6 +124,8 @@ def read_result(store: Store, prefix: str) -> Result:
         models=summary.get("models", {}),
         timings_s=summary.get("timings_s", {}),
         num_primitives=summary.get("counts", {}).get("primitives"),
+        splat_to_capture=splat_to_capture,
+        layout=layout,
         format_version=str(summary["format_version"]),
     )
     result.validate()

@@ -123,6 +123,13 @@ def write_result(
         "models": result.models,
         "timings_s": {k: float(v) for k, v in result.timings_s.items()},
     }
+    if result.splat_to_capture is not None or result.layout:
+        summary["frames"] = {
+            "layout": result.layout,
+            "splat_to_capture": None
+            if result.splat_to_capture is None
+            else np.asarray(result.splat_to_capture, dtype=np.float64).tolist(),
+        }
     put_json(store, prefix + SUMMARY_KEY, summary)
     sizes[SUMMARY_KEY] = store.size(prefix + SUMMARY_KEY)
     return sizes

@@ -19,7 +19,7 @@ import numpy as np
 
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.objects.obb import OrientedBox
-from bayesian_fields_core.scene.geometry import rotmat_to_quat, rotation_error
+from bayesian_fields_core.scene.geometry import rotation_error, rotmat_to_quat
 from bayesian_fields_core.scene.types import Gaussians
 
 SIMILARITY_TOLERANCE = 1e-4

@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from bayesian_fields_core.scene.images import check_image, load_depth
-from bayesian_fields_core.scene.loader import find_splat, load_frames
+from bayesian_fields_core.scene.loader import frames_of_layout, resolve_layout
 from bayesian_fields_core.scene.ply import DEFAULT_MAX_GAUSSIANS, read_ply
 
 
@@ -23,12 +23,14 @@ def validate_scene_folder(
 
     Returns {splat, gaussians, sh_degree, camera_format, camera_file, frames, image_size
     ([w, h] of the most common size), image_sizes (all distinct sizes), distorted_frames,
-    depth_frames}; paths are relative to the folder.
+    depth_frames, layout, splat_to_capture (4x4 or None)}; paths are relative to the folder.
+    Never follows a 3DGS cfg_args source_path out of the folder (an upload reads only itself).
     """
     folder = Path(folder)
-    splat = find_splat(folder)
+    layout = resolve_layout(folder, allow_source_path=False)
+    splat, kind, camera_path = layout.splat, layout.camera_kind, layout.camera_path
     gaussians = read_ply(splat, max_gaussians=max_gaussians)
-    kind, camera_path, frames = load_frames(folder)
+    frames = frames_of_layout(layout)
     for frame in frames:
         check_image(frame)
         load_depth(frame)
@@ -44,4 +46,8 @@ def validate_scene_folder(
         "image_sizes": sorted(list(s) for s in sizes),
         "distorted_frames": sum(1 for f in frames if f.distortion),
         "depth_frames": sum(1 for f in frames if f.depth_path is not None),
+        "layout": layout.trainer,
+        "splat_to_capture": None
+        if layout.splat_to_capture is None
+        else layout.splat_to_capture.matrix.tolist(),
     }

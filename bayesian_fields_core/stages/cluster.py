@@ -263,7 +263,7 @@ def run(ctx: JobContext) -> dict[str, Any]:
         ctx.store,
         ctx.job_key(RESULT_PREFIX),
         result,
-        gaussians=gaussians,
+        gaussians=ctx.scene().splat_frame_gaussians() if ctx.params.export_ply else None,
         export_ply=ctx.params.export_ply,
     )
     timings["write"] = time.perf_counter() - t
@@ -281,7 +281,15 @@ def run(ctx: JobContext) -> dict[str, Any]:
 
 
 def build_result(ctx: JobContext, object_map: ObjectMap, timings: dict[str, float]) -> Result:
-    """The serialisable result: id maps, probability table, per-task selections, provenance."""
+    """The serialisable result: id maps, probability table, per-task selections, provenance.
+
+    The map is computed in the cameras' frame (where the loader put the Gaussians); boxes and
+    centroids are reported in the splat file's frame and, when the loader applied a transform,
+    also in the capture frame (`SelectedObject.capture_*`).
+    """
+    scene = ctx.scene()
+    to_capture = scene.splat_to_capture
+    to_splat = None if to_capture is None else to_capture.inverse()
     selections: dict[str, list[SelectedObject]] = {}
     scores = object_map.task_scores
     for t, task in enumerate(ctx.tasks):
@@ -290,13 +298,16 @@ def build_result(ctx: JobContext, object_map: ObjectMap, timings: dict[str, floa
             box = object_map.boxes[obj] if obj >= 0 else None
             if obj < 0 or box is None or object_map.sizes[obj] == 0:
                 continue
+            centroid = object_map.centroids[obj]
             chosen.append(
                 SelectedObject(
                     object_id=int(obj),
                     probability=float(scores[obj, t]),
                     num_gaussians=int(object_map.sizes[obj]),
-                    centroid=object_map.centroids[obj],
-                    box=box,
+                    centroid=centroid if to_splat is None else to_splat.points(centroid),
+                    box=box if to_splat is None else to_splat.box(box),
+                    capture_centroid=None if to_splat is None else centroid,
+                    capture_box=None if to_splat is None else box,
                 )
             )
         selections[task] = chosen
@@ -311,6 +322,8 @@ def build_result(ctx: JobContext, object_map: ObjectMap, timings: dict[str, floa
         models=ctx.models.model_ids,
         timings_s=timings,
         num_primitives=int(object_map.counts.get("primitives", 0)),
+        splat_to_capture=None if to_capture is None else to_capture.matrix,
+        layout=scene.layout,
     )
 
 

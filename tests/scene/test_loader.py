@@ -130,6 +130,8 @@ def test_validate_summary_and_wrong_size_image(tmp_path, frames):
         "image_sizes": [[320, 240], [640, 480]],
         "distorted_frames": 0,
         "depth_frames": 0,
+        "layout": "plain",
+        "splat_to_capture": None,
     }
     Image.new("RGB", (100, 50)).save(tmp_path / "images" / "frame_10.png")
     with pytest.raises(

@@ -42,7 +42,14 @@ class PipelineParams(BaseModel):
         description="Depth image for visibility: rendered median or expected depth, or the input depth maps.",
     )
     depth_tolerance: float = Field(
-        0.05, ge=0, description="Absolute visibility tolerance on centre depth, metres."
+        0.05,
+        ge=0,
+        description=(
+            "Absolute visibility tolerance on centre depth, in the cameras' (capture) frame units: "
+            "metres for a metric capture; for a non-metric COLMAP scene, COLMAP's units (scale it "
+            "with the scene, e.g. ~1% of the camera-to-scene distance). The loader maps a "
+            "nerfstudio/gsplat splat into that frame, so their internal scaling never applies."
+        ),
     )
     depth_tolerance_relative: float = Field(
         0.03,

@@ -125,3 +125,34 @@ def test_untransformed_splatfacto_splat_does_not_agree(
         f"untransformed splatfacto: {agreement:.4%}; baseline in objects: {(baseline.object_ids >= 0).mean():.2%}"
     )
     assert agreement < 0.9, agreement
+
+
+def test_cli_splat_transform_and_source_path(
+    scene_dir: Path, profile_yaml: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`bfields run --splat-transform FILE` applies a transform kept outside the folder, and the
+    JSON summary carries both frames; the CLI follows a 3DGS cfg_args source_path."""
+    import json
+
+    from bayesian_fields_core.cli import main
+
+    source = load_scene(scene_dir)
+    src = SourceScene(source.gaussians, source.frames)
+    folder = splatfacto_output(src, tmp_path / "ns")
+    transform = tmp_path / "dataparser_transforms.json"
+    (folder / "dataparser_transforms.json").rename(transform)
+    common = ["--cache-dir", str(tmp_path / "cache"), "--profile", str(profile_yaml), "-q", "--json"]
+    args = ["run", str(folder), "--out", str(tmp_path / "out"), "--task", "red chair", *common]
+    assert main([*args, "--splat-transform", str(transform)]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["frames"]["layout"] == "nerfstudio"
+    to_capture = Similarity.from_matrix(summary["frames"]["splat_to_capture"], source="summary")
+    objects = summary["tasks"]["red chair"]
+    assert objects
+    for obj in objects:
+        np.testing.assert_allclose(to_capture.points(obj["centroid"]), obj["capture_centroid"], atol=1e-3)
+
+    out = inria_output(src, tmp_path / "output", tmp_path / "dataset")
+    assert main(["run", str(out), "--out", str(tmp_path / "out2"), "--task", "red chair", *common]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["frames"] == {"layout": "inria", "splat_to_capture": None, "centroids": "splat file frame"}

@@ -109,6 +109,14 @@ def cmd_run(args: argparse.Namespace) -> int:
     models = load_models(args.profile, device=params.device)
     out = Path(args.out)
     cache_dir = Path(args.cache_dir) if args.cache_dir else DEFAULT_CACHE_DIR
+    fingerprint = scene_fingerprint(scene_dir)
+    if args.splat_transform:
+        # The transform moves the Gaussians, so it keys the visibility cache like the folder does.
+        try:
+            extra = Path(args.splat_transform).read_bytes()
+        except OSError as exc:
+            raise InputError(f"cannot read ({exc.strerror or exc})", source=args.splat_transform) from None
+        fingerprint = hashlib.sha256(fingerprint.encode() + extra).hexdigest()[:16]
     with StageProgress(console, enabled=not args.quiet) as progress:
         ctx = JobContext(
             store=LocalStore(out),
@@ -117,7 +125,7 @@ def cmd_run(args: argparse.Namespace) -> int:
             params=params,
             models=models,
             scene_store=LocalStore(cache_dir),
-            scene_prefix=f"scenes/{scene_fingerprint(scene_dir)}/",
+            scene_prefix=f"scenes/{fingerprint}/",
             scene_dir=scene_dir,
             allow_source_path=True,
             splat_transform=Path(args.splat_transform) if args.splat_transform else None,

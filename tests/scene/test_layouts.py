@@ -245,3 +245,42 @@ def test_plain_folder_is_unchanged(tmp_path: Path, source: SourceScene) -> None:
     layout = resolve_layout(folder)
     assert (layout.trainer, layout.camera_kind, layout.splat_to_capture) == ("plain", "colmap", None)
     assert_same_scene(load_scene(folder), source, transformed=False)
+
+
+def test_images_smaller_than_cameras_json(tmp_path: Path, source: SourceScene) -> None:
+    """3DGS -i images_2 against a full-size COLMAP model: cameras.json is twice the images."""
+    out = inria_output(source, tmp_path / "run", tmp_path / "dataset", images="images_2")
+    (out / "images_2").mkdir()
+    for f in source.frames:
+        Image.new("RGB", (32, 24)).save(out / "images_2" / f.name)
+    scene = load_scene(out)
+    assert {(f.width, f.height) for f in scene.frames} == {(32, 24)}
+    np.testing.assert_allclose(scene.frames[0].K, np.diag([0.5, 0.5, 1.0]) @ source.frames[0].K, atol=1e-9)
+
+
+def test_transform_files_are_checked(tmp_path: Path) -> None:
+    from bayesian_fields_core.scene.trainer_transforms import (
+        LEGACY_COLMAP_APPLIED_TRANSFORM,
+        nerfstudio_to_transforms_frame,
+        read_transform_file,
+    )
+
+    path = tmp_path / "t.json"
+    cases = {
+        '{"transform": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0]]}': "no 'scale'",
+        '{"transform": [[2, 0, 0, 0], [0, 2, 0, 0], [0, 0, 2, 0]], "scale": 1}': "must be rigid",
+        '{"transform": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0]], "scale": -1}': "positive",
+        '{"camera_to_splat": [[1, 0], [0, 1]]}': "4x4",
+        '{"splat_to_camera": 1, "camera_to_splat": 2}': "exactly one",
+        "[1, 2]": "JSON object",
+    }
+    for text, message in cases.items():
+        path.write_text(text)
+        with pytest.raises(InputError, match=message):
+            read_transform_file(path)
+    # nerfstudio's legacy rule: a COLMAP-made dataset without the field used this applied_transform.
+    (tmp_path / "colmap" / "sparse" / "0").mkdir(parents=True)
+    (tmp_path / "transforms.json").write_text('{"frames": [], "applied_scale": 2.0}')
+    applied, applied_scale = nerfstudio_to_transforms_frame(tmp_path / "transforms.json")
+    np.testing.assert_allclose(applied.matrix[:3], LEGACY_COLMAP_APPLIED_TRANSFORM)
+    assert applied_scale == 2.0

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.scene.trainer_transforms import DATAPARSER_TRANSFORMS, SPLAT_TRANSFORM
 from bayesian_fields_core.store import Store
 
 from .archives import ArchiveLimits, extract_archive, is_archive_name
@@ -32,11 +33,15 @@ CAMERA_FILES: dict[str, str] = {
     "points3D.bin": "sparse/0/",
 }
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp")
+#: Optional splat-to-cameras frame files (nerfstudio's, or the generic/gsplat one), stored at the
+#: top of the scene folder where `scene.layout` looks for them.
+TRANSFORM_FILES = (DATAPARSER_TRANSFORMS, SPLAT_TRANSFORM)
+ROLES = ("splat", "cameras", "images", "transform")
 
 
 @dataclass(frozen=True)
 class UploadedFile:
-    role: str  # "splat" | "cameras" | "images"
+    role: str  # one of ROLES
     name: str  # client file name (already reduced to a base name)
     path: Path
 
@@ -66,18 +71,31 @@ def _camera_files(files: Sequence[UploadedFile]) -> list[UploadedFile]:
     return cams
 
 
+def _transform_file(files: Sequence[UploadedFile]) -> UploadedFile | None:
+    transforms = [f for f in files if f.role == "transform"]
+    if len(transforms) > 1:
+        raise InputError(f"expected at most one transform file, got {len(transforms)}", source="transform")
+    if transforms and transforms[0].name not in TRANSFORM_FILES:
+        raise InputError(
+            f"{transforms[0].name!r} is not a transform file; expected {' or '.join(TRANSFORM_FILES)}",
+            source="transform",
+        )
+    return transforms[0] if transforms else None
+
+
 def assemble_scene(files: Sequence[UploadedFile], scene_dir: Path, limits: ArchiveLimits) -> None:
     """Lay the uploaded files out as a scene folder (files are moved, archives extracted)."""
     splat = _one_splat(files)
     cams = _camera_files(files)
+    transform = _transform_file(files)
     images = [f for f in files if f.role == "images"]
-    unknown = [f for f in files if f.role not in ("splat", "cameras", "images")]
+    unknown = [f for f in files if f.role not in ROLES]
     if unknown:
-        raise InputError(
-            f"unexpected form field {unknown[0].role!r}; use splat, cameras, images", source="form"
-        )
+        raise InputError(f"unexpected form field {unknown[0].role!r}; use {', '.join(ROLES)}", source="form")
     scene_dir.mkdir(parents=True, exist_ok=True)
     splat.path.replace(scene_dir / splat.name)
+    if transform is not None:
+        transform.path.replace(scene_dir / transform.name)
     for cam in cams:
         dest = scene_dir / CAMERA_FILES[cam.name] / cam.name
         if dest.exists():

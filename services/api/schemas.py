@@ -55,7 +55,7 @@ class UploadFileSpec(BaseModel):
     """One file the client will upload straight to the bucket."""
 
     model_config = ConfigDict(extra="forbid")
-    field: Literal["splat", "cameras", "images"] = Field(
+    field: Literal["splat", "cameras", "images", "transform"] = Field(
         examples=["images"], description="Same roles as the multipart form fields of POST /v1/scenes."
     )
     name: str = Field(examples=["images.zip"], min_length=1, max_length=255)

@@ -9,18 +9,21 @@ the file and the problem.
 from __future__ import annotations
 
 import io
+import json
 import os
 import tempfile
 import time
 import zipfile
 from collections.abc import Callable, Iterator
 from contextlib import ExitStack, contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import httpx
 
 from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.scene.trainer_transforms import SPLAT_TRANSFORM
 
 ProgressFn = Callable[[int], None]  # called with bytes just sent/received
 COLMAP_FILES = ("cameras.txt", "images.txt", "points3D.txt", "cameras.bin", "images.bin", "points3D.bin")
@@ -49,19 +52,40 @@ class _ProgressFile(io.FileIO):
         return data
 
 
-def scene_files(folder: Path) -> dict[str, list[Path]]:
-    """The files of a scene folder by form field: one splat, the camera file(s), the images dir."""
-    from bayesian_fields_core.scene.loader import find_cameras, find_splat
+@dataclass(frozen=True)
+class SceneUpload:
+    """What `upload_scene` sends for a scene folder: the form's files and the splat's frame."""
+
+    splat: Path
+    cameras: list[Path]
+    images: list[Path]
+    images_root: Path  # the images are zipped relative to this folder
+    splat_to_camera: list[list[float]] | None  # (4, 4) similarity; None: same frame as the cameras
+
+
+def scene_files(folder: Path) -> SceneUpload:
+    """The files of a scene folder, resolved with the same layout rules as `bfields run` (INRIA,
+    splatfacto, gsplat, scene.yaml), so a trainer's output folder uploads as it is. The splat's
+    frame, when it differs from the cameras', travels as the resolved similarity (the server
+    applies it the same way whichever trainer made it)."""
+    from bayesian_fields_core.scene.layout import resolve_layout
 
     folder = Path(folder)
-    splat = find_splat(folder)
-    kind, camera = find_cameras(folder)
+    layout = resolve_layout(folder, allow_source_path=True)
+    camera = layout.camera_path
     cameras = [camera] if camera.is_file() else sorted(p for p in camera.iterdir() if p.name in COLMAP_FILES)
-    images_dir = folder / "images"
+    images_dir = layout.images_dir or folder / "images"
     if not images_dir.is_dir():
-        raise InputError("no images/ folder next to the cameras", source=str(folder))
+        raise InputError(f"no images folder ({images_dir.name}/) next to the cameras", source=str(folder))
     images = sorted(p for p in images_dir.rglob("*") if p.is_file() and not p.name.startswith("."))
-    return {"splat": [splat], "cameras": cameras, "images": images}
+    similarity = layout.splat_to_capture
+    return SceneUpload(
+        splat=layout.splat,
+        cameras=cameras,
+        images=images,
+        images_root=images_dir,
+        splat_to_camera=None if similarity is None else similarity.matrix.tolist(),
+    )
 
 
 def zip_images(images: list[Path], root: Path, dest: Path) -> Path:
@@ -119,9 +143,12 @@ class BFieldsClient:
         """Zip the images, upload splat + cameras + zip in one multipart request."""
         files = scene_files(Path(folder))
         with tempfile.TemporaryDirectory(prefix="bfields-submit-") as tmp, ExitStack() as stack:
-            archive = zip_images(files["images"], Path(folder) / "images", Path(tmp) / "images.zip")
-            parts = [*((("splat", p)) for p in files["splat"]), *(("cameras", p) for p in files["cameras"])]
-            parts.append(("images", archive))
+            archive = zip_images(files.images, files.images_root, Path(tmp) / "images.zip")
+            parts = [("splat", files.splat), *(("cameras", p) for p in files.cameras), ("images", archive)]
+            if files.splat_to_camera is not None:
+                transform = Path(tmp) / SPLAT_TRANSFORM
+                transform.write_text(json.dumps({"splat_to_camera": files.splat_to_camera}))
+                parts.append(("transform", transform))
             if on_total is not None:
                 on_total(sum(p.stat().st_size for _, p in parts))
             form = [(field, (p.name, stack.enter_context(_ProgressFile(p, on_bytes)))) for field, p in parts]

@@ -53,6 +53,13 @@ _MULTIPART_SCHEMA = {
                             "items": {"type": "string", "format": "binary"},
                             "description": "The images as files, or ONE .zip/.tar(.gz) archive of them.",
                         },
+                        "transform": {
+                            "type": "string",
+                            "format": "binary",
+                            "description": "Optional: the splat's frame relative to the cameras, as nerfstudio's "
+                            'dataparser_transforms.json or splat_transform.json ({"splat_to_camera": 4x4} '
+                            'or gsplat\'s {"camera_to_splat": 4x4}).',
+                        },
                     },
                 }
             }

@@ -109,18 +109,22 @@ def cmd_run(args: argparse.Namespace) -> int:
     models = load_models(args.profile, device=params.device)
     out = Path(args.out)
     cache_dir = Path(args.cache_dir) if args.cache_dir else DEFAULT_CACHE_DIR
+    ctx = JobContext(
+        store=LocalStore(out),
+        job_prefix="",
+        tasks=tasks,
+        params=params,
+        models=models,
+        scene_store=LocalStore(cache_dir),
+        scene_prefix=f"scenes/{scene_fingerprint(scene_dir)}/",
+        scene_dir=scene_dir,
+    )
+    # Loads the scene and checks that the splat lines up with its cameras and photos (one-line
+    # InputError otherwise), before the progress bars start and before perception.
+    alignment = ctx.alignment()
+    console.print(alignment.summary() if alignment is not None else "alignment check: off")
     with StageProgress(console, enabled=not args.quiet) as progress:
-        ctx = JobContext(
-            store=LocalStore(out),
-            job_prefix="",
-            tasks=tasks,
-            params=params,
-            models=models,
-            scene_store=LocalStore(cache_dir),
-            scene_prefix=f"scenes/{scene_fingerprint(scene_dir)}/",
-            scene_dir=scene_dir,
-            progress=progress.update,
-        )
+        ctx.progress = progress.update
         reports = run_job(ctx, force=True)
     result = read_result(LocalStore(out), "result/")
     from .report import print_result

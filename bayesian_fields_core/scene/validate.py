@@ -14,16 +14,19 @@ from typing import Any
 from bayesian_fields_core.scene.images import check_image, load_depth
 from bayesian_fields_core.scene.loader import find_splat, load_frames
 from bayesian_fields_core.scene.ply import DEFAULT_MAX_GAUSSIANS, read_ply
+from bayesian_fields_core.scene.types import Scene
 
 
 def validate_scene_folder(
-    folder: str | Path, *, max_gaussians: int = DEFAULT_MAX_GAUSSIANS
+    folder: str | Path, *, max_gaussians: int = DEFAULT_MAX_GAUSSIANS, alignment: bool = False
 ) -> dict[str, Any]:
     """Validate a scene folder and summarise it; raises InputError on the first problem found.
 
     Returns {splat, gaussians, sh_degree, camera_format, camera_file, frames, image_size
     ([w, h] of the most common size), image_sizes (all distinct sizes), distorted_frames,
-    depth_frames}; paths are relative to the folder.
+    depth_frames}; paths are relative to the folder. With `alignment`, the geometric part of
+    the alignment check (no rendering, default thresholds) runs on the loaded splat and frames,
+    refusing a splat that does not line up with its cameras; its shares land in `alignment`.
     """
     folder = Path(folder)
     splat = find_splat(folder)
@@ -33,6 +36,17 @@ def validate_scene_folder(
         check_image(frame)
         load_depth(frame)
     sizes = Counter((f.width, f.height) for f in frames)
+    extra: dict[str, Any] = {}
+    if alignment:
+        from bayesian_fields_core.params import PipelineParams
+        from bayesian_fields_core.scene.alignment import check_alignment
+
+        report = check_alignment(Scene(gaussians, frames, root=folder), PipelineParams(), rendered=False)
+        if report is not None:
+            extra["alignment"] = {
+                "frustum_share": round(report.geometry.frustum_share, 4),
+                "extent_ratio": report.geometry.extent_ratio,
+            }
     return {
         "splat": splat.relative_to(folder).as_posix(),
         "gaussians": len(gaussians),
@@ -44,4 +58,5 @@ def validate_scene_folder(
         "image_sizes": sorted(list(s) for s in sizes),
         "distorted_frames": sum(1 for f in frames if f.distortion),
         "depth_frames": sum(1 for f in frames if f.depth_path is not None),
+        **extra,
     }

@@ -26,11 +26,11 @@ name the cause. Only when the score fails, the frames are rendered again with fl
 
 Threshold (`alignment_min_score` = 0.35), measured on `samples/tabletop` (medians over the 4
 frames at 160 px; `bench/bench_alignment.py` prints the table): as shipped 0.99; photos degraded
-like an imperfect splat against its capture, blur sigma 3 px + 2 px shift + noise + gamma/gain,
-0.77, and still 0.48 with blur 4 px + 4 px shift; misaligned: scaled 0.5 + shifted 0.4 m 0.01,
-scaled 0.5 0.01, shifted 0.4 m 0.16, rotated 20 degrees 0.18, photos of other cameras 0.26,
-shifted 10 m or flipped convention 0 (nothing rendered in view). 0.35 sits above every
-misaligned copy and below the heavily degraded good one.
+like an imperfect splat against its capture (blur sigma 3 px, a 2 px shift, noise, gamma and
+gain) 0.75, and still 0.46 with blur 4 px and a 4 px shift; misaligned: scaled 0.5 + shifted
+0.4 m 0.01, scaled 0.5 0.01, shifted 0.4 m 0.15, rotated 20 degrees 0.17, photos of other
+cameras 0.25, shifted 10 m 0 (nothing rendered in view). 0.35 sits above every misaligned copy
+and below the heavily degraded good one. (Flipped cameras are caught by the geometric part.)
 """
 
 from __future__ import annotations

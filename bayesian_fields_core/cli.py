@@ -117,20 +117,24 @@ def cmd_run(args: argparse.Namespace) -> int:
         except OSError as exc:
             raise InputError(f"cannot read ({exc.strerror or exc})", source=args.splat_transform) from None
         fingerprint = hashlib.sha256(fingerprint.encode() + extra).hexdigest()[:16]
+    ctx = JobContext(
+        store=LocalStore(out),
+        job_prefix="",
+        tasks=tasks,
+        params=params,
+        models=models,
+        scene_store=LocalStore(cache_dir),
+        scene_prefix=f"scenes/{fingerprint}/",
+        scene_dir=scene_dir,
+        allow_source_path=True,
+        splat_transform=Path(args.splat_transform) if args.splat_transform else None,
+    )
+    # Loads the scene and checks that the splat lines up with its cameras and photos (one-line
+    # InputError otherwise), before the progress bars start and before perception.
+    alignment = ctx.alignment()
+    console.print(alignment.summary() if alignment is not None else "alignment check: off")
     with StageProgress(console, enabled=not args.quiet) as progress:
-        ctx = JobContext(
-            store=LocalStore(out),
-            job_prefix="",
-            tasks=tasks,
-            params=params,
-            models=models,
-            scene_store=LocalStore(cache_dir),
-            scene_prefix=f"scenes/{fingerprint}/",
-            scene_dir=scene_dir,
-            allow_source_path=True,
-            splat_transform=Path(args.splat_transform) if args.splat_transform else None,
-            progress=progress.update,
-        )
+        ctx.progress = progress.update
         reports = run_job(ctx, force=True)
     result = read_result(LocalStore(out), "result/")
     from .report import print_result

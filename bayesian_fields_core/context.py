@@ -124,6 +124,8 @@ class JobContext:
     progress: ProgressFn = _no_progress
     should_cancel: CancelFn = _never_cancel
     _scene: Scene | None = field(default=None, repr=False)
+    _alignment: Any = field(default=None, repr=False)
+    _alignment_done: bool = field(default=False, repr=False)
 
     def __post_init__(self) -> None:
         if self.scene_store is None:
@@ -176,6 +178,19 @@ class JobContext:
                 folder, allow_source_path=self.allow_source_path, splat_transform=self.splat_transform
             )
         return self._scene
+
+    def alignment(self) -> Any:
+        """The scene's alignment check (geometric + rendered, `scene/alignment.py`), run once per
+        context: the CLI calls it to print the score before perception, the perceive stage calls
+        it again for free. Raises InputError (one line) when the splat does not line up; returns
+        the `AlignmentReport`, or None when `params.alignment_check` is off."""
+        if not self._alignment_done:
+            from .scene.alignment import check_alignment
+
+            device = self.params.device or self.models.render_device
+            self._alignment = check_alignment(self.scene(), self.params, device=device)
+            self._alignment_done = True
+        return self._alignment
 
     def selected_frames(self) -> list[tuple[int, Frame]]:
         """(capture index, frame) pairs after stride and max_frames, in capture order."""

@@ -21,6 +21,34 @@ class PipelineParams(BaseModel):
     frame_stride: int = Field(1, ge=1, description="Use every n-th frame of the capture.")
     max_frames: int | None = Field(None, ge=1, description="Use at most this many frames (after stride).")
 
+    # --- alignment check before perception (scene/alignment.py explains the scores) -----------
+    alignment_check: bool = Field(
+        True, description="Refuse a scene whose splat does not line up with its cameras and photos."
+    )
+    alignment_min_frustum_share: float = Field(
+        0.5,
+        ge=0,
+        le=1,
+        description="Least opacity-weighted share of the Gaussians inside at least one camera frustum.",
+    )
+    alignment_max_extent_ratio: float = Field(
+        200.0,
+        gt=1,
+        description="Splat extent / camera baseline must lie in [1/r, r] (a unit or scale mix-up otherwise).",
+    )
+    alignment_min_score: float = Field(
+        0.35,
+        ge=-1,
+        le=1,
+        description="Least median render-vs-photo score (alpha-weighted ZNCC of band-passed grey).",
+    )
+    alignment_frames: int = Field(
+        4, ge=1, description="Frames rendered by the check, spread evenly over the capture."
+    )
+    alignment_max_side: int = Field(
+        160, ge=16, description="Longest image side (pixels) the check renders and compares at."
+    )
+
     # --- likelihood (METHOD step 3); None means: take it from the model's calibration ------------
     mu0: float | None = Field(None, description="Mean cosine score of irrelevant segments (paper: 0.20).")
     mu1: float | None = Field(None, description="Mean cosine score of relevant segments (paper: 0.27).")

@@ -153,7 +153,11 @@ def evaluate_scene(
     visibility_s = 0.0
     full_ctx: JobContext | None = None
     for row, overrides in METHOD_ROWS.items():
-        params = PipelineParams.model_validate({**(base_params or {}), "top_k": top_k, **overrides})
+        # The first row checks the scene's alignment; the other rows run on the very same scene.
+        checked = {} if full_ctx is None else {"alignment_check": False}
+        params = PipelineParams.model_validate(
+            {**(base_params or {}), "top_k": top_k, **overrides, **checked}
+        )
         store = LocalStore(out_dir / case.name / _slug(row))
         ctx = JobContext(
             store=store,

@@ -14,10 +14,11 @@ from typing import Any
 from bayesian_fields_core.scene.images import check_image, load_depth
 from bayesian_fields_core.scene.loader import frames_of_layout, resolve_layout
 from bayesian_fields_core.scene.ply import DEFAULT_MAX_GAUSSIANS, read_ply
+from bayesian_fields_core.scene.types import Scene
 
 
 def validate_scene_folder(
-    folder: str | Path, *, max_gaussians: int = DEFAULT_MAX_GAUSSIANS
+    folder: str | Path, *, max_gaussians: int = DEFAULT_MAX_GAUSSIANS, alignment: bool = False
 ) -> dict[str, Any]:
     """Validate a scene folder and summarise it; raises InputError on the first problem found.
 
@@ -25,6 +26,9 @@ def validate_scene_folder(
     ([w, h] of the most common size), image_sizes (all distinct sizes), distorted_frames,
     depth_frames, layout, splat_to_capture (4x4 or None)}; paths are relative to the folder.
     Never follows a 3DGS cfg_args source_path out of the folder (an upload reads only itself).
+    With `alignment`, the geometric part of the alignment check (no rendering, default
+    thresholds) runs on the splat (in the cameras' frame) and frames, refusing a splat that does
+    not line up with its cameras; its shares land in `alignment`.
     """
     folder = Path(folder)
     layout = resolve_layout(folder, allow_source_path=False)
@@ -35,6 +39,20 @@ def validate_scene_folder(
         check_image(frame)
         load_depth(frame)
     sizes = Counter((f.width, f.height) for f in frames)
+    extra: dict[str, Any] = {}
+    if alignment:
+        from bayesian_fields_core.params import PipelineParams
+        from bayesian_fields_core.scene.alignment import check_alignment
+
+        captured = (
+            gaussians if layout.splat_to_capture is None else layout.splat_to_capture.gaussians(gaussians)
+        )
+        report = check_alignment(Scene(captured, frames, root=folder), PipelineParams(), rendered=False)
+        if report is not None:
+            extra["alignment"] = {
+                "frustum_share": round(report.geometry.frustum_share, 4),
+                "extent_ratio": report.geometry.extent_ratio,
+            }
     return {
         "splat": splat.relative_to(folder).as_posix(),
         "gaussians": len(gaussians),
@@ -50,4 +68,5 @@ def validate_scene_folder(
         "splat_to_capture": None
         if layout.splat_to_capture is None
         else layout.splat_to_capture.matrix.tolist(),
+        **extra,
     }

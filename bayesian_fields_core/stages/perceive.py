@@ -3,6 +3,8 @@
 Outputs are task-independent, so they are cached per scene under the perception fingerprint
 (models + parameters): re-running a scene with a new task list skips this stage's work entirely.
 Frames already in the cache are skipped one by one, so a crashed stage resumes where it stopped.
+The stage starts with the alignment check (`scene/alignment.py`): a splat that does not line up
+with its cameras fails the job here, with a one-line reason, before any frame is segmented.
 """
 
 from __future__ import annotations
@@ -28,9 +30,23 @@ def smallest_label_dtype(n_masks: int) -> np.dtype:
     return np.dtype(np.int16) if n_masks < np.iinfo(np.int16).max else np.dtype(np.int32)
 
 
+def alignment_summary(report: Any) -> dict[str, Any]:
+    """The alignment check's headline numbers for the stage report."""
+    rendered = report.rendered
+    return {
+        "score": None if rendered is None else round(rendered.score, 4),
+        "frames": 0 if rendered is None else len(rendered.frames),
+        "frustum_share": round(report.geometry.frustum_share, 4),
+        "extent_ratio": report.geometry.extent_ratio,
+        "seconds": round(report.seconds, 3),
+    }
+
+
 def run(ctx: JobContext) -> dict[str, Any]:
     store = ctx.scene_store
     assert store is not None
+    # Refuse a splat that does not line up with its cameras before any frame is segmented.
+    alignment = ctx.alignment()
     frames = ctx.selected_frames()
     # Built on first need only: a fully cached scene (a re-run with new tasks) loads no model.
     segmenter = encoder = None
@@ -72,5 +88,6 @@ def run(ctx: JobContext) -> dict[str, Any]:
             "segment_seconds": seg_time,
             "embed_seconds": embed_time,
             "cache_prefix": ctx.perception_prefix,
+            "alignment": None if alignment is None else alignment_summary(alignment),
         },
     )

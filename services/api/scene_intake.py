@@ -5,7 +5,9 @@ end here with a list of (role, file name, local path). The files are laid out as
 the core loader understands, checked by `validate_scene_folder` (PLY header and counts, camera
 file parses, every image decodes and matches its camera), and only then uploaded under
 ``scenes/<id>/input/``. Validation happens before the first byte is stored, so a bad upload
-never touches data that is already there.
+never touches data that is already there. It includes the cheap, geometric part of the alignment
+check (is the splat in front of and inside the camera frustums?); the form field
+``alignment_check=false`` skips it, as the job parameter of the same name skips the rendered part.
 """
 
 from __future__ import annotations
@@ -121,14 +123,17 @@ def assemble_scene(files: Sequence[UploadedFile], scene_dir: Path, limits: Archi
         img.path.replace(dest)
 
 
-def validate_scene(scene_dir: Path, *, max_gaussians: int, max_frames: int) -> dict[str, Any]:
-    """Run the core validator and the service's size limits; returns the validation summary.
+def validate_scene(
+    scene_dir: Path, *, max_gaussians: int, max_frames: int, alignment: bool = True
+) -> dict[str, Any]:
+    """Run the core validator (with the geometric alignment check unless `alignment` is false)
+    and the service's size limits; returns the validation summary.
 
     Messages name files relative to the scene folder, never the API's temp paths."""
     from bayesian_fields_core.scene.validate import validate_scene_folder
 
     try:
-        summary = validate_scene_folder(scene_dir, max_gaussians=max_gaussians)
+        summary = validate_scene_folder(scene_dir, max_gaussians=max_gaussians, alignment=alignment)
     except InputError as exc:
         raise InputError(str(exc).replace(f"{scene_dir}/", "").replace(str(scene_dir), "<scene>")) from None
     gaussians = summary.get("gaussians", summary.get("num_gaussians"))
@@ -138,6 +143,18 @@ def validate_scene(scene_dir: Path, *, max_gaussians: int, max_frames: int) -> d
     if isinstance(frames, int) and frames > max_frames:
         raise InputError(f"{frames} frames; at most {max_frames} are allowed", source="cameras")
     return summary
+
+
+def alignment_wanted(value: str | bool | None) -> bool:
+    """The upload's `alignment_check` field: absent or true runs the check, false skips it."""
+    if value is None or isinstance(value, bool):
+        return value is not False
+    text = value.strip().lower()
+    if text in ("", "true", "1", "yes"):
+        return True
+    if text in ("false", "0", "no"):
+        return False
+    raise InputError(f"expected true or false, got {value!r}", source="alignment_check")
 
 
 def upload_scene_folder(store: Store, scene_dir: Path, prefix: str) -> tuple[int, int]:

@@ -92,6 +92,9 @@ class CompleteRequest(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
     parts: dict[str, list[CompletedPart]] | None = None
+    alignment_check: bool = Field(
+        True, description="false skips the geometric alignment check of the assembled scene."
+    )
 
 
 class JobRequest(BaseModel):

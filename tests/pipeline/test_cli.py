@@ -10,6 +10,7 @@ import pytest
 
 from bayesian_fields_core.cli import main
 from bayesian_fields_core.fusion.calibration import load_calibration
+from tests.scene_transforms import copy_scene, flip_camera_convention, move_splat
 
 from .conftest import N_FRAMES
 
@@ -139,6 +140,47 @@ def test_run_rejects_a_missing_scene(
     missing = tmp_path / "no-scene"
     assert main(_run_args(missing, tmp_path, profile_yaml, "--task", "cup")) == 2
     assert "no-scene" in _one_line_error(capsys)
+
+
+SAMPLE = Path(__file__).resolve().parents[2] / "samples" / "tabletop"
+
+
+def test_run_prints_the_alignment_score(
+    scene_dir: Path, profile_yaml: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    args = _run_args(scene_dir, tmp_path, profile_yaml, "--task", "red chair", "--param", "max_frames=2")
+    assert main(args) == 0
+    err = capsys.readouterr().err
+    assert "alignment ok: render-vs-photo score" in err
+
+
+@pytest.mark.parametrize(
+    "change, cause",
+    [
+        (lambda f: move_splat(f, scale=0.5, shift=(0.4, 0.0, 0.0)), "dataparser_transforms.json"),
+        (flip_camera_convention, "OpenGL"),
+    ],
+    ids=["scaled-0.5-shifted-0.4m", "opengl-flipped-cameras"],
+)
+def test_run_refuses_a_splat_that_does_not_line_up(
+    change, cause: str, profile_yaml: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    scene = change(copy_scene(SAMPLE, tmp_path / "scene"))
+    assert main(_run_args(scene, tmp_path, profile_yaml)) == 2
+    err = _one_line_error(capsys)
+    assert "alignment:" in err and cause in err and "--param alignment_check=false" in err
+    assert not (tmp_path / "out" / "result").exists()  # refused before any stage ran
+
+
+def test_run_with_the_check_off_runs_a_misaligned_scene(
+    profile_yaml: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    scene = move_splat(copy_scene(SAMPLE, tmp_path / "scene"), scale=0.5, shift=(0.4, 0.0, 0.0))
+    args = _run_args(
+        scene, tmp_path, profile_yaml, "--param", "alignment_check=false", "--param", "max_frames=2"
+    )
+    assert main(args) == 0
+    assert "alignment check: off" in capsys.readouterr().err
 
 
 def test_calibrate_from_scores_csv(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

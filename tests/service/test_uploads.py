@@ -13,6 +13,8 @@ import httpx
 import pytest
 from PIL import Image
 
+from tests.scene_transforms import copy_scene, flip_camera_convention
+
 from .conftest import MAX_EXPANDED, MAX_UPLOAD, scene_form
 from .scene_factory import image_zip, zip_bytes
 
@@ -228,3 +230,25 @@ def test_presigned_upload_with_bad_file_stays_unready(client_a: httpx.Client, sc
         "/v1/scenes/uploads", json={"files": [{"field": "images", "name": "a.zip", "size": MAX_UPLOAD + 1}]}
     )
     assert too_big.status_code == 413 and str(MAX_UPLOAD) in too_big.json()["detail"]
+
+
+def test_upload_of_a_splat_behind_its_cameras_gets_422_with_the_reason(
+    client_a: httpx.Client, scene_dir: Path, tmp_path: Path
+) -> None:
+    """The geometric alignment check at upload: OpenCV poses written where OpenGL ones belong put
+    the splat behind every camera; the form field alignment_check=false accepts it anyway."""
+    flipped = flip_camera_convention(copy_scene(scene_dir, tmp_path / "flipped"))
+    before = _scene_ids(client_a)
+    resp = client_a.post("/v1/scenes", files=scene_form(flipped))
+    assert resp.status_code == 422, resp.text
+    detail = resp.json()["detail"]
+    assert detail.startswith("alignment: ") and "\n" not in detail, detail
+    assert "OpenGL" in detail and "alignment_check=false" in detail
+    assert _scene_ids(client_a) == before
+    forced = client_a.post("/v1/scenes", files=scene_form(flipped), data={"alignment_check": "false"})
+    assert forced.status_code == 201, forced.text
+    assert "alignment" not in forced.json()["summary"]
+    good = client_a.post("/v1/scenes", files=scene_form(scene_dir))
+    assert good.status_code == 201 and good.json()["summary"]["alignment"]["frustum_share"] > 0.9
+    bad_flag = client_a.post("/v1/scenes", files=scene_form(scene_dir), data={"alignment_check": "maybe"})
+    assert bad_flag.status_code == 422 and "alignment_check" in bad_flag.json()["detail"]

@@ -23,6 +23,7 @@ from bayesian_fields_core.store import LocalStore
 from services.client import BFieldsClient, fetch, status, submit
 from tests.integration.fixtures.redis_server import RedisServer
 from tests.integration.fixtures.services import ApiServer, WorkerPool, build_service_env
+from tests.scene_transforms import copy_scene, move_splat
 
 from .conftest import SERVICE_ENV
 
@@ -146,6 +147,25 @@ def test_end_to_end_over_http_matches_in_process(
     metrics = httpx.get(f"{api.base_url}/metrics").text
     assert 'bfields_stage_seconds_count{stage="cluster"}' in metrics
     assert 'bfields_job_seconds_count{outcome="succeeded"}' in metrics
+
+
+def test_job_on_a_splat_that_renders_wrong_fails_with_the_reason(
+    api: ApiServer, workers: WorkerPool, scene_dir: Path, tmp_path: Path, client_a: httpx.Client
+) -> None:
+    """Scaled 0.5 and shifted 0.4 m, the splat still sits in front of the cameras (the upload's
+    geometric check passes) but its renders do not match the photos: the worker's rendered check
+    at the start of perceive fails the job with the one-line reason, as a user error."""
+    moved = move_splat(copy_scene(scene_dir, tmp_path / "moved"), scale=0.5, shift=(0.4, 0.0, 0.0))
+    scene_id = _upload(api, moved)
+    resp = client_a.post("/v1/jobs", json={"scene_id": scene_id, "tasks": TASKS, "parameters": PARAMS})
+    assert resp.status_code == 202, resp.text
+    job = _wait(client_a, resp.json()["id"])
+    assert job["state"] == "failed", job
+    error = job["error"]
+    assert error.startswith("perceive: alignment: renders of the splat do not match the photos"), error
+    assert "internal error" not in error and "\n" not in error
+    assert "dataparser_transforms.json" in error and "alignment_check=false" in error
+    assert job["stages_done"] == []
 
 
 def test_cli_submit_status_fetch(

@@ -16,7 +16,13 @@ from services.common.jobs import JobState, new_id, utcnow
 
 from ..archives import ArchiveLimits
 from ..multipart import clean_filename, receive_multipart
-from ..scene_intake import UploadedFile, assemble_scene, upload_scene_folder, validate_scene
+from ..scene_intake import (
+    UploadedFile,
+    alignment_wanted,
+    assemble_scene,
+    upload_scene_folder,
+    validate_scene,
+)
 from ..schemas import (
     CompleteRequest,
     PresignedUpload,
@@ -41,6 +47,11 @@ _MULTIPART_SCHEMA = {
                     "required": ["splat", "cameras", "images"],
                     "properties": {
                         "name": {"type": "string", "description": "Optional scene name."},
+                        "alignment_check": {
+                            "type": "string",
+                            "enum": ["true", "false"],
+                            "description": "false skips the geometric alignment check (default true).",
+                        },
                         "splat": {"type": "string", "format": "binary", "description": "The splat .ply."},
                         "cameras": {
                             "type": "array",
@@ -90,13 +101,22 @@ def _limits(state: AppState) -> ArchiveLimits:
 
 
 def _ingest(
-    state: AppState, tenant: str, scene_id: str, files: list[UploadedFile], work: Path
+    state: AppState,
+    tenant: str,
+    scene_id: str,
+    files: list[UploadedFile],
+    work: Path,
+    *,
+    alignment: bool = True,
 ) -> tuple[int, int, dict]:
     """Assemble + validate in `work`, then upload to ``scenes/<id>/input/`` (blocking; threadpool)."""
     scene_dir = work / "scene"
     assemble_scene(files, scene_dir, _limits(state))
     summary = validate_scene(
-        scene_dir, max_gaussians=state.settings.max_gaussians, max_frames=state.settings.max_frames
+        scene_dir,
+        max_gaussians=state.settings.max_gaussians,
+        max_frames=state.settings.max_frames,
+        alignment=alignment,
     )
     n, size = upload_scene_folder(state.tenant(tenant), scene_dir, f"scenes/{scene_id}/input/")
     return n, size, summary
@@ -123,7 +143,10 @@ async def upload_scene(request: Request, tenant: Tenant, state: State) -> SceneR
             form = await receive_multipart(request, work / "parts", max_bytes=state.settings.max_upload_bytes)
             files = [UploadedFile(f.field, f.filename, f.path) for f in form.files]
             scene_id = new_id("s_")
-            n, size, summary = await run_in_threadpool(_ingest, state, tenant, scene_id, files, work)
+            alignment = alignment_wanted(form.fields.get("alignment_check"))
+            n, size, summary = await run_in_threadpool(
+                _ingest, state, tenant, scene_id, files, work, alignment=alignment
+            )
         except InputError as exc:
             raise _unprocessable(exc) from None
         now = utcnow()
@@ -226,7 +249,8 @@ def complete_upload(
             ts.get_file(up["key"], local)
             files.append(UploadedFile(up["field"], up["name"], local))
         try:
-            n, size, summary = _ingest(state, tenant, scene_id, files, work)
+            alignment = body is None or body.alignment_check
+            n, size, summary = _ingest(state, tenant, scene_id, files, work, alignment=alignment)
         except InputError as exc:
             raise _unprocessable(exc) from None
     finally:

@@ -12,6 +12,8 @@ import numpy as np
 import pytest
 from scipy.optimize import linear_sum_assignment
 
+from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.params import PipelineParams
 from bayesian_fields_core.pipeline import run_job
 from bayesian_fields_core.results.reader import read_result
 from bayesian_fields_core.scene.loader import load_scene
@@ -115,11 +117,13 @@ def test_untransformed_splatfacto_splat_does_not_agree(
     baseline, scene_dir: Path, profile: dict[str, Any], tmp_path: Path
 ) -> None:
     """Control: the same export without its dataparser transform is not the scene, so the check
-    above can fail (the alignment check that refuses such runs is a separate deliverable)."""
+    above can fail; the alignment check refuses such a run unless it is switched off."""
     source = load_scene(scene_dir)
     folder = splatfacto_output(SourceScene(source.gaussians, source.frames), tmp_path / "ns")
     (folder / "dataparser_transforms.json").unlink()
-    result = _run(folder, tmp_path / "run", profile)
+    with pytest.raises(InputError, match="alignment"):
+        _run(folder, tmp_path / "refused", profile)
+    result = _run(folder, tmp_path / "run", profile, params=PipelineParams(alignment_check=False))
     agreement, _ = matched_agreement(baseline.object_ids, result.object_ids)
     print(
         f"untransformed splatfacto: {agreement:.4%}; baseline in objects: {(baseline.object_ids >= 0).mean():.2%}"

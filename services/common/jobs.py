@@ -13,7 +13,13 @@ Layout (keys of the tenant's store, i.e. under ``tenants/<tenant>/``):
   idempotency/<sha256(key)>.json   Idempotency-Key -> job id (survives Redis restarts)
   batches/<id>.json                a `BatchRecord`
 and in the global store ``active/<tenant>/<id>`` markers for queued/running jobs, which the
-worker's recovery scan reads to re-enqueue jobs a Redis restart dropped.
+worker's recovery scan reads to re-enqueue jobs a Redis restart dropped, and ``pending/<tenant>/<id>``
+markers for jobs stored but not yet enqueued: the API deletes it right after the enqueue, so one
+that outlives the recovery grace period is a submission that crashed half-way (recovery fails it:
+the client never got a 202 for it and will have retried).
+
+Redis also holds the per-tenant quota set (`services.common.quota`): taken before a job is
+stored, given back here on every terminal state.
 """
 
 from __future__ import annotations
@@ -31,6 +37,8 @@ from pydantic import BaseModel, Field
 
 from bayesian_fields_core.store import ArtifactNotFound, Store, get_json, put_json
 
+from .quota import TenantQuota
+from .sanitize import redact_locations, scrub
 from .storage import tenant_store
 
 #: Relative cost of each stage, used to turn (stage, fraction) into one overall percentage.
@@ -133,12 +141,21 @@ def _merge(old: JobRecord, new: JobRecord) -> JobRecord:
     )
 
 
+def _redacted(record: JobRecord) -> JobRecord:
+    """The record with its error message free of paths and bucket keys (`redact_locations`)."""
+    if not record.error:
+        return record
+    clean = redact_locations(record.error)
+    return record if clean == record.error else record.model_copy(update={"error": clean})
+
+
 class JobStore:
     """Reads and writes job records (bucket manifests + Redis live state + cancel flags)."""
 
     def __init__(self, store: Store, redis_client: redis.Redis) -> None:
         self.store = store
         self.redis = redis_client
+        self.quota = TenantQuota(redis_client)
 
     # ---- keys ----------------------------------------------------------------------------------
     @staticmethod
@@ -157,6 +174,10 @@ class JobStore:
     def active_key(tenant: str, job_id: str) -> str:
         return f"active/{tenant}/{job_id}"
 
+    @staticmethod
+    def pending_key(tenant: str, job_id: str) -> str:
+        return f"pending/{tenant}/{job_id}"
+
     def tenant(self, tenant: str) -> Store:
         return tenant_store(self.store, tenant)
 
@@ -167,18 +188,58 @@ class JobStore:
             data = get_json(self.tenant(tenant), self.manifest_key(job_id))
         except ArtifactNotFound:
             return None
-        return JobRecord.model_validate(data)
+        # scrub: a manifest stored before the edge refused lone surrogates must stay servable
+        return _redacted(JobRecord.model_validate(scrub(data)))
 
     def _write(self, record: JobRecord) -> None:
-        put_json(self.tenant(record.tenant), self.manifest_key(record.id), record.model_dump(mode="json"))
+        put_json(
+            self.tenant(record.tenant),
+            self.manifest_key(record.id),
+            _redacted(record).model_dump(mode="json"),
+        )
 
     def create(self, record: JobRecord) -> None:
-        """Persist a new job: manifest, listing index, active marker, live hash."""
+        """Persist a new job: pending + active markers, manifest, listing index, live hash.
+
+        The caller has taken the job's quota slot, enqueues it next and then calls
+        `mark_enqueued`; if it dies in between, recovery finds the pending marker."""
         ts = self.tenant(record.tenant)
+        self.store.put_bytes(self.pending_key(record.tenant, record.id), b"")
+        self.store.put_bytes(self.active_key(record.tenant, record.id), b"")
         self._write(record)
         ts.put_bytes(f"index/jobs/{record.id}", b"")
-        self.store.put_bytes(self.active_key(record.tenant, record.id), b"")
         self.touch_live(record)
+
+    def mark_enqueued(self, record: JobRecord) -> None:
+        """The job's first stage message is in the queue: it is no longer a half-done submission."""
+        self.store.delete(self.pending_key(record.tenant, record.id))
+
+    def discard_unsubmitted(self, record: JobRecord) -> None:
+        """Undo `create` after a failed enqueue, as far as the backends allow (best effort: what
+        an outage leaves behind carries a pending marker, so recovery fails it instead of running
+        it). Never raises."""
+        ts = self.tenant(record.tenant)
+        steps = (
+            lambda: self._write(record.model_copy(update={
+                "state": JobState.failed, "finished_at": utcnow(),
+                "error": "submission failed: the queue was unavailable; submit again"})),
+            lambda: ts.delete(f"index/jobs/{record.id}"),
+            lambda: self.store.delete(self.active_key(record.tenant, record.id)),
+            lambda: self.store.delete(self.pending_key(record.tenant, record.id)),
+            lambda: self.redis.delete(self.live_key(record.tenant, record.id)),
+            lambda: self.quota.release(record.tenant, [record.id]),
+        )  # fmt: skip
+        for step in steps:
+            try:
+                step()
+            except Exception:  # an outage is why we are here; recovery repairs the rest
+                continue
+
+    def release_slot(self, record: JobRecord) -> None:
+        """A terminal job no longer counts against its tenant's quota (markers and Redis set)."""
+        self.store.delete(self.active_key(record.tenant, record.id))
+        self.store.delete(self.pending_key(record.tenant, record.id))
+        self.quota.release(record.tenant, [record.id])
 
     def save(self, record: JobRecord) -> JobRecord:
         """Write `record`, merged with what is stored (see `_merge`) under a short Redis lock so the
@@ -189,7 +250,7 @@ class JobStore:
             merged.updated_at = utcnow()
             self._write(merged)
         if merged.state.terminal:
-            self.store.delete(self.active_key(merged.tenant, merged.id))
+            self.release_slot(merged)
         self.touch_live(merged)
         return merged
 
@@ -307,8 +368,15 @@ class JobStore:
 
     def active_jobs(self) -> list[tuple[str, str]]:
         """(tenant, job id) of every job whose manifest was last seen queued or running."""
+        return self._markers("active/")
+
+    def pending_jobs(self) -> list[tuple[str, str]]:
+        """(tenant, job id) of every job stored but not (yet) confirmed enqueued."""
+        return self._markers("pending/")
+
+    def _markers(self, prefix: str) -> list[tuple[str, str]]:
         pairs = []
-        for key in self.store.list("active/"):
+        for key in self.store.list(prefix):
             parts = key.split("/")
             if len(parts) == 3:
                 pairs.append((parts[1], parts[2]))

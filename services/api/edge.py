@@ -26,7 +26,7 @@ from fastapi.responses import JSONResponse
 from kombu.exceptions import OperationalError
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from services.common.sanitize import scrub_text
+from services.common.sanitize import redact_locations, scrub_text
 
 log = logging.getLogger(__name__)
 
@@ -187,7 +187,7 @@ def install_handlers(app: FastAPI, retry_after_s: int) -> None:
 
     @app.exception_handler(InputError)
     async def _input_error(request: Request, exc: InputError) -> JSONResponse:
-        return problem(422, str(exc))
+        return problem(422, redact_locations(str(exc)))
 
     async def _outage(request: Request, exc: Exception) -> JSONResponse:
         backend = "object storage" if isinstance(exc, StorageError) else "the queue (Redis)"

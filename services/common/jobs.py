@@ -10,6 +10,10 @@ Layout (keys of the tenant's store, i.e. under ``tenants/<tenant>/``):
   jobs/<id>/manifest.json          the `JobRecord`
   jobs/<id>/stages/, jobs/<id>/result/   written by the pipeline (job_prefix = ``jobs/<id>/``)
   index/jobs/<id>                  empty marker, so listing jobs never walks result files
+  index/jobs-by-state/<state>/<id> empty marker per job in its current manifest state, and
+  index/jobs-by-scene/<scene>/<id> per job of a scene: a filtered page lists these keys and reads
+                                   only the manifests it returns (not every manifest until the
+                                   page fills); ``index/jobs-by.json`` says they are complete
   idempotency/<sha256(key)>.json   Idempotency-Key -> job id (survives Redis restarts)
   batches/<id>.json                a `BatchRecord`
 and in the global store ``active/<tenant>/<id>`` markers for queued/running jobs, which the
@@ -25,6 +29,7 @@ stored, given back here on every terminal state.
 from __future__ import annotations
 
 import hashlib
+import re
 import secrets
 import time
 from collections.abc import Iterable
@@ -141,6 +146,18 @@ def _merge(old: JobRecord, new: JobRecord) -> JobRecord:
     )
 
 
+#: Marker: the tenant's by-state / by-scene job indexes cover every job (see `_build_filter_index`).
+_INDEX_DONE = "index/jobs-by.json"
+
+
+def _state_index(state: JobState, job_id: str) -> str:
+    return f"index/jobs-by-state/{state.value}/{job_id}"
+
+
+def _scene_index(scene_id: str, job_id: str) -> str:
+    return f"index/jobs-by-scene/{scene_id}/{job_id}"
+
+
 def _redacted(record: JobRecord) -> JobRecord:
     """The record with its error message free of paths and bucket keys (`redact_locations`)."""
     if not record.error:
@@ -208,6 +225,8 @@ class JobStore:
         self.store.put_bytes(self.active_key(record.tenant, record.id), b"")
         self._write(record)
         ts.put_bytes(f"index/jobs/{record.id}", b"")
+        ts.put_bytes(_scene_index(record.scene_id, record.id), b"")
+        ts.put_bytes(_state_index(record.state, record.id), b"")
         self.touch_live(record)
 
     def mark_enqueued(self, record: JobRecord) -> None:
@@ -224,6 +243,8 @@ class JobStore:
                 "state": JobState.failed, "finished_at": utcnow(),
                 "error": "submission failed: the queue was unavailable; submit again"})),
             lambda: ts.delete(f"index/jobs/{record.id}"),
+            lambda: ts.delete(_scene_index(record.scene_id, record.id)),
+            lambda: ts.delete(_state_index(record.state, record.id)),
             lambda: self.store.delete(self.active_key(record.tenant, record.id)),
             lambda: self.store.delete(self.pending_key(record.tenant, record.id)),
             lambda: self.redis.delete(self.live_key(record.tenant, record.id)),
@@ -249,6 +270,11 @@ class JobStore:
             merged = _merge(old, record) if old is not None else record
             merged.updated_at = utcnow()
             self._write(merged)
+            if old is not None and old.state != merged.state:
+                # new entry first: a crash in between leaves a duplicate the listing filters out
+                ts = self.tenant(merged.tenant)
+                ts.put_bytes(_state_index(merged.state, merged.id), b"")
+                ts.delete(_state_index(old.state, merged.id))
         if merged.state.terminal:
             self.release_slot(merged)
         self.touch_live(merged)
@@ -348,9 +374,17 @@ class JobStore:
         limit: int = 50,
         cursor: str | None = None,
     ) -> tuple[list[JobRecord], str | None]:
-        """A page of jobs, newest first; `cursor` is the last id of the previous page."""
+        """A page of jobs, newest first; `cursor` is the last id of the previous page.
+
+        With a state or scene filter the candidates come from the filter's index (both: their
+        intersection), so the manifests read are the page's own (plus any whose live state
+        moved on since the index was written: the record is always checked against the filter)."""
         out: list[JobRecord] = []
-        ids = [i for i in self.list_ids(tenant) if cursor is None or i < cursor]
+        if state is None and scene_id is None:
+            candidates = self.list_ids(tenant)
+        else:
+            candidates = self._indexed_ids(tenant, state, scene_id)
+        ids = [i for i in candidates if cursor is None or i < cursor]
         for n, job_id in enumerate(ids):
             record = self.get(tenant, job_id)
             if record is None:
@@ -365,6 +399,33 @@ class JobStore:
             if len(out) == limit:
                 return out, (job_id if n + 1 < len(ids) else None)
         return out, None
+
+    def _indexed_ids(self, tenant: str, state: JobState | None, scene_id: str | None) -> list[str]:
+        if scene_id is not None and not re.fullmatch(r"s_[0-9a-f]{22}", scene_id):
+            return []  # not an id the service issues: no scene, no jobs (and no odd storage key)
+        ts = self.tenant(tenant)
+        if not ts.exists(_INDEX_DONE):
+            self._build_filter_index(tenant)
+        sets = []
+        if state is not None:
+            # a running job's manifest may still say queued (Redis has the live state)
+            states = [JobState.queued, JobState.running] if state == JobState.running else [state]
+            sets.append(
+                {k.rsplit("/", 1)[1] for s in states for k in ts.list(f"index/jobs-by-state/{s.value}/")}
+            )
+        if scene_id is not None:
+            sets.append({k.rsplit("/", 1)[1] for k in ts.list(f"index/jobs-by-scene/{scene_id}/")})
+        return sorted(set.intersection(*sets), reverse=True)
+
+    def _build_filter_index(self, tenant: str) -> None:
+        """One-off backfill for jobs stored before the filter index existed (reads each once)."""
+        ts = self.tenant(tenant)
+        for job_id in self.list_ids(tenant):
+            record = self.load(tenant, job_id)
+            if record is not None:
+                ts.put_bytes(_scene_index(record.scene_id, job_id), b"")
+                ts.put_bytes(_state_index(record.state, job_id), b"")
+        put_json(ts, _INDEX_DONE, {"version": 1, "built_at": utcnow().isoformat()})
 
     def active_jobs(self) -> list[tuple[str, str]]:
         """(tenant, job id) of every job whose manifest was last seen queued or running."""

@@ -108,8 +108,9 @@ def _check_headers(headers: list[tuple[bytes, bytes]]) -> JSONResponse | None:
 
 
 class Utf8Guard:
-    """Pure ASGI middleware: refuse non-UTF-8 text in JSON bodies, query strings and the headers
-    the API reads; the body is buffered once and replayed to the app unchanged."""
+    """Pure ASGI middleware: refuse non-UTF-8 text in JSON bodies (FastAPI also parses a body
+    without a content type as JSON, so those are checked too), query strings and the headers the
+    API reads; the body is buffered once and replayed to the app unchanged."""
 
     def __init__(self, app: ASGIApp) -> None:
         self.app = app
@@ -120,7 +121,11 @@ class Utf8Guard:
             return
         refusal = _check_query(scope.get("query_string", b"")) or _check_headers(scope.get("headers", []))
         content_type = dict(scope.get("headers", [])).get(b"content-type", b"").lower()
-        if refusal is None and scope["method"] in ("POST", "PUT", "PATCH") and b"json" in content_type:
+        if (
+            refusal is None
+            and scope["method"] in ("POST", "PUT", "PATCH")
+            and (b"json" in content_type or not content_type)
+        ):
             body, more = b"", True
             while more and len(body) <= MAX_CHECKED_BODY:
                 message = await receive()

@@ -75,6 +75,14 @@ def new_id(prefix: str) -> str:
     return f"{prefix}{int(time.time() * 1000):012x}{secrets.token_hex(5)}"
 
 
+def id_age_s(ident: str) -> float:
+    """Seconds since `new_id` made `ident` (0 for an id not in that form)."""
+    try:
+        return max(0.0, time.time() - int(ident[2:14], 16) / 1000)
+    except ValueError:
+        return 0.0
+
+
 class JobRecord(BaseModel):
     """One job as stored in ``jobs/<id>/manifest.json`` (and returned by the API)."""
 

@@ -31,7 +31,7 @@ import redis
 from celery import Celery
 from celery.utils.log import get_logger
 
-from services.common.jobs import JobState, JobStore, utcnow
+from services.common.jobs import JobState, JobStore, id_age_s, utcnow
 from services.common.settings import ServiceSettings
 
 from .dispatch import enqueue_stages
@@ -113,6 +113,11 @@ def _fail_unsubmitted(jobs: JobStore, grace_s: float) -> set[tuple[str, str]]:
     Returns the (tenant, job id) still pending but younger than `grace_s` (never re-enqueued)."""
     waiting: set[tuple[str, str]] = set()
     for tenant, job_id in jobs.pending_jobs():
+        # Age from the id (it starts with its creation time): the API writes the pending marker
+        # before the manifest, so a young job may have no manifest yet and must be left alone.
+        if id_age_s(job_id) < grace_s:
+            waiting.add((tenant, job_id))
+            continue
         record = jobs.load(tenant, job_id)
         if record is None or record.state.terminal:
             jobs.store.delete(jobs.pending_key(tenant, job_id))
@@ -122,9 +127,6 @@ def _fail_unsubmitted(jobs: JobStore, grace_s: float) -> set[tuple[str, str]]:
             continue
         if record.state != JobState.queued or record.stages_done:
             jobs.store.delete(jobs.pending_key(tenant, job_id))  # a worker has it: it was enqueued
-            continue
-        if (utcnow() - record.created_at).total_seconds() < grace_s:
-            waiting.add((tenant, job_id))
             continue
         jobs.save(record.model_copy(update={
             "state": JobState.failed, "finished_at": utcnow(),

@@ -60,6 +60,10 @@ def test_lone_surrogates_refused_in_every_field(client_a: httpx.Client, stored_s
     raw = client_a.post("/v1/jobs", content=b'{"scene_id": "\xff", "tasks": ["a"]}',
                         headers={"Content-Type": "application/json"})  # fmt: skip
     _assert_problem(raw, 422, "body", "UTF-8")
+    # FastAPI parses a body without a content type as JSON too: checked the same way
+    bare = client_a.post("/v1/jobs", content=f'{{"scene_id": "{sid}", "tasks": ["\\ud800"]}}'.encode())
+    assert "content-type" not in bare.request.headers
+    _assert_problem(bare, 422, "body.tasks[0]", "UTF-8")
     # percent-encoded bytes that are not UTF-8 in a query string, and a non-ASCII Idempotency-Key
     _assert_problem(client_a.get("/v1/jobs?scene_id=%ED%A0%80"), 422, "query.scene_id")
     idem = client_a.post(

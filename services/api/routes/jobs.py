@@ -115,7 +115,10 @@ def _submit(state: AppState, records: list[JobRecord]) -> None:
     except BaseException:
         for record in done:
             state.jobs.discard_unsubmitted(record)
-        state.jobs.quota.release(records[0].tenant, [r.id for r in records])
+        try:  # the slots of the jobs never created (recovery's quota repair covers a failure here)
+            state.jobs.quota.release(records[0].tenant, [r.id for r in records])
+        except Exception:
+            log.warning("could not release the quota slots of a failed submission; recovery will")
         raise
     for record in records:
         try:

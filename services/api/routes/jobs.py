@@ -142,7 +142,9 @@ def submit_job(
     idempotency_key: Annotated[
         str | None,
         Header(
-            max_length=200, description="Retries with the same key return the first job instead of a new one."
+            max_length=200,
+            description="Retries with the same key return the first job instead of a new one "
+            "(printable ASCII, at most 200 characters).",
         ),
     ] = None,
 ) -> JobAccepted:

@@ -132,7 +132,15 @@ def _submit(state: AppState, records: list[JobRecord]) -> None:
     status_code=status.HTTP_202_ACCEPTED,
     response_model=JobAccepted,
     summary="Submit a job",
-    responses={**BODY_ERRORS, 409: {"model": Problem}, 429: {"model": Problem}},
+    responses={
+        **BODY_ERRORS,
+        200: {
+            "model": JobAccepted,
+            "description": "The earlier job of this Idempotency-Key (created: false)",
+        },
+        409: {"model": Problem, "description": "The scene is not ready"},
+        429: {"model": Problem, "description": "The tenant's active-job quota is full; see Retry-After"},
+    },
 )
 def submit_job(
     body: JobRequest,

@@ -13,13 +13,20 @@ from pydantic import BaseModel, ConfigDict, Field
 
 
 class PipelineParams(BaseModel):
-    """Parameters of the three stages. Unknown fields are rejected so typos fail loudly."""
+    """Parameters of the three stages. Unknown fields are rejected so typos fail loudly.
 
-    model_config = ConfigDict(extra="forbid")
+    Every number is finite (NaN / Infinity are refused, never turned into null) and bounded: the
+    upper limits are far above any useful value but keep a hostile or mistyped number (a `top_k`
+    of 10^18) from ever reaching an allocation. The CLI (`--param`, `--params`) and the service
+    validate through this one class, so both refuse the same values with the same message."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     # --- frames -----------------------------------------------------------------------------
-    frame_stride: int = Field(1, ge=1, description="Use every n-th frame of the capture.")
-    max_frames: int | None = Field(None, ge=1, description="Use at most this many frames (after stride).")
+    frame_stride: int = Field(1, ge=1, le=10_000, description="Use every n-th frame of the capture.")
+    max_frames: int | None = Field(
+        None, ge=1, le=1_000_000, description="Use at most this many frames (after stride)."
+    )
 
     # --- alignment check before perception (scene/alignment.py explains the scores) -----------
     alignment_check: bool = Field(
@@ -34,6 +41,7 @@ class PipelineParams(BaseModel):
     alignment_max_extent_ratio: float = Field(
         200.0,
         gt=1,
+        le=1e9,
         description="Splat extent / camera baseline must lie in [1/r, r] (a unit or scale mix-up otherwise).",
     )
     alignment_min_score: float = Field(
@@ -43,17 +51,21 @@ class PipelineParams(BaseModel):
         description="Least median render-vs-photo score (alpha-weighted ZNCC of band-passed grey).",
     )
     alignment_frames: int = Field(
-        4, ge=1, description="Frames rendered by the check, spread evenly over the capture."
+        4, ge=1, le=1000, description="Frames rendered by the check, spread evenly over the capture."
     )
     alignment_max_side: int = Field(
-        160, ge=16, description="Longest image side (pixels) the check renders and compares at."
+        160, ge=16, le=4096, description="Longest image side (pixels) the check renders and compares at."
     )
 
     # --- likelihood (METHOD step 3); None means: take it from the model's calibration ------------
-    mu0: float | None = Field(None, description="Mean cosine score of irrelevant segments (paper: 0.20).")
-    mu1: float | None = Field(None, description="Mean cosine score of relevant segments (paper: 0.27).")
-    s: float | None = Field(None, gt=0, description="Std of both likelihoods (paper: 0.035).")
-    s_eps: float = Field(0.0, ge=0, description="Extra measurement noise std added in quadrature to s.")
+    mu0: float | None = Field(
+        None, ge=-1, le=1, description="Mean cosine score of irrelevant segments (paper: 0.20)."
+    )
+    mu1: float | None = Field(
+        None, ge=-1, le=1, description="Mean cosine score of relevant segments (paper: 0.27)."
+    )
+    s: float | None = Field(None, gt=0, le=1, description="Std of both likelihoods (paper: 0.035).")
+    s_eps: float = Field(0.0, ge=0, le=1, description="Extra measurement noise std added in quadrature to s.")
     prior: float = Field(
         0.05, gt=0, lt=1, description="Prior probability that a Gaussian is relevant to a task."
     )
@@ -72,6 +84,7 @@ class PipelineParams(BaseModel):
     depth_tolerance: float = Field(
         0.05,
         ge=0,
+        le=1e6,
         description=(
             "Absolute visibility tolerance on centre depth, in the cameras' (capture) frame units: "
             "metres for a metric capture; for a non-metric COLMAP scene, COLMAP's units (scale it "
@@ -82,6 +95,7 @@ class PipelineParams(BaseModel):
     depth_tolerance_relative: float = Field(
         0.03,
         ge=0,
+        le=10,
         description="Visibility tolerance as a fraction of the rendered depth (added to the absolute one).",
     )
 
@@ -90,10 +104,10 @@ class PipelineParams(BaseModel):
         "product", description="Null task: prod(1-p_y) (default) or 1-max p_y."
     )
     edge_padding: float = Field(
-        0.0, ge=0, description="Grow primitive boxes by this many metres before overlap tests."
+        0.0, ge=0, le=100, description="Grow primitive boxes by this many metres before overlap tests."
     )
     identical_tolerance: float = Field(
-        1e-6, ge=0, description="Max abs difference for 'identical' p(y|x) vectors."
+        1e-6, ge=0, le=1, description="Max abs difference for 'identical' p(y|x) vectors."
     )
     aib_px: Literal["uniform", "size"] = Field(
         "uniform",
@@ -103,15 +117,16 @@ class PipelineParams(BaseModel):
         ),
     )
     aib_delta: float = Field(
-        1e-5, gt=0, description="AIB stops when the relative information loss exceeds this (Clio)."
+        1e-5, gt=0, le=1, description="AIB stops when the relative information loss exceeds this (Clio)."
     )
     prune_threshold: float = Field(
         0.1, ge=0, le=1, description="Drop objects below this probability for every task."
     )
-    top_k: int = Field(5, ge=1, description="Objects kept per task.")
+    top_k: int = Field(5, ge=1, le=1000, description="Objects kept per task.")
     min_object_gaussians: int = Field(
         50,
         ge=1,
+        le=100_000_000,
         description=(
             "Objects with fewer Gaussians are never selected: a handful of Gaussians seen through "
             "one relevant mask saturate their probability but are slivers, not objects (ours)."
@@ -129,8 +144,10 @@ class PipelineParams(BaseModel):
         ),
     )
     knn_filter: bool = Field(True, description="Statistical outlier removal on each selected object.")
-    knn_k: int = Field(20, ge=1, description="Neighbours for the kNN filter (Open3D default 20).")
-    knn_std_ratio: float = Field(2.0, gt=0, description="Keep points with mean kNN distance <= mean + r*std.")
+    knn_k: int = Field(20, ge=1, le=1000, description="Neighbours for the kNN filter (Open3D default 20).")
+    knn_std_ratio: float = Field(
+        2.0, gt=0, le=100, description="Keep points with mean kNN distance <= mean + r*std."
+    )
 
     # --- outputs --------------------------------------------------------------------------------
     export_ply: bool = Field(
@@ -141,6 +158,7 @@ class PipelineParams(BaseModel):
     # --- execution ------------------------------------------------------------------------------
     device: str | None = Field(
         None,
+        pattern=r"^(cpu|cuda(:[0-9]{1,2})?|mps)$",
         description=(
             "Torch device for rendering and the models ('cpu', 'cuda', 'cuda:1'). None: the CLI "
             "uses each model's profile device and renders on the CPU; a service worker always uses "

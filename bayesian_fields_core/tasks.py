@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import unicodedata
 from pathlib import Path
 
 import yaml
@@ -12,12 +13,33 @@ from .errors import InputError
 MAX_TASKS = 256
 MAX_TASK_CHARS = 200
 
+#: Bidirectional controls (embeddings, overrides, isolates, marks): they make a task display
+#: differently from what the encoder reads ("Trojan Source"), so tasks carrying them are refused.
+BIDI_CONTROLS = frozenset("\u061c\u200e\u200f\u202a\u202b\u202c\u202d\u202e\u2066\u2067\u2068\u2069")
+
+
+def check_task_text(text: str) -> str | None:
+    """Why `text` is not acceptable as a task, or None.
+
+    Refused rather than normalised, so a stored task is always exactly what the client sent (up to
+    whitespace): lone UTF-16 surrogates (not encodable as UTF-8), control characters other than
+    whitespace (which is collapsed to single spaces), and bidirectional controls."""
+    for pos, ch in enumerate(text):
+        cat = unicodedata.category(ch)
+        if cat == "Cs":
+            return f"contains a lone surrogate U+{ord(ch):04X} at position {pos} (not valid UTF-8)"
+        if ch in BIDI_CONTROLS:
+            return f"contains the bidirectional control U+{ord(ch):04X} at position {pos}"
+        if cat == "Cc" and not ch.isspace():
+            return f"contains the control character U+{ord(ch):04X} at position {pos}"
+    return None
+
 
 def normalise_tasks(
     raw: object, *, source: str = "tasks", max_tasks: int = MAX_TASKS, max_chars: int = MAX_TASK_CHARS
 ) -> list[str]:
     """Validate a task list: strings, non-empty, unique, bounded in count and length (the service
-    passes its configured limits).
+    passes its configured limits), free of control characters (see `check_task_text`).
 
     Accepts a list of strings, a list of {"task": ...} / {"name": ...} entries (the form the
     synthetic scenes' tasks.yaml uses, which carries extra fields) or {"tasks": [...]}.
@@ -32,6 +54,8 @@ def normalise_tasks(
             item = item.get("task", item.get("name", item.get("text")))
         if not isinstance(item, str) or not item.strip():
             raise InputError(f"task #{i + 1} is not a non-empty string", source=source)
+        if (why := check_task_text(item)) is not None:
+            raise InputError(f"task #{i + 1} {why}", source=source)
         text = " ".join(item.split())
         if len(text) > max_chars:
             raise InputError(f"task #{i + 1} is longer than {max_chars} characters", source=source)

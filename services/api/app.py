@@ -3,21 +3,25 @@
 The app holds one `AppState` (store, Redis, job store, key ring, Celery sender) built from the
 settings, so tests and deployments differ only in `ServiceSettings`. Input errors become 422 with
 the library's message (which names the file and the problem); nothing else leaks internals.
+Every call the API makes to Redis, the broker or the bucket has a short, bounded retry budget
+(`api_backend_timeout_s` x `api_backend_attempts`): an outage is answered 503 + Retry-After in
+about a second (`services.api.edge`), while the workers keep their own patient retries.
 """
 
 from __future__ import annotations
 
 import redis
-from fastapi import FastAPI, Request
-from fastapi.responses import JSONResponse
+from fastapi import FastAPI
+from redis.backoff import ConstantBackoff
+from redis.retry import Retry
 
-from bayesian_fields_core.errors import InputError
 from services.common.api_keys import ApiKeyRing
 from services.common.jobs import JobStore
 from services.common.settings import ServiceSettings, apply_log_level, get_settings
 from services.common.storage import build_store
 from services.worker.celery_app import make_celery
 
+from .edge import Utf8Guard, install_handlers
 from .routes import health, jobs, scenes
 from .routes.health import metrics_registry
 from .state import AppState
@@ -28,21 +32,58 @@ lists, poll, download the task-driven object map.
 
 Authenticate every `/v1` call with `X-API-Key: <key>` (or `Authorization: Bearer <key>`).
 Everything a key can see lives in its tenant's namespace; other tenants' ids answer 404.
+
+Input rules: every string must be valid UTF-8 (a JSON `"\\ud800"` escape, a lone surrogate, is
+refused with 422 naming the field, in bodies, query strings and the Idempotency-Key / API-key
+headers). Tasks must not contain control characters (whitespace is collapsed to single spaces)
+or bidirectional controls (U+202A-U+202E, U+2066-U+2069, U+200E/F, U+061C): refused, not
+silently changed. Every numeric parameter is finite and bounded (see `PipelineParams` in the
+job schema); NaN and Infinity are refused. When Redis or the bucket is down the API answers 503
+with `Retry-After` within about a second; a refused submission leaves no job behind.
+Every error body is a `Problem`: `detail` is a string, request validation adds `errors`.
 """
+
+
+def _redis_client(settings: ServiceSettings) -> redis.Redis:
+    """Redis for the request path: a bounded number of quick attempts, then the error (503)."""
+    t = settings.api_backend_timeout_s
+    return redis.Redis.from_url(
+        settings.redis_url,
+        socket_timeout=max(5.0, 5 * t),
+        socket_connect_timeout=t,
+        retry=Retry(ConstantBackoff(min(0.1, t / 4)), settings.api_backend_attempts - 1),
+    )
 
 
 def create_app(settings: ServiceSettings | None = None) -> FastAPI:
     settings = settings or get_settings()
     apply_log_level(settings)
-    store = build_store(settings)
-    client = redis.Redis.from_url(settings.redis_url, socket_timeout=10, socket_connect_timeout=5)
+    store = build_store(settings, request_path=True)
+    client = _redis_client(settings)
+    celery = make_celery(settings)
+    t = settings.api_backend_timeout_s
+    celery.conf.update(
+        broker_connection_timeout=t,
+        broker_connection_max_retries=settings.api_backend_attempts - 1,
+        task_publish_retry_policy={
+            "max_retries": settings.api_backend_attempts - 1,
+            "interval_start": 0,
+            "interval_step": min(0.1, t / 4),
+            "interval_max": min(0.1, t / 4),
+        },
+        broker_transport_options={
+            **celery.conf.broker_transport_options,
+            "socket_connect_timeout": t,
+            "socket_timeout": max(5.0, 5 * t),
+        },
+    )
     state = AppState(
         settings=settings,
         store=store,
         redis=client,
         jobs=JobStore(store, client),
         key_ring=ApiKeyRing.from_settings(settings),
-        celery=make_celery(settings),
+        celery=celery,
     )
     state.metrics_registry = metrics_registry(state)
     app = FastAPI(title="Bayesian Fields API", version="1.0.0", description=DESCRIPTION)
@@ -50,11 +91,8 @@ def create_app(settings: ServiceSettings | None = None) -> FastAPI:
     app.state.key_ring = state.key_ring
     for module in (scenes, jobs, health):
         app.include_router(module.router)
-
-    @app.exception_handler(InputError)
-    async def _input_error(request: Request, exc: InputError) -> JSONResponse:
-        return JSONResponse({"detail": str(exc)}, status_code=422)
-
+    install_handlers(app, settings.retry_after_s)
+    app.add_middleware(Utf8Guard)
     return app
 
 

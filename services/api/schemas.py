@@ -14,10 +14,23 @@ SCENE_EXAMPLE_ID = "s_0192f3a1b2c3aa55bb66cc"
 JOB_EXAMPLE_ID = "j_0192f3a1b2c3d4e5f6a7b8"
 
 
+class FieldProblem(BaseModel):
+    """One refused field of a request (request validation)."""
+
+    loc: list[str | int] = Field(
+        examples=[["body", "tasks", 0]], description="Where: body, query, header, path."
+    )
+    msg: str = Field(examples=["String should have at least 1 character"])
+    type: str = Field(examples=["string_too_short"])
+
+
 class Problem(BaseModel):
-    """Error body of every 4xx/5xx answer."""
+    """Error body of every 4xx/5xx answer: `detail` is always one readable string."""
 
     detail: str = Field(examples=["images/frame_0003.png: image is 640x480 but its camera says 320x240"])
+    errors: list[FieldProblem] | None = Field(
+        None, description="Request validation (422) only: every refused field, with its location."
+    )
 
 
 class SceneState(StrEnum):
@@ -114,9 +127,17 @@ class JobRequest(BaseModel):
         },
     )
     scene_id: str
-    tasks: list[str] = Field(min_length=1)
+    tasks: list[str] = Field(
+        min_length=1,
+        description="Plain-language tasks: valid UTF-8, no control characters (whitespace is "
+        "collapsed) and no bidirectional controls (refused with 422), unique, bounded by "
+        "BFIELDS_MAX_TASKS / BFIELDS_MAX_TASK_CHARS.",
+    )
     parameters: dict[str, Any] = Field(
-        default_factory=dict, description="`PipelineParams` fields; unknown fields are refused."
+        default_factory=dict,
+        description="`PipelineParams` fields; unknown fields are refused, numbers must be finite "
+        "and within each field's documented bounds (422 naming the parameter and the limit), and "
+        "the scene must support them (`depth_source: input` needs a depth map per frame).",
     )
     model_profile: str = Field("default", description="Name of a model profile configured on the workers.")
 

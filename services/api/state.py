@@ -73,9 +73,19 @@ def check_id(kind: str, ident: str, prefix: str) -> str:
 #: Route parameter types: the caller's tenant (401 without a valid key) and the app state.
 Tenant = Annotated[str, Depends(require_tenant)]
 State = Annotated[AppState, Depends(get_state)]
-#: Error answers every /v1 route documents.
+#: Error answers every /v1 route documents (503: Redis or the bucket is down; see Retry-After).
 ERRORS: dict[int | str, dict[str, Any]] = {
-    401: {"model": Problem},
-    404: {"model": Problem},
-    422: {"model": Problem},
+    401: {"model": Problem, "description": "Missing or invalid API key"},
+    404: {"model": Problem, "description": "No such object in the caller's tenant"},
+    422: {"model": Problem, "description": "A field is invalid (named in `detail` and `errors`)"},
+    503: {
+        "model": Problem,
+        "description": "A backend (Redis, the queue, the bucket) is unavailable; retry after `Retry-After` s",
+        "headers": {"Retry-After": {"schema": {"type": "integer"}, "description": "Seconds to wait"}},
+    },
+}
+#: Routes with a request body also document 400 (a body the server could not read at all).
+BODY_ERRORS: dict[int | str, dict[str, Any]] = {
+    **ERRORS,
+    400: {"model": Problem, "description": "The request body could not be read"},
 }

@@ -10,15 +10,26 @@ Layout (keys of the tenant's store, i.e. under ``tenants/<tenant>/``):
   jobs/<id>/manifest.json          the `JobRecord`
   jobs/<id>/stages/, jobs/<id>/result/   written by the pipeline (job_prefix = ``jobs/<id>/``)
   index/jobs/<id>                  empty marker, so listing jobs never walks result files
+  index/jobs-by-state/<state>/<id> empty marker per job in its current manifest state, and
+  index/jobs-by-scene/<scene>/<id> per job of a scene: a filtered page lists these keys and reads
+                                   only the manifests it returns (not every manifest until the
+                                   page fills); ``index/jobs-by.json`` says they are complete
   idempotency/<sha256(key)>.json   Idempotency-Key -> job id (survives Redis restarts)
   batches/<id>.json                a `BatchRecord`
 and in the global store ``active/<tenant>/<id>`` markers for queued/running jobs, which the
-worker's recovery scan reads to re-enqueue jobs a Redis restart dropped.
+worker's recovery scan reads to re-enqueue jobs a Redis restart dropped, and ``pending/<tenant>/<id>``
+markers for jobs stored but not yet enqueued: the API deletes it right after the enqueue, so one
+that outlives the recovery grace period is a submission that crashed half-way (recovery fails it:
+the client never got a 202 for it and will have retried).
+
+Redis also holds the per-tenant quota set (`services.common.quota`): taken before a job is
+stored, given back here on every terminal state.
 """
 
 from __future__ import annotations
 
 import hashlib
+import re
 import secrets
 import time
 from collections.abc import Iterable
@@ -31,6 +42,8 @@ from pydantic import BaseModel, Field
 
 from bayesian_fields_core.store import ArtifactNotFound, Store, get_json, put_json
 
+from .quota import TenantQuota
+from .sanitize import redact_locations, scrub
 from .storage import tenant_store
 
 #: Relative cost of each stage, used to turn (stage, fraction) into one overall percentage.
@@ -60,6 +73,14 @@ def utcnow() -> datetime:
 def new_id(prefix: str) -> str:
     """A time-ordered id (ms timestamp in hex, then randomness): listing sorts by creation."""
     return f"{prefix}{int(time.time() * 1000):012x}{secrets.token_hex(5)}"
+
+
+def id_age_s(ident: str) -> float:
+    """Seconds since `new_id` made `ident` (0 for an id not in that form)."""
+    try:
+        return max(0.0, time.time() - int(ident[2:14], 16) / 1000)
+    except ValueError:
+        return 0.0
 
 
 class JobRecord(BaseModel):
@@ -133,12 +154,33 @@ def _merge(old: JobRecord, new: JobRecord) -> JobRecord:
     )
 
 
+#: Marker: the tenant's by-state / by-scene job indexes cover every job (see `_build_filter_index`).
+_INDEX_DONE = "index/jobs-by.json"
+
+
+def _state_index(state: JobState, job_id: str) -> str:
+    return f"index/jobs-by-state/{state.value}/{job_id}"
+
+
+def _scene_index(scene_id: str, job_id: str) -> str:
+    return f"index/jobs-by-scene/{scene_id}/{job_id}"
+
+
+def _redacted(record: JobRecord) -> JobRecord:
+    """The record with its error message free of paths and bucket keys (`redact_locations`)."""
+    if not record.error:
+        return record
+    clean = redact_locations(record.error)
+    return record if clean == record.error else record.model_copy(update={"error": clean})
+
+
 class JobStore:
     """Reads and writes job records (bucket manifests + Redis live state + cancel flags)."""
 
     def __init__(self, store: Store, redis_client: redis.Redis) -> None:
         self.store = store
         self.redis = redis_client
+        self.quota = TenantQuota(redis_client)
 
     # ---- keys ----------------------------------------------------------------------------------
     @staticmethod
@@ -157,6 +199,10 @@ class JobStore:
     def active_key(tenant: str, job_id: str) -> str:
         return f"active/{tenant}/{job_id}"
 
+    @staticmethod
+    def pending_key(tenant: str, job_id: str) -> str:
+        return f"pending/{tenant}/{job_id}"
+
     def tenant(self, tenant: str) -> Store:
         return tenant_store(self.store, tenant)
 
@@ -167,18 +213,62 @@ class JobStore:
             data = get_json(self.tenant(tenant), self.manifest_key(job_id))
         except ArtifactNotFound:
             return None
-        return JobRecord.model_validate(data)
+        # scrub: a manifest stored before the edge refused lone surrogates must stay servable
+        return _redacted(JobRecord.model_validate(scrub(data)))
 
     def _write(self, record: JobRecord) -> None:
-        put_json(self.tenant(record.tenant), self.manifest_key(record.id), record.model_dump(mode="json"))
+        put_json(
+            self.tenant(record.tenant),
+            self.manifest_key(record.id),
+            _redacted(record).model_dump(mode="json"),
+        )
 
     def create(self, record: JobRecord) -> None:
-        """Persist a new job: manifest, listing index, active marker, live hash."""
+        """Persist a new job: pending + active markers, manifest, listing index, live hash.
+
+        The caller has taken the job's quota slot, enqueues it next and then calls
+        `mark_enqueued`; if it dies in between, recovery finds the pending marker."""
         ts = self.tenant(record.tenant)
+        self.store.put_bytes(self.pending_key(record.tenant, record.id), b"")
+        self.store.put_bytes(self.active_key(record.tenant, record.id), b"")
         self._write(record)
         ts.put_bytes(f"index/jobs/{record.id}", b"")
-        self.store.put_bytes(self.active_key(record.tenant, record.id), b"")
+        ts.put_bytes(_scene_index(record.scene_id, record.id), b"")
+        ts.put_bytes(_state_index(record.state, record.id), b"")
         self.touch_live(record)
+
+    def mark_enqueued(self, record: JobRecord) -> None:
+        """The job's first stage message is in the queue: it is no longer a half-done submission."""
+        self.store.delete(self.pending_key(record.tenant, record.id))
+
+    def discard_unsubmitted(self, record: JobRecord) -> None:
+        """Undo `create` after a failed enqueue, as far as the backends allow (best effort: what
+        an outage leaves behind carries a pending marker, so recovery fails it instead of running
+        it). Never raises."""
+        ts = self.tenant(record.tenant)
+        steps = (
+            lambda: self._write(record.model_copy(update={
+                "state": JobState.failed, "finished_at": utcnow(),
+                "error": "submission failed: the queue was unavailable; submit again"})),
+            lambda: ts.delete(f"index/jobs/{record.id}"),
+            lambda: ts.delete(_scene_index(record.scene_id, record.id)),
+            lambda: ts.delete(_state_index(record.state, record.id)),
+            lambda: self.store.delete(self.active_key(record.tenant, record.id)),
+            lambda: self.store.delete(self.pending_key(record.tenant, record.id)),
+            lambda: self.redis.delete(self.live_key(record.tenant, record.id)),
+            lambda: self.quota.release(record.tenant, [record.id]),
+        )  # fmt: skip
+        for step in steps:
+            try:
+                step()
+            except Exception:  # an outage is why we are here; recovery repairs the rest
+                continue
+
+    def release_slot(self, record: JobRecord) -> None:
+        """A terminal job no longer counts against its tenant's quota (markers and Redis set)."""
+        self.store.delete(self.active_key(record.tenant, record.id))
+        self.store.delete(self.pending_key(record.tenant, record.id))
+        self.quota.release(record.tenant, [record.id])
 
     def save(self, record: JobRecord) -> JobRecord:
         """Write `record`, merged with what is stored (see `_merge`) under a short Redis lock so the
@@ -188,8 +278,13 @@ class JobStore:
             merged = _merge(old, record) if old is not None else record
             merged.updated_at = utcnow()
             self._write(merged)
+            if old is not None and old.state != merged.state:
+                # new entry first: a crash in between leaves a duplicate the listing filters out
+                ts = self.tenant(merged.tenant)
+                ts.put_bytes(_state_index(merged.state, merged.id), b"")
+                ts.delete(_state_index(old.state, merged.id))
         if merged.state.terminal:
-            self.store.delete(self.active_key(merged.tenant, merged.id))
+            self.release_slot(merged)
         self.touch_live(merged)
         return merged
 
@@ -287,9 +382,17 @@ class JobStore:
         limit: int = 50,
         cursor: str | None = None,
     ) -> tuple[list[JobRecord], str | None]:
-        """A page of jobs, newest first; `cursor` is the last id of the previous page."""
+        """A page of jobs, newest first; `cursor` is the last id of the previous page.
+
+        With a state or scene filter the candidates come from the filter's index (both: their
+        intersection), so the manifests read are the page's own (plus any whose live state
+        moved on since the index was written: the record is always checked against the filter)."""
         out: list[JobRecord] = []
-        ids = [i for i in self.list_ids(tenant) if cursor is None or i < cursor]
+        if state is None and scene_id is None:
+            candidates = self.list_ids(tenant)
+        else:
+            candidates = self._indexed_ids(tenant, state, scene_id)
+        ids = [i for i in candidates if cursor is None or i < cursor]
         for n, job_id in enumerate(ids):
             record = self.get(tenant, job_id)
             if record is None:
@@ -305,10 +408,44 @@ class JobStore:
                 return out, (job_id if n + 1 < len(ids) else None)
         return out, None
 
+    def _indexed_ids(self, tenant: str, state: JobState | None, scene_id: str | None) -> list[str]:
+        if scene_id is not None and not re.fullmatch(r"s_[0-9a-f]{22}", scene_id):
+            return []  # not an id the service issues: no scene, no jobs (and no odd storage key)
+        ts = self.tenant(tenant)
+        if not ts.exists(_INDEX_DONE):
+            self._build_filter_index(tenant)
+        sets = []
+        if state is not None:
+            # a running job's manifest may still say queued (Redis has the live state)
+            states = [JobState.queued, JobState.running] if state == JobState.running else [state]
+            sets.append(
+                {k.rsplit("/", 1)[1] for s in states for k in ts.list(f"index/jobs-by-state/{s.value}/")}
+            )
+        if scene_id is not None:
+            sets.append({k.rsplit("/", 1)[1] for k in ts.list(f"index/jobs-by-scene/{scene_id}/")})
+        return sorted(set.intersection(*sets), reverse=True)
+
+    def _build_filter_index(self, tenant: str) -> None:
+        """One-off backfill for jobs stored before the filter index existed (reads each once)."""
+        ts = self.tenant(tenant)
+        for job_id in self.list_ids(tenant):
+            record = self.load(tenant, job_id)
+            if record is not None:
+                ts.put_bytes(_scene_index(record.scene_id, job_id), b"")
+                ts.put_bytes(_state_index(record.state, job_id), b"")
+        put_json(ts, _INDEX_DONE, {"version": 1, "built_at": utcnow().isoformat()})
+
     def active_jobs(self) -> list[tuple[str, str]]:
         """(tenant, job id) of every job whose manifest was last seen queued or running."""
+        return self._markers("active/")
+
+    def pending_jobs(self) -> list[tuple[str, str]]:
+        """(tenant, job id) of every job stored but not (yet) confirmed enqueued."""
+        return self._markers("pending/")
+
+    def _markers(self, prefix: str) -> list[tuple[str, str]]:
         pairs = []
-        for key in self.store.list("active/"):
+        for key in self.store.list(prefix):
             parts = key.split("/")
             if len(parts) == 3:
                 pairs.append((parts[1], parts[2]))

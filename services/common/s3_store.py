@@ -169,8 +169,9 @@ class S3Store:
         )
 
     @classmethod
-    def from_settings(cls, settings: Any) -> S3Store:
-        """Build from `services.common.settings.ServiceSettings`."""
+    def from_settings(cls, settings: Any, **tuning: Any) -> S3Store:
+        """Build from `services.common.settings.ServiceSettings` (`tuning` overrides the retry and
+        timeout parameters, e.g. the API's short request-path budget)."""
         creds = None
         if settings.s3_access_key_id and settings.s3_secret_access_key is not None:
             creds = S3Credentials(settings.s3_access_key_id, settings.s3_secret_access_key.get_secret_value())
@@ -182,7 +183,7 @@ class S3Store:
             addressing_style=settings.s3_addressing_style,
             multipart_threshold=settings.s3_multipart_threshold_bytes,
             multipart_chunksize=settings.s3_multipart_chunk_bytes,
-            max_attempts=settings.s3_max_attempts,
+            **{"max_attempts": settings.s3_max_attempts, **tuning},
         )
 
     def __repr__(self) -> str:

@@ -126,6 +126,22 @@ class ServiceSettings(BaseSettings):
         16, gt=0, description="Queued + running jobs a tenant may have; more are refused with 429."
     )
 
+    # ---- outages (request path of the API) -------------------------------------------------------
+    api_backend_timeout_s: float = Field(
+        1.0,
+        gt=0,
+        le=30,
+        description="Connect timeout of the API's calls to Redis, the broker and the bucket. With "
+        "api_backend_attempts it bounds how long a request waits during an outage before it is "
+        "answered 503 (workers keep their own, patient retries).",
+    )
+    api_backend_attempts: int = Field(
+        2, ge=1, le=10, description="Attempts of each API call to Redis / the bucket before 503."
+    )
+    retry_after_s: int = Field(
+        5, ge=1, le=3600, description="Retry-After seconds of a 503 (backend outage) or 429 (quota) answer."
+    )
+
     # ---- misc ------------------------------------------------------------------------------------
     log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = Field(
         "INFO", description="Level of the services' own loggers (services.*, bayesian_fields_core.*)."

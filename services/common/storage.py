@@ -17,11 +17,20 @@ from .settings import TENANT_PATTERN, ServiceSettings
 TENANTS_ROOT = "tenants"
 
 
-def build_store(settings: ServiceSettings) -> Store:
-    """The process-wide store: `S3Store` for storage_backend='s3', else a `LocalStore` folder."""
+def build_store(settings: ServiceSettings, *, request_path: bool = False) -> Store:
+    """The process-wide store: `S3Store` for storage_backend='s3', else a `LocalStore` folder.
+
+    `request_path` (the API): few attempts and short timeouts, so an outage is answered 503
+    within about a second instead of after the workers' patient retries."""
     if settings.storage_backend == "s3":
         from .s3_store import S3Store  # boto3 is only needed by S3 deployments
 
+        if request_path:
+            t = settings.api_backend_timeout_s
+            return S3Store.from_settings(
+                settings, max_attempts=settings.api_backend_attempts, connect_timeout_s=t,
+                read_timeout_s=max(15.0, 10 * t), retry_max_delay_s=t / 2,
+            )  # fmt: skip
         return S3Store.from_settings(settings)
     return LocalStore(settings.local_storage_root)
 

@@ -11,6 +11,12 @@ stage re-creates its lock within one heartbeat, so a live job is never sent twic
 duplicate slip through anyway, stages are idempotent (finished markers are skipped) and guarded
 by the per-stage lock, so the cost is time, never a wrong result.
 
+Two repairs ride on the same scan. A job with a *pending* marker older than `grace_s` was stored
+by an API that died (or lost Redis) before enqueueing it: the client never got a 202, so the job
+is failed, not run (running it would duplicate the client's retry), and its quota slot is given
+back. And each tenant's quota set is made to agree with the ``active/`` markers
+(`TenantQuota.repair`), so a Redis wipe or a crash never leaks or loses a slot for long.
+
 Every worker runs the scan in a daemon thread (started on `worker_ready`); a Redis lock makes
 one scan at a time do the work.
 """
@@ -25,7 +31,7 @@ import redis
 from celery import Celery
 from celery.utils.log import get_logger
 
-from services.common.jobs import JobStore
+from services.common.jobs import JobState, JobStore, id_age_s, utcnow
 from services.common.settings import ServiceSettings
 
 from .dispatch import enqueue_stages
@@ -58,7 +64,12 @@ def recover_orphans(
     requeued = []
     try:
         now = time.time()
-        for tenant, job_id in jobs.active_jobs():
+        pending = _fail_unsubmitted(jobs, grace_s)
+        active = jobs.active_jobs()
+        _repair_quotas(jobs, active, grace_s)
+        for tenant, job_id in active:
+            if (tenant, job_id) in pending:  # stored, not yet enqueued: the API is on it (or died)
+                continue
             # Healthy: waiting in a queue (live hash, phase 'waiting') or running (stage lock held).
             if _has_stage_lock(client, tenant, job_id) or jobs.live_phase(tenant, job_id) == "waiting":
                 continue
@@ -94,6 +105,47 @@ def recover_orphans(
         except redis.RedisError:
             pass
     return requeued
+
+
+def _fail_unsubmitted(jobs: JobStore, grace_s: float) -> set[tuple[str, str]]:
+    """Fail the jobs whose submission never reached the queue (pending marker past `grace_s`).
+
+    Returns the (tenant, job id) still pending but younger than `grace_s` (never re-enqueued)."""
+    waiting: set[tuple[str, str]] = set()
+    for tenant, job_id in jobs.pending_jobs():
+        # Age from the id (it starts with its creation time): the API writes the pending marker
+        # before the manifest, so a young job may have no manifest yet and must be left alone.
+        if id_age_s(job_id) < grace_s:
+            waiting.add((tenant, job_id))
+            continue
+        record = jobs.load(tenant, job_id)
+        if record is None or record.state.terminal:
+            jobs.store.delete(jobs.pending_key(tenant, job_id))
+            if record is None:  # the manifest was never written: only the markers and slot remain
+                jobs.store.delete(jobs.active_key(tenant, job_id))
+                jobs.quota.release(tenant, [job_id])
+            continue
+        if record.state != JobState.queued or record.stages_done:
+            jobs.store.delete(jobs.pending_key(tenant, job_id))  # a worker has it: it was enqueued
+            continue
+        jobs.save(record.model_copy(update={
+            "state": JobState.failed, "finished_at": utcnow(),
+            "error": "the submission did not complete (the API stopped before enqueueing the job); "
+                     "submit it again"}))  # fmt: skip
+        log.warning("failed unsubmitted job %s/%s (stored but never enqueued)", tenant, job_id)
+    return waiting
+
+
+def _repair_quotas(jobs: JobStore, active: list[tuple[str, str]], grace_s: float) -> None:
+    by_tenant: dict[str, set[str]] = {}
+    for tenant, job_id in active:
+        by_tenant.setdefault(tenant, set()).add(job_id)
+    for tenant in set(by_tenant) | set(jobs.quota.tenants()):
+        added, dropped = jobs.quota.repair(
+            tenant, by_tenant.get(tenant, set()), older_than_s=max(grace_s, 30.0)
+        )
+        if added or dropped:
+            log.warning("quota of %s repaired: %d slots re-taken, %d released", tenant, added, dropped)
 
 
 def _loop(app: Celery, jobs: JobStore, settings: ServiceSettings, interval_s: float) -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 from pathlib import PurePosixPath
 from typing import Annotated, Any
 
@@ -26,9 +27,10 @@ from ..schemas import (
     JobResult,
     Problem,
 )
-from ..state import ERRORS, AppState, State, Tenant, check_id, not_found
+from ..state import BODY_ERRORS, ERRORS, AppState, State, Tenant, check_id, not_found
 from .scenes import _load_scene
 
+log = logging.getLogger(__name__)
 router = APIRouter(prefix="/v1", tags=["jobs"])
 
 #: Model profiles a job may name. The workers map "default" to BFIELDS_MODEL_PROFILE.
@@ -54,13 +56,15 @@ def _build_job(state: AppState, tenant: str, scene_id: str, tasks: list[str], pa
     s = state.settings
     try:
         tasks = normalise_tasks(tasks, source="tasks", max_tasks=s.max_tasks, max_chars=s.max_task_chars)
-        params = PipelineParams.model_validate(parameters).model_dump(mode="json", exclude_unset=True)
+        validated = PipelineParams.model_validate(parameters)
     except InputError as exc:
         raise HTTPException(422, str(exc)) from None
     except ValidationError as exc:
         first = exc.errors()[0]
         where = ".".join(str(p) for p in first["loc"])
         raise HTTPException(422, f"parameters.{where}: {first['msg']}") from None
+    _check_params_against_scene(validated, scene.summary)
+    params = validated.model_dump(mode="json", exclude_unset=True)
     if model_profile not in MODEL_PROFILES:
         raise HTTPException(
             422,
@@ -72,19 +76,55 @@ def _build_job(state: AppState, tenant: str, scene_id: str, tasks: list[str], pa
     )  # fmt: skip
 
 
-def _check_quota(state: AppState, tenant: str, new_jobs: int) -> None:
-    active = sum(1 for t, _ in state.jobs.active_jobs() if t == tenant)
-    limit = state.settings.max_active_jobs_per_tenant
-    if active + new_jobs > limit:
+def _check_params_against_scene(params: PipelineParams, summary: dict[str, Any]) -> None:
+    """Refuse parameters the scene cannot satisfy now (422), instead of a job failing later."""
+    frames = int(summary.get("frames", 0) or 0)
+    depth_frames = int(summary.get("depth_frames", frames) or 0)  # unknown on old scenes: allow
+    if params.depth_source == "input" and depth_frames < frames:
         raise HTTPException(
-            status.HTTP_429_TOO_MANY_REQUESTS,
-            f"{active} jobs are queued or running; at most {limit} are allowed per tenant",
+            422,
+            f"parameters.depth_source: 'input' needs a depth map for every frame; the scene has "
+            f"{depth_frames} of {frames} (use 'median' or 'expected' to render depth instead)",
         )
 
 
-def _submit(state: AppState, record: JobRecord) -> None:
-    state.jobs.create(record)
-    state.enqueue(record)
+def _reserve_slots(state: AppState, tenant: str, records: list[JobRecord]) -> None:
+    """Take one quota slot per job atomically (all or none), before anything is stored: 429 when
+    they do not fit. Exact under any number of concurrent API processes (`TenantQuota`)."""
+    limit = state.settings.max_active_jobs_per_tenant
+    ok, active = state.jobs.quota.reserve(tenant, [r.id for r in records], limit)
+    if not ok:
+        raise HTTPException(
+            status.HTTP_429_TOO_MANY_REQUESTS,
+            f"{active} jobs are queued or running; at most {limit} are allowed per tenant "
+            f"(BFIELDS_MAX_ACTIVE_JOBS_PER_TENANT); this request needs {len(records)}",
+            headers={"Retry-After": str(state.settings.retry_after_s)},
+        )
+
+
+def _submit(state: AppState, records: list[JobRecord]) -> None:
+    """Store and enqueue jobs whose slots are reserved. On any failure every job of the request
+    is undone (best effort, see `JobStore.discard_unsubmitted`) and the error propagates (503),
+    so a client's retry never runs the same work twice."""
+    done: list[JobRecord] = []
+    try:
+        for record in records:
+            done.append(record)
+            state.jobs.create(record)
+            state.enqueue(record)
+    except BaseException:
+        for record in done:
+            state.jobs.discard_unsubmitted(record)
+        try:  # the slots of the jobs never created (recovery's quota repair covers a failure here)
+            state.jobs.quota.release(records[0].tenant, [r.id for r in records])
+        except Exception:
+            log.warning("could not release the quota slots of a failed submission; recovery will")
+        raise
+    for record in records:
+        try:
+            state.jobs.mark_enqueued(record)
+        except Exception:  # enqueued: it will run; recovery drops the marker once a stage starts
+            log.warning("job %s/%s enqueued but its pending marker stays", record.tenant, record.id)
 
 
 @router.post(
@@ -92,7 +132,15 @@ def _submit(state: AppState, record: JobRecord) -> None:
     status_code=status.HTTP_202_ACCEPTED,
     response_model=JobAccepted,
     summary="Submit a job",
-    responses={**ERRORS, 409: {"model": Problem}, 429: {"model": Problem}},
+    responses={
+        **BODY_ERRORS,
+        200: {
+            "model": JobAccepted,
+            "description": "The earlier job of this Idempotency-Key (created: false)",
+        },
+        409: {"model": Problem, "description": "The scene is not ready"},
+        429: {"model": Problem, "description": "The tenant's active-job quota is full; see Retry-After"},
+    },
 )
 def submit_job(
     body: JobRequest,
@@ -102,7 +150,9 @@ def submit_job(
     idempotency_key: Annotated[
         str | None,
         Header(
-            max_length=200, description="Retries with the same key return the first job instead of a new one."
+            max_length=200,
+            description="Retries with the same key return the first job instead of a new one "
+            "(printable ASCII, at most 200 characters).",
         ),
     ] = None,
 ) -> JobAccepted:
@@ -115,13 +165,13 @@ def submit_job(
                 return JobAccepted(id=record.id, state=record.state, created=False)
             record = _build_job(state, tenant, body.scene_id, body.tasks, body.parameters, body.model_profile,
                                 idem=idempotency_key)  # fmt: skip
-            _check_quota(state, tenant, 1)
-            _submit(state, record)
+            _reserve_slots(state, tenant, [record])
+            _submit(state, [record])
             state.jobs.remember_idempotent(tenant, idempotency_key, record.id)
     else:
         record = _build_job(state, tenant, body.scene_id, body.tasks, body.parameters, body.model_profile)
-        _check_quota(state, tenant, 1)
-        _submit(state, record)
+        _reserve_slots(state, tenant, [record])
+        _submit(state, [record])
     return JobAccepted(id=record.id, state=record.state, created=True)
 
 
@@ -220,7 +270,7 @@ def cancel_job(job_id: str, tenant: Tenant, state: State) -> JobRecord:
     response_model=BatchStatus,
     summary="Submit many jobs at once (items, or scenes x task lists)",
     tags=["batches"],
-    responses={**ERRORS, 409: {"model": Problem}, 429: {"model": Problem}},
+    responses={**BODY_ERRORS, 409: {"model": Problem}, 429: {"model": Problem}},
 )
 def submit_batch(body: BatchRequest, tenant: Tenant, state: State) -> BatchStatus:
     pairs = [(i.scene_id, i.tasks) for i in body.items]
@@ -238,11 +288,14 @@ def submit_batch(body: BatchRequest, tenant: Tenant, state: State) -> BatchStatu
         _build_job(state, tenant, s, t, body.parameters, body.model_profile, batch_id=batch_id)
         for s, t in pairs
     ]
-    _check_quota(state, tenant, len(records))
+    _reserve_slots(state, tenant, records)
     batch = BatchRecord(id=batch_id, tenant=tenant, job_ids=[r.id for r in records])
-    state.jobs.save_batch(batch)
-    for record in records:
-        _submit(state, record)
+    try:
+        state.jobs.save_batch(batch)
+    except BaseException:
+        state.jobs.quota.release(tenant, [r.id for r in records])
+        raise
+    _submit(state, records)
     return _batch_status(state, batch)
 
 

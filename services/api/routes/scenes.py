@@ -13,6 +13,7 @@ from fastapi.concurrency import run_in_threadpool
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.store import ArtifactNotFound, get_json, put_json
 from services.common.jobs import JobState, new_id, utcnow
+from services.common.sanitize import scrub
 
 from ..archives import ArchiveLimits
 from ..multipart import clean_filename, receive_multipart
@@ -33,7 +34,7 @@ from ..schemas import (
     UploadPlan,
     UploadRequest,
 )
-from ..state import ERRORS, AppState, State, Tenant, check_id, not_found
+from ..state import BODY_ERRORS, ERRORS, AppState, State, Tenant, check_id, not_found
 
 router = APIRouter(prefix="/v1/scenes", tags=["scenes"])
 
@@ -86,7 +87,8 @@ def _scene_key(scene_id: str) -> str:
 def _load_scene(state: AppState, tenant: str, scene_id: str) -> SceneRecord:
     check_id("scene", scene_id, "s_")
     try:
-        return SceneRecord.model_validate(get_json(state.tenant(tenant), _scene_key(scene_id)))
+        # scrub: a record stored before the edge refused lone surrogates must stay servable
+        return SceneRecord.model_validate(scrub(get_json(state.tenant(tenant), _scene_key(scene_id))))
     except ArtifactNotFound:
         raise not_found("scene", scene_id) from None
 
@@ -132,7 +134,7 @@ def _unprocessable(exc: InputError) -> HTTPException:
     response_model=SceneRecord,
     summary="Upload a scene in one multipart request",
     openapi_extra=_MULTIPART_SCHEMA,
-    responses={**ERRORS, 413: {"model": Problem}, 415: {"model": Problem}},
+    responses={**BODY_ERRORS, 413: {"model": Problem}, 415: {"model": Problem}},
 )
 async def upload_scene(request: Request, tenant: Tenant, state: State) -> SceneRecord:
     """Stream the form to a temp folder (413 past BFIELDS_MAX_UPLOAD_BYTES), extract an image
@@ -166,7 +168,7 @@ async def upload_scene(request: Request, tenant: Tenant, state: State) -> SceneR
     status_code=status.HTTP_201_CREATED,
     response_model=UploadPlan,
     summary="Start a presigned upload (large captures go straight to the bucket)",
-    responses={**ERRORS, 413: {"model": Problem}, 501: {"model": Problem}},
+    responses={**BODY_ERRORS, 413: {"model": Problem}, 501: {"model": Problem}},
 )
 def start_upload(body: UploadRequest, tenant: Tenant, state: State) -> UploadPlan:
     """Returns presigned multipart PUT URLs per file; then call POST /v1/scenes/{id}/complete."""
@@ -220,7 +222,7 @@ def start_upload(body: UploadRequest, tenant: Tenant, state: State) -> UploadPla
     "/{scene_id}/complete",
     response_model=SceneRecord,
     summary="Finish a presigned upload: assemble, validate, mark the scene ready",
-    responses={**ERRORS, 409: {"model": Problem}, 413: {"model": Problem}},
+    responses={**BODY_ERRORS, 409: {"model": Problem}, 413: {"model": Problem}},
 )
 def complete_upload(
     scene_id: str, tenant: Tenant, state: State, body: Annotated[CompleteRequest | None, Body()] = None

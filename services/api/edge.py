@@ -1,0 +1,208 @@
+"""What every request meets before a route: UTF-8 only, and one error body for every refusal.
+
+Why a middleware: FastAPI decodes JSON with Python's `json`, which turns ``"\\ud800"`` into a
+str holding a lone surrogate. Pydantic accepts it, it is stored, and every later response that
+contains it fails to encode (500). Refusing it once, here, covers every string of every JSON body
+(values and keys, tasks, names, parameters), every query parameter (percent-encoded bytes that
+are not UTF-8) and the headers the API reads, with a 422 naming the field. Multipart form fields
+are decoded by `services.api.multipart` with replacement, so they never carry surrogates.
+
+The handlers give every 4xx/5xx the `Problem` body: ``detail`` is always a string; request
+validation adds ``errors`` (one entry per field). Backend outages (Redis, the broker, the bucket)
+become 503 with ``Retry-After`` and no internal detail (that goes to the log).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from typing import Any
+from urllib.parse import unquote_to_bytes
+
+import redis
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from kombu.exceptions import OperationalError
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
+
+from services.common.sanitize import redact_locations, scrub_text
+
+log = logging.getLogger(__name__)
+
+#: Headers whose values the API uses as data (they must be printable ASCII).
+CHECKED_HEADERS = {
+    "idempotency-key": "Idempotency-Key",
+    "x-api-key": "X-API-Key",
+    "authorization": "Authorization",
+}
+#: JSON bodies larger than this are left to FastAPI unparsed here (the routes' bodies are small).
+MAX_CHECKED_BODY = 16 * 1024 * 1024
+
+
+def problem(status: int, detail: str, errors: list[dict[str, Any]] | None = None,
+            headers: dict[str, str] | None = None) -> JSONResponse:  # fmt: skip
+    body: dict[str, Any] = {"detail": scrub_text(detail)}
+    if errors is not None:
+        body["errors"] = errors
+    return JSONResponse(body, status_code=status, headers=headers)
+
+
+def _loc(path: list[str | int]) -> str:
+    out = ""
+    for part in path:
+        out += f"[{part}]" if isinstance(part, int) else (f".{part}" if out else str(part))
+    return out
+
+
+def first_unencodable(value: Any, path: list[str | int]) -> list[str | int] | None:
+    """The location of the first string (or mapping key) in `value` that is not valid UTF-8."""
+    if isinstance(value, str):
+        try:
+            value.encode("utf-8")
+        except UnicodeEncodeError:
+            return path
+        return None
+    if isinstance(value, dict):
+        for key, item in value.items():
+            if first_unencodable(key, [*path, "<key>"]) is not None:
+                return [*path, scrub_text(key)]
+            if (found := first_unencodable(item, [*path, key])) is not None:
+                return found
+    if isinstance(value, list):
+        for i, item in enumerate(value):
+            if (found := first_unencodable(item, [*path, i])) is not None:
+                return found
+    return None
+
+
+def _not_utf8(loc: list[str | int], what: str) -> JSONResponse:
+    where = _loc(loc)
+    msg = f"{what} (a lone UTF-16 surrogate, or bytes that are not UTF-8); send valid UTF-8 text"
+    return problem(422, f"{where}: {msg}", [{"loc": loc, "msg": msg, "type": "utf8"}])
+
+
+def _check_query(raw: bytes) -> JSONResponse | None:
+    for pair in raw.split(b"&"):
+        name, _, value = pair.partition(b"=")
+        for part, is_name in ((name, True), (value, False)):
+            try:
+                unquote_to_bytes(part.replace(b"+", b" ")).decode("utf-8")
+            except UnicodeDecodeError:
+                label = unquote_to_bytes(name).decode("utf-8", "replace")
+                return _not_utf8(
+                    ["query", label], "parameter name is not UTF-8" if is_name else "is not UTF-8"
+                )
+    return None
+
+
+def _check_headers(headers: list[tuple[bytes, bytes]]) -> JSONResponse | None:
+    for name, value in headers:
+        if name.lower().decode("latin-1") in CHECKED_HEADERS and not all(0x20 <= b < 0x7F for b in value):
+            label = CHECKED_HEADERS[name.lower().decode("latin-1")]
+            msg = "must be printable ASCII"
+            return problem(
+                422, f"header.{label}: {msg}", [{"loc": ["header", label], "msg": msg, "type": "ascii"}]
+            )
+    return None
+
+
+class Utf8Guard:
+    """Pure ASGI middleware: refuse non-UTF-8 text in JSON bodies (FastAPI also parses a body
+    without a content type as JSON, so those are checked too), query strings and the headers the
+    API reads; the body is buffered once and replayed to the app unchanged."""
+
+    def __init__(self, app: ASGIApp) -> None:
+        self.app = app
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        refusal = _check_query(scope.get("query_string", b"")) or _check_headers(scope.get("headers", []))
+        content_type = dict(scope.get("headers", [])).get(b"content-type", b"").lower()
+        if (
+            refusal is None
+            and scope["method"] in ("POST", "PUT", "PATCH")
+            and (b"json" in content_type or not content_type)
+        ):
+            body, more = b"", True
+            while more and len(body) <= MAX_CHECKED_BODY:
+                message = await receive()
+                if message["type"] == "http.disconnect":
+                    return
+                body += message.get("body", b"")
+                more = message.get("more_body", False)
+            refusal = self._check_body(body) if not more else None
+            receive = _replay(body, more, receive)
+        if refusal is not None:
+            await refusal(scope, receive, send)
+            return
+        await self.app(scope, receive, send)
+
+    @staticmethod
+    def _check_body(body: bytes) -> JSONResponse | None:
+        try:
+            text = body.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            return _not_utf8(["body"], f"byte {exc.start} is not UTF-8")
+        try:
+            data = json.loads(text)
+        except (json.JSONDecodeError, RecursionError):
+            return None  # FastAPI answers malformed JSON with its own 422
+        where = first_unencodable(data, ["body"])
+        return _not_utf8(where, "is not valid UTF-8") if where is not None else None
+
+
+def _replay(body: bytes, more: bool, receive: Receive) -> Receive:
+    sent = False
+
+    async def replay() -> Message:
+        nonlocal sent
+        if not sent:
+            sent = True
+            return {"type": "http.request", "body": body, "more_body": more}
+        return await receive()
+
+    return replay
+
+
+def _validation_errors(exc: RequestValidationError) -> list[dict[str, Any]]:
+    return [
+        {"loc": [scrub_text(p) if isinstance(p, str) else p for p in e.get("loc", ())],
+         "msg": scrub_text(str(e.get("msg", ""))), "type": str(e.get("type", ""))}
+        for e in exc.errors()
+    ]  # fmt: skip
+
+
+def install_handlers(app: FastAPI, retry_after_s: int) -> None:
+    """The error handlers that give every refusal the `Problem` body."""
+    from bayesian_fields_core.errors import InputError
+
+    try:
+        from services.common.s3_store import StorageError
+    except ImportError:  # pragma: no cover - local-store deployments without boto3
+        StorageError = OSError  # type: ignore[misc,assignment]  # noqa: N806
+
+    @app.exception_handler(RequestValidationError)
+    async def _invalid(request: Request, exc: RequestValidationError) -> JSONResponse:
+        errors = _validation_errors(exc)
+        detail = "; ".join(f"{_loc(e['loc'])}: {e['msg']}" for e in errors[:5]) or "invalid request"
+        return problem(422, detail, errors)
+
+    @app.exception_handler(InputError)
+    async def _input_error(request: Request, exc: InputError) -> JSONResponse:
+        return problem(422, redact_locations(str(exc)))
+
+    async def _outage(request: Request, exc: Exception) -> JSONResponse:
+        backend = "object storage" if isinstance(exc, StorageError) else "the queue (Redis)"
+        log.warning("%s %s: %s unavailable: %s: %s", request.method, request.url.path, backend,
+                    type(exc).__name__, exc)  # fmt: skip
+        return problem(
+            503,
+            f"{backend} is unavailable; the request was not carried out, retry in {retry_after_s} s",
+            headers={"Retry-After": str(retry_after_s)},
+        )
+
+    for kind in (redis.ConnectionError, redis.TimeoutError, OperationalError, StorageError):
+        app.add_exception_handler(kind, _outage)

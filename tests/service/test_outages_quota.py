@@ -1,0 +1,184 @@
+"""Outages, quota races and half-done submissions (issue 12, items 5 and 6), on real processes:
+private Redis and rclone servers stopped mid-test, two API processes raced by 100 concurrent
+submissions, and a submission 'crashed' between storing a job and enqueueing it."""
+
+from __future__ import annotations
+
+import json
+import secrets
+import statistics
+import time
+from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import httpx
+import pytest
+import redis
+
+from services.common.jobs import JobRecord, JobStore, new_id
+from tests.integration.fixtures.redis_server import RedisServer
+from tests.integration.fixtures.s3_server import S3Server
+from tests.integration.fixtures.services import ApiServer, WorkerPool, build_service_env
+
+from .conftest import SERVICE_ENV, scene_form
+
+pytestmark = pytest.mark.integration
+
+#: An outage must be answered this fast (the old code took ~4 s of retries, then answered 500).
+MAX_TIME_TO_503_S = 2.0
+
+
+def _upload(client: httpx.Client, scene_dir: Path) -> str:
+    resp = client.post("/v1/scenes", files=scene_form(scene_dir), data={"name": "outage"})
+    assert resp.status_code == 201, resp.text
+    return resp.json()["id"]
+
+
+def _requests(scene_id: str, job_id: str) -> list[tuple[str, str, dict]]:
+    return [
+        ("POST", "/v1/jobs", {"json": {"scene_id": scene_id, "tasks": ["during outage"]}}),
+        ("POST", "/v1/batches", {"json": {"scene_ids": [scene_id], "task_lists": [["batch in outage"]]}}),
+        ("GET", f"/v1/jobs/{job_id}", {}),
+        ("GET", "/v1/jobs", {}),
+        ("DELETE", f"/v1/jobs/{job_id}", {}),
+    ]
+
+
+def _assert_503_fast(client: httpx.Client, scene_id: str, job_id: str, times: list[float]) -> None:
+    for method, path, kw in _requests(scene_id, job_id):
+        t0 = time.monotonic()
+        resp = client.request(method, path, **kw)
+        elapsed = time.monotonic() - t0
+        times.append(elapsed)
+        assert resp.status_code == 503, (method, path, resp.status_code, resp.text)
+        assert int(resp.headers["Retry-After"]) > 0
+        assert isinstance(resp.json()["detail"], str) and "tenants/" not in resp.text
+        assert elapsed < MAX_TIME_TO_503_S, (method, path, elapsed)
+
+
+@pytest.fixture
+def private_stack(
+    tmp_path: Path, private_redis: RedisServer
+) -> Iterator[tuple[ApiServer, RedisServer, S3Server]]:
+    s3 = S3Server(tmp_path / "s3").start()
+    keys = {"tenant-o": "key-o-" + secrets.token_urlsafe(12)}
+    env = build_service_env(tmp_path / "env", private_redis.url(), s3.env(), keys)
+    api = ApiServer(env=env, log_dir=tmp_path / "api", keys=keys).start()
+    yield api, private_redis, s3
+    api.stop()
+    s3.stop()
+
+
+def test_outages_answer_503_quickly_and_leave_no_job(private_stack, scene_dir: Path) -> None:  # noqa: ANN001
+    api, redis_server, s3 = private_stack
+    times: list[float] = []
+    with api.client("tenant-o") as client:
+        scene_id = _upload(client, scene_dir)
+        first = client.post("/v1/jobs", json={"scene_id": scene_id, "tasks": ["before outage"]})
+        assert first.status_code == 202, first.text
+        job_id = first.json()["id"]
+
+        redis_server.stop()
+        _assert_503_fast(client, scene_id, job_id, times)
+        redis_server.start()
+        s3.stop()
+        _assert_503_fast(client, scene_id, job_id, times)
+        s3.start()
+
+        listed = client.get("/v1/jobs", params={"limit": 500})
+        assert listed.status_code == 200, listed.text
+        assert [j["id"] for j in listed.json()["items"]] == [job_id]  # no refused submission stored
+        assert client.get(f"/v1/jobs/{job_id}").json()["state"] == "queued"
+    store = s3.store()
+    assert store.list("pending/") == []
+    assert [k.rsplit("/", 1)[1] for k in store.list("active/")] == [job_id]
+    r = redis.Redis.from_url(redis_server.url())
+    assert [m.decode() for m in r.zrange("bf:active:tenant-o", 0, -1)] == [job_id]
+    print(
+        f"\ntime to 503 over {len(times)} requests: median {statistics.median(times):.3f} s, max {max(times):.3f} s"
+    )
+
+
+@pytest.fixture
+def two_apis(
+    tmp_path: Path, svc_env: dict[str, str], stored_scene: dict
+) -> Iterator[tuple[list[ApiServer], str]]:
+    """Two API processes at a quota of 16 for a fresh tenant, on queues no worker consumes."""
+    tenant = "tenant-q" + secrets.token_hex(3)
+    keys = {tenant: "key-q-" + secrets.token_urlsafe(12)}
+    env = {
+        **svc_env,
+        "BFIELDS_MAX_ACTIVE_JOBS_PER_TENANT": "16",
+        "BFIELDS_API_KEYS": json.dumps({keys[tenant]: tenant}),
+        "BFIELDS_GPU_QUEUE": "quota-test-gpu",
+        "BFIELDS_CPU_QUEUE": "quota-test-cpu",
+    }
+    apis = [ApiServer(env=env, log_dir=tmp_path / f"api{i}", keys=keys).start() for i in range(2)]
+    yield apis, tenant
+    for api in apis:
+        api.stop()
+
+
+def test_quota_is_exact_under_100_concurrent_submissions(two_apis, scene_dir: Path) -> None:  # noqa: ANN001
+    apis, tenant = two_apis
+    clients = [api.client(tenant, limits=httpx.Limits(max_connections=100)) for api in apis]
+    try:
+        scene_id = _upload(clients[0], scene_dir)
+
+        def submit(i: int) -> httpx.Response:
+            return clients[i % 2].post("/v1/jobs", json={"scene_id": scene_id, "tasks": [f"task {i}"]})
+
+        with ThreadPoolExecutor(100) as pool:
+            answers = list(pool.map(submit, range(100)))
+        codes = [a.status_code for a in answers]
+        accepted = [a.json()["id"] for a in answers if a.status_code == 202]
+        assert sorted(set(codes)) == [202, 429], codes
+        assert len(accepted) == 16, f"{len(accepted)} accepted at a quota of 16"
+        refused = next(a for a in answers if a.status_code == 429)
+        assert "at most 16" in refused.json()["detail"] and "Retry-After" in refused.headers
+        # a cancel gives its slot back at once: exactly one more submission fits
+        assert clients[0].delete(f"/v1/jobs/{accepted[0]}").status_code == 202
+        again = [submit(200 + i) for i in range(2)]
+        accepted += [a.json()["id"] for a in again if a.status_code == 202]
+        assert [a.status_code for a in again] == [202, 429], [a.text for a in again]
+    finally:
+        for job_id in accepted:
+            clients[0].delete(f"/v1/jobs/{job_id}")
+        for client in clients:
+            client.close()
+
+
+def test_submission_crashed_before_enqueue_is_failed_by_recovery(
+    client_a: httpx.Client,
+    stored_scene: dict,
+    s3_server: S3Server,
+    redis_url: str,
+    celery_workers: WorkerPool,
+) -> None:
+    """The API stored a job and died before enqueueing it: recovery must fail it (the client got no
+    202 and retries) and give its quota slot back, not leave it queued forever."""
+    r = redis.Redis.from_url(redis_url)
+    jobs = JobStore(s3_server.store(), r)
+    record = JobRecord(
+        id=new_id("j_"), tenant="tenant-a", scene_id=stored_scene["id"], tasks=["crashed submit"]
+    )
+    r.zadd("bf:active:tenant-a", {record.id: time.time()})  # the slot the API had reserved
+    jobs.create(record)  # ... and here the API process died
+    stale = "j_" + "0" * 20
+    r.zadd("bf:active:tenant-a", {stale: time.time() - 3600})  # a slot whose job never existed
+    worker = celery_workers.start("cpu", extra_env=SERVICE_ENV)  # recovery scans every 2 s
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            job = client_a.get(f"/v1/jobs/{record.id}").json()
+            if job["state"] != "queued" and r.zscore("bf:active:tenant-a", stale) is None:
+                break
+            time.sleep(0.5)
+        assert job["state"] == "failed", job
+        assert "did not complete" in job["error"]
+        assert not jobs.store.exists(jobs.active_key("tenant-a", record.id))
+        assert r.zscore("bf:active:tenant-a", record.id) is None
+        assert r.zscore("bf:active:tenant-a", stale) is None
+    finally:
+        worker.stop()

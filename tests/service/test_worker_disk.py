@@ -20,7 +20,7 @@ from .test_workers import model_profile, worker_env  # noqa: F401 - fixtures
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 
-JOBS = int(os.environ.get("BFIELDS_DISK_JOBS", "6"))
+JOBS = int(os.environ.get("BFIELDS_DISK_JOBS", "4"))
 PARAMS = {"max_frames": 4}
 
 

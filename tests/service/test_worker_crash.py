@@ -43,7 +43,13 @@ def stack(
     test_api_keys: dict[str, str],
     worker_env: dict[str, str],  # noqa: F811
 ) -> Iterator[PrivateStack]:
-    extra = {**SERVICE_ENV, **worker_env, "BFIELDS_RECOVERY_GRACE_S": "36000"}  # no rescue by recovery
+    extra = {
+        **SERVICE_ENV,
+        **worker_env,
+        "BFIELDS_RECOVERY_GRACE_S": "36000",  # no rescue by recovery scans
+        # the production TTL: a requeued delivery could not just outwait a short one by accident
+        "BFIELDS_STAGE_LOCK_TTL_S": "60",
+    }
     stack = PrivateStack(tmp_path_factory.mktemp("crash-stack"), s3_server.env(), dict(test_api_keys), extra)
     stack.start()
     assert stack.pool is not None

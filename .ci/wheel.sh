@@ -9,8 +9,10 @@ trap 'rm -rf "$work"' EXIT
 unset PYTHONPATH
 start=$(date +%s)
 step() {
+  local t0=$(date +%s)
   echo "+ $*"
   "$@"
+  echo "  ($(($(date +%s) - t0)) s)"
 }
 
 step python3 -m venv "$work/venv"

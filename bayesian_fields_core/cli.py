@@ -8,7 +8,6 @@ Input errors print one clear line and exit with status 2, never a traceback.
 from __future__ import annotations
 
 import argparse
-import hashlib
 import logging
 import os
 import sys
@@ -65,19 +64,6 @@ def build_params(params_file: str | None, overrides: list[str]) -> Any:
         raise InputError(f"{loc}: {first['msg']}", source="parameters") from None
 
 
-def scene_fingerprint(folder: Path) -> str:
-    """Identify a local scene by its files' names, sizes and modification times.
-
-    Cheap (no hashing of gigabytes) yet changes whenever a file is replaced; it keys the
-    perception cache of `bfields run`.
-    """
-    h = hashlib.sha256(str(folder.resolve()).encode())
-    for path in sorted(p for p in folder.rglob("*") if p.is_file() and ".bfields" not in p.parts):
-        st = path.stat()
-        h.update(f"{path.relative_to(folder)}:{st.st_size}:{st.st_mtime_ns}".encode())
-    return h.hexdigest()[:16]
-
-
 def _resolve_tasks(args: argparse.Namespace, scene_dir: Path) -> list[str]:
     from .tasks import load_tasks, normalise_tasks
 
@@ -91,10 +77,39 @@ def _resolve_tasks(args: argparse.Namespace, scene_dir: Path) -> list[str]:
     raise InputError("no tasks given: pass --tasks FILE or --task TEXT (or put a tasks.yaml in the scene)")
 
 
+def local_context(
+    scene_dir: Path,
+    out: Path,
+    cache_dir: Path,
+    tasks: list[str],
+    params: Any,
+    models: Any,
+    **options: Any,
+) -> Any:
+    """The `JobContext` of `bfields run`: the job in `out`, the caches in `cache_dir`.
+
+    Cache keys are content digests, so one cache serves every scene wherever its folder is; the
+    scene's own path reaches only the cache index, for `bfields cache ls`.
+    """
+    from .context import JobContext
+    from .store import LocalStore
+
+    return JobContext(
+        store=LocalStore(out),
+        job_prefix="",
+        tasks=tasks,
+        params=params,
+        models=models,
+        scene_store=LocalStore(cache_dir),
+        cache_prefix="",
+        scene_dir=scene_dir,
+        **options,
+    )
+
+
 def cmd_run(args: argparse.Namespace) -> int:
     from rich.console import Console
 
-    from .context import JobContext
     from .pipeline import load_models, run_job
     from .progress import StageProgress
     from .results.reader import read_result
@@ -109,23 +124,15 @@ def cmd_run(args: argparse.Namespace) -> int:
     models = load_models(args.profile, device=params.device)
     out = Path(args.out)
     cache_dir = Path(args.cache_dir) if args.cache_dir else DEFAULT_CACHE_DIR
-    fingerprint = scene_fingerprint(scene_dir)
-    if args.splat_transform:
-        # The transform moves the Gaussians, so it keys the visibility cache like the folder does.
-        try:
-            extra = Path(args.splat_transform).read_bytes()
-        except OSError as exc:
-            raise InputError(f"cannot read ({exc.strerror or exc})", source=args.splat_transform) from None
-        fingerprint = hashlib.sha256(fingerprint.encode() + extra).hexdigest()[:16]
-    ctx = JobContext(
-        store=LocalStore(out),
-        job_prefix="",
-        tasks=tasks,
-        params=params,
-        models=models,
-        scene_store=LocalStore(cache_dir),
-        scene_prefix=f"scenes/{fingerprint}/",
-        scene_dir=scene_dir,
+    # Cache keys digest the Gaussians as loaded (after any --splat-transform), so a changed
+    # transform cannot reuse stale visibility.
+    ctx = local_context(
+        scene_dir,
+        out,
+        cache_dir,
+        tasks,
+        params,
+        models,
         allow_source_path=True,
         splat_transform=Path(args.splat_transform) if args.splat_transform else None,
     )
@@ -140,6 +147,19 @@ def cmd_run(args: argparse.Namespace) -> int:
     from .report import print_result
 
     print_result(result, reports, out, json_output=args.json)
+    return 0
+
+
+def cmd_cache(args: argparse.Namespace) -> int:
+    from .cache_cmd import cache_ls, cache_prune
+
+    cache_dir = Path(args.cache_dir) if args.cache_dir else DEFAULT_CACHE_DIR
+    if args.cache_command == "ls":
+        print(cache_ls(cache_dir, json_output=args.json))
+    else:
+        if args.older_than is None and args.max_size is None:
+            raise InputError("give --older-than DUR and/or --max-size SIZE", source="cache prune")
+        print(cache_prune(cache_dir, older_than_s=args.older_than, max_size=args.max_size))
     return 0
 
 
@@ -245,6 +265,23 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
     run.set_defaults(func=cmd_run)
 
+    from .cache_cmd import parse_duration, parse_size
+
+    cache = sub.add_parser("cache", help="list or prune the local perception/visibility cache")
+    cache_sub = cache.add_subparsers(dest="cache_command", required=True)
+    cache_ls = cache_sub.add_parser("ls", help="entries (scene + profile) with size and last use")
+    cache_ls.add_argument("--json", action="store_true", help="print the entries as JSON")
+    cache_prune = cache_sub.add_parser("prune", help="drop entries least recently used first")
+    cache_prune.add_argument(
+        "--older-than", type=parse_duration, metavar="DUR", help="drop entries unused for DUR (30m, 12h, 7d)"
+    )
+    cache_prune.add_argument(
+        "--max-size", type=parse_size, metavar="SIZE", help="then keep at most SIZE (500M, 2G), LRU first"
+    )
+    for p in (cache_ls, cache_prune):
+        p.add_argument("--cache-dir", help=f"the cache folder (default {DEFAULT_CACHE_DIR})")
+    cache.set_defaults(func=cmd_cache)
+
     gen = sub.add_parser("generate", help="generate a synthetic benchmark scene")
     gen.add_argument("out")
     gen.add_argument("--seed", type=int, default=0)
@@ -333,4 +370,4 @@ if __name__ == "__main__":
     sys.exit(main())
 
 
-__all__ = ["main", "build_parser", "scene_fingerprint", "build_params"]
+__all__ = ["main", "build_parser", "build_params", "local_context"]

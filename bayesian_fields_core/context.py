@@ -102,7 +102,10 @@ class JobContext:
     store / job_prefix: where this job's artifacts go (``stages/<name>.json`` marks a finished
     stage, ``result/`` holds the result).
     scene_store / scene_prefix: where the scene's input files (``input/``) and its
-    task-independent caches (``cache/<fingerprint>/``) live; defaults to `store`.
+    task-independent caches live; defaults to `store`.
+    cache_prefix: where in `scene_store` the caches live (``perception/``, ``visibility/``,
+    ``index/`` below it); default ``<scene_prefix>cache/``. Cache keys are content digests, so one
+    cache can serve every scene (the CLI's ``~/.cache/bfields``).
     scene_dir: a local folder holding the scene; when None the input is fetched from the store.
     allow_source_path: let the loader follow a 3DGS cfg_args `source_path` outside the scene
     folder (the CLI sets it; the service never does: a job reads only its upload).
@@ -123,9 +126,13 @@ class JobContext:
     splat_transform: Path | None = None
     progress: ProgressFn = _no_progress
     should_cancel: CancelFn = _never_cancel
+    cache_prefix: str | None = None
     _scene: Scene | None = field(default=None, repr=False)
     _alignment: Any = field(default=None, repr=False)
     _alignment_done: bool = field(default=False, repr=False)
+    _perception_digests: dict[int, str] = field(default_factory=dict, repr=False)
+    _visibility_digests: dict[int, str] = field(default_factory=dict, repr=False)
+    _splat_digest: str | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         if self.scene_store is None:
@@ -144,27 +151,87 @@ class JobContext:
         return self.job_prefix + name
 
     @property
+    def cache_root(self) -> str:
+        """Prefix of the task-independent caches in `scene_store` (see `cache_index`)."""
+        return self.scene_prefix + "cache/" if self.cache_prefix is None else self.cache_prefix
+
+    @property
     def perception_prefix(self) -> str:
-        return f"{self.scene_prefix}cache/{self.perception_fingerprint}/perception/"
+        """Cached perception frames of this job's models (any scene): ``<digest>.npz`` below."""
+        return f"{self.cache_root}perception/{self.perception_fingerprint}/"
 
     @property
     def visibility_prefix(self) -> str:
-        return f"{self.scene_prefix}cache/{self.visibility_fingerprint}/visibility/"
+        """Cached mask-to-Gaussian associations made from this job's models' masks."""
+        return f"{self.cache_root}visibility/{self.perception_fingerprint}/"
 
     @property
     def perception_fingerprint(self) -> str:
+        """Segmenter + encoder identities and their parameters (the profile's model part)."""
         return _short_hash({"models": self.models.fingerprint})
 
-    @property
-    def visibility_fingerprint(self) -> str:
-        p = self.params
-        return _short_hash(
-            {
-                "perception": self.perception_fingerprint,
-                "depth_source": p.depth_source,
-                "tol": p.depth_tolerance,
-                "rel": p.depth_tolerance_relative,
-            }
+    def perception_key(self, index: int) -> str:
+        """Cache key of frame `index`'s masks and embeddings: its image content + the models."""
+        digest = self._perception_digests.get(index)
+        if digest is None:
+            from .content_keys import perception_input_digest
+
+            digest = perception_input_digest(self.scene().frames[index])
+            self._perception_digests[index] = digest
+        return f"{self.perception_prefix}{digest}.npz"
+
+    def visibility_key(self, index: int) -> str:
+        """Cache key of frame `index`'s associations: its perception key + the splat's content +
+        its camera + the depth settings."""
+        digest = self._visibility_digests.get(index)
+        if digest is None:
+            from .content_keys import visibility_input_digest
+
+            p = self.params
+            digest = visibility_input_digest(
+                self.perception_key(index),
+                self.splat_digest(),
+                self.scene().frames[index],
+                {
+                    "source": p.depth_source,
+                    "tol": p.depth_tolerance,
+                    "rel": p.depth_tolerance_relative,
+                },
+            )
+            self._visibility_digests[index] = digest
+        return f"{self.visibility_prefix}{digest}.npz"
+
+    def splat_digest(self) -> str:
+        """Content digest of the Gaussians as loaded (computed once per context)."""
+        if self._splat_digest is None:
+            from .content_keys import splat_digest
+
+            self._splat_digest = splat_digest(self.scene().gaussians)
+        return self._splat_digest
+
+    def record_cache_use(self, stage: str, keys: list[str]) -> None:
+        """Note in the cache index that this scene + profile uses `keys` (for `bfields cache`)."""
+        from .cache_index import record_use
+
+        frames = self.selected_frames()
+        for i, _ in frames:
+            self.perception_key(i)  # fills the digest memo
+        # The scene by its images' content alone (the same scene under two profiles: one id).
+        scene_id = _short_hash([self._perception_digests[i] for i, _ in frames])
+        root = self.scene_dir
+        record_use(
+            self.scene_store,  # type: ignore[arg-type]
+            self.cache_root,
+            _short_hash({"scene": scene_id, "models": self.perception_fingerprint}),
+            stage=stage,
+            keys=keys,
+            about={
+                "scene": str(Path(root).resolve()) if root is not None else self.scene_prefix,
+                "scene_id": scene_id,
+                "profile": self.models.profile_name,
+                "fingerprint": self.perception_fingerprint,
+                "frames": len(frames),
+            },
         )
 
     # ---- scene ---------------------------------------------------------------------------

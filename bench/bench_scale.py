@@ -45,6 +45,7 @@ from typing import Any
 import numpy as np
 from PIL import Image
 
+from bayesian_fields_core.content_keys import perception_input_digest
 from bayesian_fields_core.context import JobContext
 from bayesian_fields_core.eval.synthetic.cameras import look_at, pinhole
 from bayesian_fields_core.params import PipelineParams
@@ -53,7 +54,7 @@ from bayesian_fields_core.results.reader import read_result
 from bayesian_fields_core.scene.nerfstudio import write_transforms
 from bayesian_fields_core.scene.ply import write_ply
 from bayesian_fields_core.scene.types import Frame, Gaussians
-from bayesian_fields_core.stages.perceive import frame_key, smallest_label_dtype
+from bayesian_fields_core.stages.perceive import smallest_label_dtype
 from bayesian_fields_core.store import LocalStore, put_arrays
 
 EMBED_DIM = 512
@@ -118,20 +119,18 @@ def make_gaussians(n: int, grid: int, rng: np.random.Generator) -> tuple[Gaussia
 
 def make_frames(n_frames: int, width: int, height: int, images: Path) -> list[Frame]:
     """An orbit of cameras at two heights looking at the scene centre; placeholder image files
-    (the loader checks they exist; fuse and cluster never read them)."""
+    (the loader checks they exist; fuse and cluster never read them), each a different colour
+    because the perception cache is keyed on image content."""
     K = pinhole(width, height, 60.0)
     frames = []
-    placeholder = images / "placeholder.png"
-    Image.new("RGB", (8, 8)).save(placeholder)
     for i in range(n_frames):
         azimuth = 2 * np.pi * i / n_frames
         eye = np.array([3.2 * np.cos(azimuth), 3.2 * np.sin(azimuth), 1.4 if i % 2 else 1.9])
         path = images / f"frame_{i:05d}.png"
-        shutil.copyfile(placeholder, path)
+        Image.new("RGB", (8, 8), (i % 256, i // 256 % 256, i // 65536 % 256)).save(path)
         frames.append(
             Frame(f"frame_{i:05d}", K, look_at(eye, np.array([0.0, 0.0, 0.2])), width, height, path)
         )
-    placeholder.unlink()
     return frames
 
 
@@ -249,7 +248,7 @@ def setup(args: argparse.Namespace, work: Path) -> None:
         labels, mask_task = frame_labels(parts, part_task, nearest, rng)
         put_arrays(
             store,
-            frame_key(prefix, i),
+            f"{prefix}{perception_input_digest(frame)}.npz",  # JobContext.perception_key's rule
             labels=upsample(labels, frame).astype(smallest_label_dtype(len(mask_task))),
             embeddings=mask_embeddings(mask_task, basis, rng),
         )

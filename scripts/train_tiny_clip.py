@@ -1,4 +1,4 @@
-"""Train the project's tiny CLIP (``models/tiny-clip/``) on masked crops of the synthetic vocabulary.
+"""Train the project's tiny CLIP (``bayesian_fields_core/models/tiny-clip/``) on masked crops of the synthetic vocabulary.
 
 Why: tests, the demo and CI need a real image/text encoder that knows the synthetic scenes' objects
 and is small enough to commit (< 1 MB) and run on a CPU. This script renders the vocabulary's
@@ -10,7 +10,7 @@ It then fits ``calibration.json`` (mu0 from unrelated tasks, mu1 and s from righ
 held-out crops from other seeds, and writes a word-level tokenizer and ``preprocessor_config.json``
 so ``perception.hf_clip.HFClipEncoder`` loads the folder with ``local_files_only``.
 
-Usage: ``.venv/bin/python scripts/train_tiny_clip.py [--out models/tiny-clip] [--steps 1800]``.
+Usage: ``.venv/bin/python scripts/train_tiny_clip.py [--out bayesian_fields_core/models/tiny-clip] [--steps 1800]``.
 Deterministic for a given seed; about 5-12 minutes on 2 shared CPU cores (mostly rendering the crops).
 """
 
@@ -262,7 +262,7 @@ def save(
 
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--out", default="models/tiny-clip")
+    p.add_argument("--out", default="bayesian_fields_core/models/tiny-clip")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--steps", type=int, default=1800)
     p.add_argument("--batch", type=int, default=128)

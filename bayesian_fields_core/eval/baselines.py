@@ -24,7 +24,6 @@ from ..context import JobContext
 from ..objects.primitives import PrimitiveBuilder
 from ..objects.probabilities import membership_matrix
 from ..stages.cluster import ObjectMap, objects_from_primitives
-from ..stages.perceive import frame_key
 from ..store import get_arrays
 
 
@@ -53,8 +52,8 @@ def averaged_embeddings(ctx: JobContext) -> tuple[np.ndarray, np.ndarray, Primit
     counts = np.zeros(n, dtype=np.int64)
     builder = PrimitiveBuilder(n)
     for index, _frame in ctx.selected_frames():
-        emb = get_arrays(store, frame_key(ctx.perception_prefix, index))["embeddings"].astype(np.float32)
-        vis = get_arrays(store, frame_key(ctx.visibility_prefix, index))
+        emb = get_arrays(store, ctx.perception_key(index))["embeddings"].astype(np.float32)
+        vis = get_arrays(store, ctx.visibility_key(index))
         g = vis["gaussian_ids"].astype(np.int64)
         m = vis["mask_ids"].astype(np.int64)
         if sums is None:

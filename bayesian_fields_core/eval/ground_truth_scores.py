@@ -28,7 +28,6 @@ from ..context import JobContext
 from ..errors import InputError
 from ..params import PipelineParams
 from ..pipeline import load_models, run_stage
-from ..stages.perceive import frame_key
 from ..store import LocalStore, get_arrays
 from .synthetic import load_ground_truth
 
@@ -94,10 +93,10 @@ def scene_scores(
     pos: list[np.ndarray] = []
     neg: list[np.ndarray] = []
     for index, _frame in ctx.selected_frames():
-        embeddings = get_arrays(cache, frame_key(ctx.perception_prefix, index))["embeddings"]
+        embeddings = get_arrays(cache, ctx.perception_key(index))["embeddings"]
         if embeddings.shape[0] == 0:
             continue
-        vis = get_arrays(cache, frame_key(ctx.visibility_prefix, index))
+        vis = get_arrays(cache, ctx.visibility_key(index))
         emb = embeddings.astype(np.float32)
         emb /= np.maximum(np.linalg.norm(emb, axis=1, keepdims=True), 1e-12)
         scores = emb @ text.T

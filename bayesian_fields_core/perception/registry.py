@@ -21,6 +21,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+from importlib import resources
 from pathlib import Path
 from typing import Any, Literal
 
@@ -135,9 +136,15 @@ def load_profile(source: str | Path | dict[str, Any], *, base_dir: str | Path | 
 
 
 def default_profile_path() -> Path:
-    """``$BFIELDS_DEFAULT_PROFILE`` or the repository's ``models/profiles/default.yaml``."""
+    """``$BFIELDS_DEFAULT_PROFILE`` or the package's ``bayesian_fields_core/models/profiles/default.yaml``.
+
+    The profile and the tiny CLIP it names are package data, so a wheel install (not only an
+    editable checkout) finds them; the profile's relative paths resolve against its real folder.
+    """
     env = os.environ.get(DEFAULT_PROFILE_ENV)
-    return Path(env) if env else Path(__file__).resolve().parents[2] / "models" / "profiles" / "default.yaml"
+    if env:
+        return Path(env)
+    return Path(str(resources.files("bayesian_fields_core").joinpath("models", "profiles", "default.yaml")))
 
 
 def default_profile() -> ModelProfile:

@@ -26,7 +26,6 @@ from ..results.format import Result, SelectedObject, task_scores
 from ..store import get_arrays
 from .fuse import ACCEPTED_KEY, FUSION_KEY
 from .markers import write_marker
-from .perceive import frame_key
 
 RESULT_PREFIX = "result/"
 
@@ -217,7 +216,7 @@ def build_primitives(ctx: JobContext) -> np.ndarray:
     offsets = np.concatenate([[0], np.cumsum(accepted["mask_counts"])])
     builder = PrimitiveBuilder(len(ctx.scene().gaussians))
     for n, index in enumerate(accepted["frame_indices"]):
-        vis = get_arrays(scene_store, frame_key(ctx.visibility_prefix, int(index)))
+        vis = get_arrays(scene_store, ctx.visibility_key(int(index)))
         builder.add_frame(
             vis["gaussian_ids"].astype(np.int64),
             vis["mask_ids"].astype(np.int64),

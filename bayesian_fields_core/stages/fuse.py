@@ -1,8 +1,9 @@
 """Stage 2, `fuse`: visibility of Gaussians per mask, then the Bayesian update (METHOD steps 3-5).
 
 Two halves with different lifetimes:
-- mask-to-Gaussian associations depend only on the scene, the masks and the depth settings, so
-  they are cached per scene (the renderer runs once per frame, ever, for a given setting);
+- mask-to-Gaussian associations depend only on the splat, the camera, the masks and the depth
+  settings, so they are cached under a digest of those (the renderer runs once per frame, ever,
+  for a given setting);
 - the update depends on the task list: it is cheap (one scatter-add per frame) and always re-run.
 
 Outputs (job artifacts): per-Gaussian task probabilities and the per-mask acceptance flags that
@@ -25,7 +26,6 @@ from ..fusion.visibility import mask_associations
 from ..scene.images import load_depth
 from ..store import get_arrays, put_arrays
 from .markers import write_marker
-from .perceive import frame_key
 
 FUSION_KEY = "fusion/gaussian_probabilities.npz"
 ACCEPTED_KEY = "fusion/accepted_masks.npz"
@@ -60,7 +60,7 @@ def associations(ctx: JobContext, index: int, frame: Any, labels: np.ndarray, re
     """(gaussian_ids, mask_ids) of one frame, from the scene cache or computed and cached."""
     store = ctx.scene_store
     assert store is not None
-    key = frame_key(ctx.visibility_prefix, index)
+    key = ctx.visibility_key(index)
     if store.exists(key):
         cached = get_arrays(store, key)
         return cached["gaussian_ids"], cached["mask_ids"], False
@@ -101,6 +101,7 @@ def run(ctx: JobContext) -> dict[str, Any]:
     logodds = init_logodds(len(gaussians), n_tasks, ctx.params.prior)
     averaging = None if use_bayes else CosineAverager(len(gaussians), n_tasks)
 
+    ctx.record_cache_use("fuse", [ctx.visibility_key(index) for index, _ in frames])
     renderer = None
 
     def renderer_factory():
@@ -116,7 +117,7 @@ def run(ctx: JobContext) -> dict[str, Any]:
     rendered = 0
     for n, (index, frame) in enumerate(frames):
         ctx.check_cancel()
-        perception = get_arrays(scene_store, frame_key(ctx.perception_prefix, index))
+        perception = get_arrays(scene_store, ctx.perception_key(index))
         labels = perception["labels"].astype(np.int32)
         embeddings = perception["embeddings"].astype(np.float32)
         gaussian_ids, mask_ids, was_rendered = associations(ctx, index, frame, labels, renderer_factory)

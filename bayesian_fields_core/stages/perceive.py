@@ -1,8 +1,9 @@
 """Stage 1, `perceive`: segment every frame and embed each mask with CLIP (METHOD steps 1-2).
 
-Outputs are task-independent, so they are cached per scene under the perception fingerprint
-(models + parameters): re-running a scene with a new task list skips this stage's work entirely.
-Frames already in the cache are skipped one by one, so a crashed stage resumes where it stopped.
+Outputs are task-independent, so each frame is cached under its image's content digest and the
+perception fingerprint (models + parameters): re-running a scene with a new task list, from another
+folder, or with one image changed recomputes only the frames whose pixels changed. Frames already
+in the cache are skipped one by one, so a crashed stage resumes where it stopped.
 The stage starts with the alignment check (`scene/alignment.py`): a splat that does not line up
 with its cameras fails the job here, with a one-line reason, before any frame is segmented.
 """
@@ -19,10 +20,6 @@ from ..perception.crops import embed_masks
 from ..scene.images import load_image
 from ..store import put_arrays
 from .markers import write_marker
-
-
-def frame_key(prefix: str, index: int) -> str:
-    return f"{prefix}frame_{index:05d}.npz"
 
 
 def smallest_label_dtype(n_masks: int) -> np.dtype:
@@ -54,9 +51,11 @@ def run(ctx: JobContext) -> dict[str, Any]:
     masks_total = 0
     seg_time = embed_time = 0.0
     t0 = time.perf_counter()
-    for n, (index, frame) in enumerate(frames):
+    keys = [ctx.perception_key(index) for index, _ in frames]
+    hash_seconds = time.perf_counter() - t0
+    ctx.record_cache_use("perceive", keys)
+    for n, ((_, frame), key) in enumerate(zip(frames, keys, strict=True)):
         ctx.check_cancel()
-        key = frame_key(ctx.perception_prefix, index)
         if not store.exists(key):
             if segmenter is None:
                 segmenter, encoder = ctx.models.segmenter, ctx.models.encoder
@@ -87,6 +86,7 @@ def run(ctx: JobContext) -> dict[str, Any]:
             "masks_computed": masks_total,
             "segment_seconds": seg_time,
             "embed_seconds": embed_time,
+            "hash_seconds": hash_seconds,
             "cache_prefix": ctx.perception_prefix,
             "alignment": None if alignment is None else alignment_summary(alignment),
         },

@@ -18,6 +18,7 @@ from bayesian_fields_core.perception.onnx_clip import OnnxClipEncoder
 from bayesian_fields_core.perception.onnx_export import export_clip_onnx
 
 REPO = Path(__file__).resolve().parents[2]
+MODELS = REPO / "bayesian_fields_core" / "models"  # the shipped profiles and tiny CLIP (package data)
 
 
 def _profile_dir(tmp_path: Path, tiny_clip_dir: Path, **segmenter_params: object) -> Path:
@@ -125,11 +126,11 @@ def test_inline_calibration_and_validation_errors(tmp_path: Path) -> None:
 def test_bundled_profiles(monkeypatch: pytest.MonkeyPatch, tmp_path: Path, tiny_clip_dir: Path) -> None:
     prof = registry.default_profile()
     assert prof.segmenter.kind == "classical" and prof.encoder.kind == "hf_clip"
-    assert Path(prof.encoder.path) == REPO / "models" / "tiny-clip"
+    assert Path(prof.encoder.path) == MODELS / "tiny-clip"
     assert prof.calibration is not None and prof.calibration.path == str(
-        REPO / "models/tiny-clip/calibration.json"
+        MODELS / "tiny-clip/calibration.json"
     )
-    example = registry.load_profile(REPO / "models" / "profiles" / "fastsam-clip-vitb16.yaml")
+    example = registry.load_profile(MODELS / "profiles" / "fastsam-clip-vitb16.yaml")
     assert example.segmenter.kind == "fastsam" and example.segmenter.params["weights"].endswith(".pt")
     # The environment variable points the default elsewhere.
     models = _profile_dir(tmp_path, tiny_clip_dir)
@@ -137,9 +138,7 @@ def test_bundled_profiles(monkeypatch: pytest.MonkeyPatch, tmp_path: Path, tiny_
     assert registry.default_profile().name == "test"
 
 
-@pytest.mark.skipif(
-    not (REPO / "models" / "tiny-clip" / "config.json").is_file(), reason="tiny-clip not built yet"
-)
+@pytest.mark.skipif(not (MODELS / "tiny-clip" / "config.json").is_file(), reason="tiny-clip not built yet")
 def test_bundled_default_profile_builds() -> None:
     prof = registry.default_profile()
     enc = registry.build_encoder(prof)

@@ -38,7 +38,7 @@ REPO = Path(__file__).resolve().parents[2]
 def model_profile(tmp_path_factory: pytest.TempPathFactory) -> str | None:
     """None (the bundled default profile) when the repository's tiny CLIP exists, else a profile
     around a random tiny CLIP made for this session."""
-    if (REPO / "models" / "tiny-clip" / "config.json").is_file():
+    if (REPO / "bayesian_fields_core" / "models" / "tiny-clip" / "config.json").is_file():
         return None
     from tests.perception.conftest import make_tiny_clip
 

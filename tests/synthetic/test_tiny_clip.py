@@ -12,7 +12,7 @@ from bayesian_fields_core.eval.vocabulary import BACKGROUND_KINDS, COLOURS, KIND
 from bayesian_fields_core.fusion.calibration import load_calibration
 from bayesian_fields_core.perception.hf_clip import HFClipEncoder, hf_clip_model_id
 
-MODEL = Path(__file__).resolve().parents[2] / "models" / "tiny-clip"
+MODEL = Path(__file__).resolve().parents[2] / "bayesian_fields_core" / "models" / "tiny-clip"
 HELD_OUT_SEED = 987_654  # training uses seeds 0 and 1000
 
 

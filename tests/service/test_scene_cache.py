@@ -52,7 +52,9 @@ def _s3_env(s3: S3Server) -> dict:
 
 def test_concurrent_processes_share_one_download(s3_server: S3Server, tmp_path: Path) -> None:
     scene_id, _ = _scene(s3_server, "tenant-a")
-    ctx = mp.get_context("fork")
+    # spawn, not fork: the test process holds threads (boto3, torch) by the time this runs in the
+    # full suite, and a forked child can inherit one of their locks held, then hang forever.
+    ctx = mp.get_context("spawn")
     out: mp.Queue = ctx.Queue()
     procs = [
         ctx.Process(
@@ -62,10 +64,10 @@ def test_concurrent_processes_share_one_download(s3_server: S3Server, tmp_path: 
     ]
     for p in procs:
         p.start()
+    results = [out.get(timeout=120) for _ in procs]
     for p in procs:
         p.join(60)
         assert p.exitcode == 0
-    results = [out.get(timeout=5) for _ in procs]
     assert len({r[0] for r in results}) == 1 and len({r[1] for r in results}) == 1  # one copy, one publish
     assert {r[2] for r in results} == {SIZE - 100}
     entries = [p for p in tmp_path.iterdir() if not p.name.startswith(".")]

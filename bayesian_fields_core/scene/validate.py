@@ -11,24 +11,38 @@ from collections import Counter
 from pathlib import Path
 from typing import Any
 
+from bayesian_fields_core.errors import InputError, input_boundary
 from bayesian_fields_core.scene.images import check_image, load_depth
 from bayesian_fields_core.scene.loader import find_splat, load_frames
-from bayesian_fields_core.scene.ply import DEFAULT_MAX_GAUSSIANS, read_ply
+from bayesian_fields_core.scene.ply import DEFAULT_MAX_GAUSSIANS, read_ply, read_ply_header
+from bayesian_fields_core.scene.sanity import splat_warnings
 
 
 def validate_scene_folder(
-    folder: str | Path, *, max_gaussians: int = DEFAULT_MAX_GAUSSIANS
+    folder: str | Path, *, max_gaussians: int = DEFAULT_MAX_GAUSSIANS, max_frames: int | None = None
 ) -> dict[str, Any]:
     """Validate a scene folder and summarise it; raises InputError on the first problem found.
 
+    Cheap checks come first so a hostile upload costs little: the splat header (counts), the
+    camera file (every path inside the folder, every file present) and the frame count against
+    `max_frames`, all before the splat body is read or one image is decoded.
+
     Returns {splat, gaussians, sh_degree, camera_format, camera_file, frames, image_size
     ([w, h] of the most common size), image_sizes (all distinct sizes), distorted_frames,
-    depth_frames}; paths are relative to the folder.
+    depth_frames, warnings (see `scene.sanity`)}; paths are relative to the folder.
     """
     folder = Path(folder)
+    with input_boundary(str(folder), what="cannot validate the scene"):
+        return _validate(folder, max_gaussians, max_frames)
+
+
+def _validate(folder: Path, max_gaussians: int, max_frames: int | None) -> dict[str, Any]:
     splat = find_splat(folder)
-    gaussians = read_ply(splat, max_gaussians=max_gaussians)
+    read_ply_header(splat, max_gaussians=max_gaussians)
     kind, camera_path, frames = load_frames(folder)
+    if max_frames is not None and len(frames) > max_frames:
+        raise InputError(f"{len(frames)} frames; at most {max_frames} are allowed", source=str(camera_path))
+    gaussians = read_ply(splat, max_gaussians=max_gaussians)
     for frame in frames:
         check_image(frame)
         load_depth(frame)
@@ -44,4 +58,5 @@ def validate_scene_folder(
         "image_sizes": sorted(list(s) for s in sizes),
         "distorted_frames": sum(1 for f in frames if f.distortion),
         "depth_frames": sum(1 for f in frames if f.depth_path is not None),
+        "warnings": splat_warnings(gaussians),
     }

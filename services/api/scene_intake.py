@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.errors import InputError, input_boundary
 from bayesian_fields_core.store import Store
 
 from .archives import ArchiveLimits, extract_archive, is_archive_name
@@ -67,7 +67,15 @@ def _camera_files(files: Sequence[UploadedFile]) -> list[UploadedFile]:
 
 
 def assemble_scene(files: Sequence[UploadedFile], scene_dir: Path, limits: ArchiveLimits) -> None:
-    """Lay the uploaded files out as a scene folder (files are moved, archives extracted)."""
+    """Lay the uploaded files out as a scene folder (files are moved, archives extracted).
+
+    Any failure to lay a file out (a name the filesystem refuses, ...) is the upload's fault:
+    InputError, so a 4xx."""
+    with input_boundary("upload", what="cannot lay out the uploaded files"):
+        _assemble(files, scene_dir, limits)
+
+
+def _assemble(files: Sequence[UploadedFile], scene_dir: Path, limits: ArchiveLimits) -> None:
     splat = _one_splat(files)
     cams = _camera_files(files)
     images = [f for f in files if f.role == "images"]
@@ -106,13 +114,18 @@ def assemble_scene(files: Sequence[UploadedFile], scene_dir: Path, limits: Archi
 def validate_scene(scene_dir: Path, *, max_gaussians: int, max_frames: int) -> dict[str, Any]:
     """Run the core validator and the service's size limits; returns the validation summary.
 
-    Messages name files relative to the scene folder, never the API's temp paths."""
+    Messages name files relative to the scene folder, never the API's temp paths (the loaders
+    report resolved paths, so the resolved folder is stripped too). The frame limit is checked
+    by the validator before any image is decoded."""
     from bayesian_fields_core.scene.validate import validate_scene_folder
 
     try:
-        summary = validate_scene_folder(scene_dir, max_gaussians=max_gaussians)
+        summary = validate_scene_folder(scene_dir, max_gaussians=max_gaussians, max_frames=max_frames)
     except InputError as exc:
-        raise InputError(str(exc).replace(f"{scene_dir}/", "").replace(str(scene_dir), "<scene>")) from None
+        message = str(exc)
+        for folder in {str(scene_dir.resolve()), str(scene_dir)}:
+            message = message.replace(f"{folder}/", "").replace(folder, "<scene>")
+        raise InputError(message) from None
     gaussians = summary.get("gaussians", summary.get("num_gaussians"))
     if isinstance(gaussians, int) and gaussians > max_gaussians:
         raise InputError(f"{gaussians} Gaussians; at most {max_gaussians} are allowed", source="splat")

@@ -10,7 +10,7 @@ MIN_CASES="${BFIELDS_FUZZ_MIN_CASES:-10000}"
 log="$(mktemp)"
 trap 'rm -f "$log"' EXIT
 set +e
-timeout "${BFIELDS_FUZZ_TIMEOUT_S:-420}" .venv/bin/python -m pytest -q -p no:cacheprovider -m fuzz \
+timeout "${BFIELDS_FUZZ_TIMEOUT_S:-480}" .venv/bin/python -m pytest -q -p no:cacheprovider -m fuzz \
   -W ignore::UserWarning tests/fuzz 2>&1 | tee "$log"
 status=${PIPESTATUS[0]}
 set -e

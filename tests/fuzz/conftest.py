@@ -1,4 +1,4 @@
-"""Fuzz-suite plumbing: the `fuzz` marker on every test here, the case budget, the case count.
+"""Fuzz-suite plumbing: the case budget and the case count (each module sets `pytestmark` fuzz).
 
 `BFIELDS_FUZZ_SCALE` scales every test's CI budget (`budget(n)` examples): unset, a normal
 `pytest -q` run takes a 1 % sample (at least 5 cases a test) so the suite stays quick; `.ci/fuzz.sh`
@@ -11,7 +11,6 @@ from __future__ import annotations
 import os
 from collections import Counter
 
-import pytest
 from hypothesis import HealthCheck, settings
 
 from tests.service.conftest import *  # noqa: F403 - the real-stack fixtures for the API fuzz tests
@@ -34,12 +33,6 @@ def budget(ci_examples: int) -> settings:
 
 def count(name: str) -> None:
     CASES[name] += 1
-
-
-def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    for item in items:
-        if "tests/fuzz/" in str(item.fspath).replace("\\", "/"):
-            item.add_marker(pytest.mark.fuzz)
 
 
 def pytest_terminal_summary(terminalreporter) -> None:  # noqa: ANN001

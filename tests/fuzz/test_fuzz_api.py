@@ -20,7 +20,7 @@ from hypothesis import strategies as st
 from . import strategies as fz
 from .conftest import budget, count
 
-pytestmark = pytest.mark.integration
+pytestmark = [pytest.mark.integration, pytest.mark.fuzz]
 
 CAMERA_NAMES = st.sampled_from(
     ["transforms.json", "cameras.json", "cameras.txt", "images.txt", "cameras.bin", "images.bin", "x.json"]

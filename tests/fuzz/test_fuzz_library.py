@@ -7,12 +7,14 @@ Budgets (full CI run, `BFIELDS_FUZZ_SCALE=1`) are the numbers passed to `budget`
 from __future__ import annotations
 
 import hashlib
+import io
 import tempfile
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
+import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 from PIL import Image
@@ -31,6 +33,8 @@ from services.api.archives import ArchiveLimits, extract_archive
 from . import strategies as fz
 from .conftest import budget, count
 
+pytestmark = pytest.mark.fuzz
+
 ARCHIVE_LIMITS = ArchiveLimits(max_members=20, max_bytes=4096)
 
 
@@ -48,8 +52,18 @@ def _snapshot(folder: Path) -> dict[str, str]:
     return out
 
 
+def _png(colour: tuple[int, int, int]) -> bytes:
+    buf = io.BytesIO()
+    Image.new("RGB", fz.IMAGE_SIZE, colour).save(buf, format="PNG")
+    return buf.getvalue()
+
+
+IMAGE_BYTES = _png((9, 9, 9))
+SECRET_BYTES = _png((0, 0, 0))
+
+
 @contextmanager
-def workspace() -> Iterator[tuple[Path, Path]]:
+def workspace(*, images: bool = True) -> Iterator[tuple[Path, Path]]:
     """(scene folder with two real images and a valid splat, a host folder beside it).
 
     On exit both must be exactly as they were when the caller finished writing its inputs,
@@ -59,9 +73,9 @@ def workspace() -> Iterator[tuple[Path, Path]]:
         scene, host = root / "scene", root / "host"
         (scene / "images").mkdir(parents=True)
         host.mkdir()
-        for name in fz.IMAGE_NAMES:
-            Image.new("RGB", fz.IMAGE_SIZE, (9, 9, 9)).save(scene / "images" / name)
-        Image.new("RGB", fz.IMAGE_SIZE).save(host / "secret.png")  # a host file worth stealing
+        for name in fz.IMAGE_NAMES if images else ():
+            (scene / "images" / name).write_bytes(IMAGE_BYTES)
+        (host / "secret.png").write_bytes(SECRET_BYTES)  # a host file worth stealing
         yield scene, host
 
 
@@ -84,25 +98,30 @@ def _inside(frames, folder: Path) -> None:
             assert p is None or Path(p).resolve().is_relative_to(base), (p, base)
 
 
-def _tiny_splat(path: Path) -> None:
+def _tiny_splat_bytes() -> bytes:
     n = 4
-    write_ply(
-        path,
-        Gaussians(
-            means=np.arange(3 * n, dtype=np.float32).reshape(n, 3),
-            log_scales=np.full((n, 3), -2.0, np.float32),
-            quats=np.tile(np.array([1, 0, 0, 0], np.float32), (n, 1)),
-            opacity_logits=np.zeros(n, np.float32),
-            sh=np.zeros((n, 1, 3), np.float32),
-        ),
-    )
+    with tempfile.TemporaryDirectory() as tmp:
+        write_ply(
+            Path(tmp) / "s.ply",
+            Gaussians(
+                means=np.arange(3 * n, dtype=np.float32).reshape(n, 3),
+                log_scales=np.full((n, 3), -2.0, np.float32),
+                quats=np.tile(np.array([1, 0, 0, 0], np.float32), (n, 1)),
+                opacity_logits=np.zeros(n, np.float32),
+                sh=np.zeros((n, 1, 3), np.float32),
+            ),
+        )
+        return (Path(tmp) / "s.ply").read_bytes()
+
+
+SPLAT_BYTES = _tiny_splat_bytes()
 
 
 @budget(3000)
 @given(blob=fz.ply_files())
 def test_fuzz_ply(blob: bytes) -> None:
     count("library: PLY header + body -> read_ply")
-    with workspace() as (scene, host):
+    with workspace(images=False) as (scene, host):
         (scene / "splat.ply").write_bytes(blob)
         g = checked(scene, host, lambda: read_ply(scene / "splat.ply"))
         if g is not None:
@@ -110,7 +129,7 @@ def test_fuzz_ply(blob: bytes) -> None:
 
 
 def _camera_case(scene: Path, host: Path, reader: Callable[[], list]) -> None:
-    _tiny_splat(scene / "splat.ply")
+    (scene / "splat.ply").write_bytes(SPLAT_BYTES)
     frames = checked(scene, host, reader)
     if frames is not None:
         _inside(frames, scene)

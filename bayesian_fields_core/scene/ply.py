@@ -182,8 +182,8 @@ def read_ply_header(path: str | Path, *, max_gaussians: int = DEFAULT_MAX_GAUSSI
 
     Checks: PLY magic, a `vertex` element of scalar properties, every required property present
     and float-typed, an f_rest count meaning SH degree 0..3, the vertex count within
-    `max_gaussians` and above 0, and (binary) the file exactly as long as the declared rows
-    (shorter: truncated; longer: the count does not match the body). Reads only the header.
+    `max_gaussians` and above 0, and (binary) the file as long as the declared rows (shorter:
+    truncated; a row or more longer: the count does not match the body). Reads only the header.
     """
     with input_boundary(str(path), what="cannot read PLY header"):
         return _read_ply_header(Path(path), max_gaussians)
@@ -254,7 +254,9 @@ def _read_ply_header(path: Path, max_gaussians: int) -> PlyHeader:
         declared = needed + sum(
             c * np.dtype([(p[0], order + p[1]) for p in ps]).itemsize for _, c, ps in after
         )
-        if available > declared:
+        # A few stray bytes (a trailing newline some writers add) are tolerated; a whole row or
+        # more means the vertex count is smaller than the data.
+        if available - declared >= stride:
             raise _fail(
                 path,
                 f"the body is {available - declared} bytes longer than the header declares "

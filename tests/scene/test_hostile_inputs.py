@@ -46,6 +46,13 @@ def test_body_longer_than_the_header_count_is_refused(tmp_path: Path, ascii: boo
     assert "the vertex count does not match the data" in _message(read_ply, path)
 
 
+def test_a_few_stray_trailing_bytes_are_tolerated(tmp_path: Path) -> None:
+    path = tmp_path / "newline.ply"
+    write_ply(path, random_gaussians(10, 0, extra=False))
+    path.write_bytes(path.read_bytes() + b"\n")
+    assert len(read_ply(path)) == 10
+
+
 def test_body_shorter_than_the_header_count_is_refused(tmp_path: Path) -> None:
     path = tmp_path / "short.ply"
     write_ply(path, random_gaussians(10, 0, extra=False))

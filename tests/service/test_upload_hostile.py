@@ -170,3 +170,30 @@ def test_good_upload_still_works(client_a: httpx.Client, scene_dir: Path) -> Non
     resp = client_a.post("/v1/scenes", files=scene_form(scene_dir, images_zip=image_zip(scene_dir)))
     assert resp.status_code == 201, resp.text
     assert resp.json()["summary"]["warnings"] == []
+
+
+def test_presigned_upload_naming_a_host_file_never_becomes_a_job(
+    client_a: httpx.Client, scene_dir: Path, host_files: dict
+) -> None:
+    """The presigned path runs the same checks at /complete: refused, the scene stays unready, so
+    no job (and no worker) can ever be pointed at the host file."""
+    doc = json.loads((scene_dir / "transforms.json").read_text())
+    doc["frames"][0]["file_path"] = str(host_files["image"])
+    files = {
+        ("splat", "splat.ply"): (scene_dir / "splat.ply").read_bytes(),
+        ("cameras", "transforms.json"): json.dumps(doc).encode(),
+        ("images", "images.zip"): image_zip(scene_dir),
+    }
+    specs = [{"field": f, "name": n, "size": len(data)} for (f, n), data in files.items()]
+    plan = client_a.post("/v1/scenes/uploads", json={"files": specs})
+    assert plan.status_code == 201, plan.text
+    for up in plan.json()["uploads"]:
+        assert (
+            httpx.put(up["part_urls"][0], content=files[(up["field"], up["name"])], timeout=30).status_code
+            == 200
+        )
+    scene_id = plan.json()["scene_id"]
+    done = client_a.post(f"/v1/scenes/{scene_id}/complete")
+    assert done.status_code == 422 and "is absolute" in done.json()["detail"], done.text
+    assert client_a.get(f"/v1/scenes/{scene_id}").json()["state"] == "uploading"
+    assert client_a.post("/v1/jobs", json={"scene_id": scene_id, "tasks": ["get mug"]}).status_code == 409

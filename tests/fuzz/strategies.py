@@ -12,6 +12,7 @@ from __future__ import annotations
 import io
 import json
 import math
+import random
 import struct
 import tarfile
 import zipfile
@@ -71,6 +72,13 @@ path_names = st.one_of(
 )
 
 
+def rare(draw, p: float = 0.15) -> bool:
+    """True with probability `p`. Hypothesis favours boundary values (0, the first choice), so a
+    gate like `integers(0, 9) == 0` fires far more often than 1 in 10 (so do `st.randoms()`); a
+    `random.Random` seeded from a drawn integer does not."""
+    return random.Random(draw(st.integers(0, 2**32 - 1))).random() < p
+
+
 def flip_bytes(data: bytes, draw) -> bytes:
     """Overwrite, delete, insert or truncate a few bytes of `data`."""
     blob = bytearray(data)
@@ -105,7 +113,7 @@ def ply_files(draw) -> bytes:
     props = [(n, "float") for n in REQUIRED_PROPS] + [(f"f_rest_{i}", "float") for i in range(rest)]
     if draw(st.booleans()):
         props += [(n, draw(st.sampled_from(PLY_TYPES[:7]))) for n in ("nx", "ny", "nz")]
-    for _ in range(draw(st.integers(0, 3))):  # mutate the property list
+    for _ in range(draw(st.integers(1, 3)) if rare(draw, 0.4) else 0):  # mutate the property list
         op = draw(st.sampled_from(["drop", "retype", "dup", "add"]))
         i = draw(st.integers(0, len(props) - 1))
         if op == "drop":
@@ -116,27 +124,27 @@ def ply_files(draw) -> bytes:
             props.append(props[i])
         else:
             props.append((draw(st.from_regex(r"[a-z_][a-z0-9_]{0,8}", fullmatch=True)), "float"))
-    n = draw(st.one_of(st.integers(0, 6), st.sampled_from([10**9, 2**63, 10**40])))
+    n = draw(st.sampled_from([0, 10**9, 2**63, 10**40])) if rare(draw, 0.1) else draw(st.integers(1, 6))
     lines = ["ply", f"format {fmt} 1.0"]
-    if draw(st.booleans()):
+    if rare(draw, 0.2):
         lines.append(f"element face {draw(st.integers(0, 3))}")
         lines.append("property list uchar int vertex_indices" if draw(st.booleans()) else "property float q")
     lines.append(f"element vertex {n}")
     for name, t in props:
         lines.append(f"property list uchar float {name}" if t == "list" else f"property {t} {name}")
-    if draw(st.booleans()):
+    if rare(draw, 0.2):
         lines.append(f"element extra {draw(st.integers(0, 3))}")
         lines.append("property float e")
     lines.append("end_header")
     header = "\n".join(lines) + "\n"
-    if draw(st.integers(0, 9)) == 0:
+    if rare(draw, 0.05):
         header = header.replace("end_header", draw(st.sampled_from(["", "end_headr", "end_header extra"])))
     rows = n if n <= 6 else 2
-    count = max(len(props) * (rows + draw(st.integers(-1, 2))), 0)
+    count = max(len(props) * (rows + (draw(st.sampled_from([-1, 1, 2])) if rare(draw, 0.3) else 0)), 0)
     # Values from a drawn seed (fast) with special values injected at drawn positions.
     rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
-    values = rng.normal(0.0, draw(st.sampled_from([1.0, 1e3, 1e30])), count).astype(np.float64)
-    for _ in range(draw(st.integers(0, 3))):
+    values = rng.normal(0.0, draw(st.sampled_from([1e3, 1e30])) if rare(draw, 0.2) else 1.0, count)
+    for _ in range(draw(st.integers(1, 3)) if rare(draw, 0.3) else 0):
         if count:
             values[draw(st.integers(0, count - 1))] = draw(SPECIAL_FLOATS)
     if fmt == "ascii":
@@ -150,7 +158,7 @@ def ply_files(draw) -> bytes:
         with np.errstate(over="ignore"):
             body = values.astype(order + "f4").tobytes()
     blob = header.encode("ascii", "replace") + body
-    if draw(st.integers(0, 3)) == 0:
+    if rare(draw, 0.2):
         blob = flip_bytes(blob, draw)
     return blob
 
@@ -167,7 +175,7 @@ def _rigid(draw) -> list[list[float]]:
 
 def _maybe(draw, good, bad=json_values):
     """`good` most of the time, a hostile value sometimes."""
-    return draw(bad) if draw(st.integers(0, 5)) == 0 else good
+    return draw(bad) if rare(draw, 0.08) else good
 
 
 @st.composite
@@ -189,8 +197,9 @@ def transforms_docs(draw) -> bytes:
     for key in draw(st.lists(st.sampled_from(list(top)), max_size=2)):
         top.pop(key, None)
     frames = []
-    for _ in range(draw(st.integers(0, 3))):
-        entry = {"file_path": _maybe(draw, draw(path_names)), "transform_matrix": _maybe(draw, _rigid(draw))}
+    for _ in range(draw(st.integers(1, 3)) if not rare(draw, 0.05) else 0):
+        name = draw(path_names) if rare(draw, 0.3) else "images/" + draw(st.sampled_from(IMAGE_NAMES))
+        entry = {"file_path": name, "transform_matrix": _maybe(draw, _rigid(draw))}
         for key in draw(st.lists(st.sampled_from(["depth_file_path", "mask_path", "fl_x", "w"]), max_size=2)):
             entry[key] = draw(st.one_of(path_names, numbers)) if key.endswith("path") else draw(numbers)
         frames.append(_maybe(draw, entry))
@@ -203,11 +212,13 @@ def cameras_json_docs(draw) -> bytes:
     """An INRIA cameras.json list with mutated entries."""
     w, h = IMAGE_SIZE
     entries = []
-    for i in range(draw(st.integers(0, 3))):
+    for i in range(draw(st.integers(1, 3)) if not rare(draw, 0.05) else 0):
         rigid = _rigid(draw)
         entry = {
             "id": i,
-            "img_name": _maybe(draw, draw(path_names).removesuffix(".png")),
+            "img_name": (
+                draw(path_names) if rare(draw, 0.3) else draw(st.sampled_from(IMAGE_NAMES))
+            ).removesuffix(".png"),
             "width": _maybe(draw, w, numbers),
             "height": _maybe(draw, h, numbers),
             "position": _maybe(draw, [r[3] for r in rigid[:3]]),
@@ -223,7 +234,7 @@ def cameras_json_docs(draw) -> bytes:
 
 def _encode(draw, doc) -> bytes:
     text = json.dumps(doc, allow_nan=True)
-    choice = draw(st.integers(0, 9))
+    choice = draw(st.sampled_from([0, 1, 2])) if rare(draw, 0.15) else 3
     if choice == 0:
         depth = draw(st.sampled_from([10, 1000, 100_000]))
         text = "[" * depth + text + "]" * depth  # past the recursion limit
@@ -238,20 +249,23 @@ def colmap_text_models(draw) -> tuple[bytes, bytes]:
     """(cameras.txt, images.txt) with valid-looking lines, mutated tokens and junk lines."""
     w, h = IMAGE_SIZE
     cams, imgs = ["# cameras"], ["# images"]
-    for cid in range(1, draw(st.integers(0, 3)) + 1):
-        model, nparams = draw(st.sampled_from(list(MODELS.values()) + [("BOGUS", 2)]))
-        params = [
-            repr(draw(numbers)) if draw(st.integers(0, 4)) == 0 else "10"
-            for _ in range(nparams + draw(st.integers(-1, 1)))
-        ]
+    for cid in range(1, (0 if rare(draw, 0.05) else draw(st.integers(1, 3))) + 1):
+        model, nparams = (
+            draw(st.sampled_from(list(MODELS.values()) + [("BOGUS", 2)]))
+            if rare(draw, 0.2)
+            else draw(st.sampled_from([("PINHOLE", 4), ("SIMPLE_PINHOLE", 3), ("OPENCV", 8)]))
+        )
+        nparams += draw(st.sampled_from([-1, 1])) if rare(draw, 0.1) else 0
+        params = [repr(draw(numbers)) if rare(draw, 0.1) else "10" for _ in range(nparams)]
         size = [str(_maybe(draw, w, numbers)), str(_maybe(draw, h, numbers))]
         cams.append(" ".join([str(cid), model, *size, *params]))
-    for iid in range(1, draw(st.integers(0, 3)) + 1):
+    for iid in range(1, (0 if rare(draw, 0.05) else draw(st.integers(1, 3))) + 1):
         pose = [repr(_maybe(draw, v, numbers)) for v in (1.0, 0.0, 0.0, 0.0, 0.1, 0.2, 3.0)]
         cid = _maybe(draw, 1, st.integers(-2, 5))
-        imgs.append(" ".join([str(iid), *pose, str(cid), draw(path_names).replace("\n", "")]))
+        name = draw(path_names) if rare(draw, 0.3) else draw(st.sampled_from(IMAGE_NAMES))
+        imgs.append(" ".join([str(iid), *pose, str(cid), name.replace("\n", "")]))
         imgs.append(draw(st.sampled_from(["", "1.0 2.0 -1", "junk"])))
-    if draw(st.integers(0, 4)) == 0:
+    if rare(draw, 0.15):
         (cams if draw(st.booleans()) else imgs).append(draw(st.text(max_size=40)))
     return "\n".join(cams).encode("utf-8", "surrogatepass"), "\n".join(imgs).encode("utf-8", "surrogatepass")
 
@@ -260,25 +274,26 @@ def colmap_text_models(draw) -> tuple[bytes, bytes]:
 def colmap_binary_models(draw) -> tuple[bytes, bytes]:
     """(cameras.bin, images.bin) packed like COLMAP, with lying counts and flipped bytes."""
     w, h = IMAGE_SIZE
-    n_cams = draw(st.integers(0, 3))
+    n_cams = 0 if rare(draw, 0.05) else draw(st.integers(1, 3))
     cams = struct.pack("<Q", _maybe(draw, n_cams, st.sampled_from([0, 2**64 - 1, 10**6])))
     for cid in range(1, n_cams + 1):
-        mid = draw(st.one_of(st.sampled_from([0, 1, 2, 3, 4]), st.integers(-5, 20)))
+        mid = draw(st.integers(-5, 20)) if rare(draw, 0.2) else draw(st.sampled_from([0, 1, 4]))
         nparams = MODELS.get(mid, ("", 3))[1]
         size = (_maybe(draw, w, st.integers(0, 2**64 - 1)), _maybe(draw, h, st.integers(0, 2**64 - 1)))
         params = [draw(st.one_of(st.just(10.0), st.floats())) for _ in range(nparams)]
         cams += struct.pack(f"<iiQQ{nparams}d", cid, mid, *size, *params)
-    n_imgs = draw(st.integers(0, 3))
+    n_imgs = 0 if rare(draw, 0.05) else draw(st.integers(1, 3))
     imgs = struct.pack("<Q", _maybe(draw, n_imgs, st.sampled_from([0, 2**64 - 1])))
     for iid in range(1, n_imgs + 1):
         q = [draw(st.one_of(st.just(v), st.floats())) for v in (1.0, 0.0, 0.0, 0.0)]
-        name = draw(path_names).encode("utf-8", "surrogatepass").replace(b"\0", b"")
-        npoints = draw(st.sampled_from([0, 1, 2**60]))
+        name = draw(path_names) if rare(draw, 0.3) else draw(st.sampled_from(IMAGE_NAMES))
+        name = name.encode("utf-8", "surrogatepass").replace(b"\0", b"")
+        npoints = 2**60 if rare(draw, 0.05) else draw(st.sampled_from([0, 1]))
         imgs += struct.pack("<i7di", iid, *q, 0.1, 0.2, 3.0, _maybe(draw, 1, st.integers(-3, 5)))
         imgs += name + b"\0" + struct.pack("<Q", npoints) + bytes(24 * min(npoints, 1))
-    if draw(st.integers(0, 3)) == 0:
+    if rare(draw):
         cams = flip_bytes(cams, draw)
-    if draw(st.integers(0, 3)) == 0:
+    if rare(draw):
         imgs = flip_bytes(imgs, draw)
     return cams, imgs
 
@@ -286,6 +301,7 @@ def colmap_binary_models(draw) -> tuple[bytes, bytes]:
 # -- archives ------------------------------------------------------------------------------
 
 member_names = st.one_of(
+    st.sampled_from(IMAGE_NAMES),
     st.sampled_from(IMAGE_NAMES),
     st.builds(lambda n: "images/" + n, st.sampled_from(IMAGE_NAMES)),
     path_names,
@@ -302,12 +318,12 @@ def zip_archives(draw) -> bytes:
             info = zipfile.ZipInfo(name)
             info.compress_type = draw(st.sampled_from([zipfile.ZIP_STORED, zipfile.ZIP_DEFLATED,
                                                        zipfile.ZIP_BZIP2, zipfile.ZIP_LZMA]))  # fmt: skip
-            kind = draw(st.sampled_from(["file", "file", "file", "symlink", "fifo", "dir"]))
+            kind = draw(st.sampled_from(["symlink", "fifo", "dir"])) if rare(draw, 0.15) else "file"
             mode = {"file": 0o100644, "symlink": 0o120777, "fifo": 0o010644, "dir": 0o040755}[kind]
             info.external_attr = mode << 16
             zf.writestr(info, draw(st.binary(max_size=64)))
     blob = buf.getvalue()
-    if draw(st.integers(0, 2)) == 0:
+    if rare(draw, 0.25):
         blob = bytearray(blob)
         if draw(st.booleans()) and len(blob) > 10:  # an unknown compression method in the local header
             blob[8:10] = draw(st.integers(0, 65535)).to_bytes(2, "little")
@@ -326,8 +342,8 @@ def tar_archives(draw) -> bytes:
             if fmt == tarfile.USTAR_FORMAT and len(name.encode("utf-8", "surrogatepass")) > 100:
                 name = name[:50]
             info = tarfile.TarInfo(name)
-            info.type = draw(st.sampled_from([tarfile.REGTYPE] * 4 + [tarfile.DIRTYPE, tarfile.SYMTYPE,
-                                                                      tarfile.LNKTYPE, tarfile.FIFOTYPE]))  # fmt: skip
+            hostile = (tarfile.DIRTYPE, tarfile.SYMTYPE, tarfile.LNKTYPE, tarfile.FIFOTYPE)
+            info.type = draw(st.sampled_from(hostile)) if rare(draw, 0.15) else tarfile.REGTYPE
             data = draw(st.binary(max_size=64)) if info.type == tarfile.REGTYPE else b""
             info.size = len(data)
             info.linkname = draw(st.sampled_from(["/etc/passwd", "../x", "a"]))
@@ -336,7 +352,7 @@ def tar_archives(draw) -> bytes:
             except (ValueError, UnicodeError):  # a name this format cannot hold: leave it out
                 continue
     blob = buf.getvalue()
-    return flip_bytes(blob, draw) if draw(st.integers(0, 2)) == 0 else blob
+    return flip_bytes(blob, draw) if rare(draw, 0.25) else blob
 
 
 # -- task lists ----------------------------------------------------------------------------

@@ -117,7 +117,7 @@ def _tiny_splat_bytes() -> bytes:
 SPLAT_BYTES = _tiny_splat_bytes()
 
 
-@budget(3000)
+@budget(2500)
 @given(blob=fz.ply_files())
 def test_fuzz_ply(blob: bytes) -> None:
     count("library: PLY header + body -> read_ply")
@@ -217,7 +217,7 @@ def test_fuzz_tar_extraction(blob: bytes) -> None:
     _archive_case(blob, "images.tar")
 
 
-@budget(1500)
+@budget(2000)
 @given(raw=fz.task_lists)
 def test_fuzz_task_normalisation(raw: object) -> None:
     count("library: task lists -> normalise_tasks")

@@ -86,6 +86,8 @@ def load_tasks(path: str | Path) -> list[str]:
             raw = json.loads(text)
         else:
             raw = [line.strip() for line in text.splitlines() if line.strip() and not line.startswith("#")]
-    except (yaml.YAMLError, json.JSONDecodeError) as exc:
+    except (yaml.YAMLError, ValueError) as exc:  # ValueError: JSON errors, int-digit limit
         raise InputError(f"cannot parse: {exc}", source=str(path)) from None
+    except RecursionError:
+        raise InputError("cannot parse: nested too deeply", source=str(path)) from None
     return normalise_tasks(raw, source=str(path))

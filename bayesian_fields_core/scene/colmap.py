@@ -19,9 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
-from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.errors import InputError, input_boundary
 from bayesian_fields_core.scene.geometry import intrinsics, quat_to_rotmat, rigid, rotmat_to_quat
-from bayesian_fields_core.scene.images import clean_distortion
+from bayesian_fields_core.scene.images import clean_distortion, resolve_image_path
 from bayesian_fields_core.scene.types import Frame
 
 # COLMAP model id -> (name, parameter count); the full list, so unsupported ones are named in errors.
@@ -228,9 +228,15 @@ def read_colmap(
 ) -> list[Frame]:
     """Frames of a COLMAP sparse model, sorted by image name (or exactly `order`, by image name).
 
-    `images_dir` defaults to the `images/` folder beside `sparse/` (image names are relative to it).
+    `images_dir` defaults to the `images/` folder beside `sparse/` (image names are relative to it
+    and must stay inside it, `resolve_inside`). Any parse failure is an InputError.
     """
     sparse_dir = Path(sparse_dir)
+    with input_boundary(str(sparse_dir), what="cannot read the COLMAP model"):
+        return _read_colmap(sparse_dir, images_dir, order)
+
+
+def _read_colmap(sparse_dir: Path, images_dir: str | Path | None, order: Sequence[str] | None) -> list[Frame]:
     cams_path, imgs_path, binary = _model_files(sparse_dir)
     cameras = _read_cameras_binary(cams_path) if binary else _read_cameras_text(cams_path)
     images = _read_images_binary(imgs_path) if binary else _read_images_text(imgs_path)
@@ -267,7 +273,12 @@ def read_colmap(
             )
         model, width, height, params = cameras[cam_id]
         K, dist = _camera_intrinsics(model, params, str(cams_path), cam_id)
-        frames.append(Frame(name, K, pose, int(width), int(height), image_path=root / name, distortion=dist))
+        if width <= 0 or height <= 0 or not (np.isfinite(K).all() and K[0, 0] > 0 and K[1, 1] > 0):
+            raise InputError(
+                f"camera {cam_id}: invalid size {width}x{height} or focal length", source=str(cams_path)
+            )
+        image_path = resolve_image_path(root, name, source=str(imgs_path))  # containment first
+        frames.append(Frame(name, K, pose, int(width), int(height), image_path=image_path, distortion=dist))
     return frames
 
 

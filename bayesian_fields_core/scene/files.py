@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import json
+import posixpath
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
-from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.errors import InputError, describe_failure
 
 
 def load_json(path: Path) -> Any:
@@ -17,8 +18,11 @@ def load_json(path: Path) -> Any:
             return json.load(f)
     except FileNotFoundError as exc:
         raise InputError("file not found", source=str(path)) from exc
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+    except json.JSONDecodeError as exc:
         raise InputError(f"not valid JSON ({exc})", source=str(path)) from exc
+    except (OSError, UnicodeError, ValueError, RecursionError, MemoryError) as exc:
+        # ValueError: an integer longer than Python's int-digits limit; RecursionError: nesting.
+        raise InputError(f"not valid JSON ({describe_failure(exc)})", source=str(path)) from exc
 
 
 def require_files(paths: Iterable[Path | None], *, what: str, source: str, shown: int = 5) -> None:
@@ -36,20 +40,29 @@ def resolve_inside(root: str | Path, name: str, *, what: str, source: str) -> Pa
     """`root / name` with symlinks resolved, refused unless it stays inside `root`.
 
     Why: camera files name image and depth paths, and an upload's camera file must never make the
-    API or a worker open a host file. The check is purely lexical-after-resolve and runs before any
-    existence test, so the error is the same whether the outside file exists or not (no
-    file-existence oracle). Absolute names, `..` components and symlinks that leave the folder
-    are all refused with the same message.
+    API or a worker open a host file. The name is first checked lexically (absolute, NUL, a `..`
+    that climbs out), which touches no file; only a name that stays inside is then resolved,
+    following symlinks, and re-checked. All of this runs before any existence test and the
+    message never depends on what exists outside, so there is no file-existence oracle.
     """
-    base = Path(root).resolve()
+    if not isinstance(name, str) or not name.strip():
+        raise InputError(f"{what} path must be a non-empty string, got {name!r}", source=source)
     if "\x00" in name:
         raise InputError(f"{what} path contains a NUL byte", source=source)
-    candidate = Path(name)
-    if candidate.is_absolute():
+    if Path(name).is_absolute():
         raise InputError(
             f"{what} path {name!r} is absolute; paths must be relative to the scene folder", source=source
         )
-    resolved = (base / candidate).resolve()
+    lexical = posixpath.normpath(name)
+    if lexical == ".." or lexical.startswith("../"):
+        raise InputError(f"{what} path {name!r} leaves the scene folder", source=source)
+    try:
+        base = Path(root).resolve()
+        resolved = (base / lexical).resolve()
+    except (OSError, RuntimeError, ValueError) as exc:  # symlink loop, name too long
+        raise InputError(
+            f"{what} path {name!r} cannot be resolved ({describe_failure(exc)})", source=source
+        ) from None
     if not resolved.is_relative_to(base):
         raise InputError(f"{what} path {name!r} leaves the scene folder", source=source)
     return resolved

@@ -19,7 +19,8 @@ import numpy as np
 from PIL import Image
 from scipy import ndimage
 
-from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.errors import InputError, describe_failure
+from bayesian_fields_core.scene.files import resolve_inside
 from bayesian_fields_core.scene.types import Frame
 
 DISTORTION_KEYS = ("k1", "k2", "k3", "p1", "p2")
@@ -47,16 +48,18 @@ def clean_distortion(params: dict[str, float], *, source: str) -> dict[str, floa
     return values if any(v != 0.0 for v in values.values()) else None
 
 
-def resolve_image_path(images_dir: Path, name: str) -> Path:
+def resolve_image_path(images_dir: Path, name: str, *, source: str = "cameras") -> Path:
     """`images_dir / name`, or with the first extension of IMAGE_EXTENSIONS that exists.
 
-    Returns the plain path when nothing exists, so the caller's "missing image" error names it.
+    Every candidate is checked by `resolve_inside` first (it must stay inside `images_dir` once
+    symlinks are resolved), so a camera file cannot make us probe host files. Returns the plain
+    (resolved) path when nothing exists, so the caller's "missing image" error names it.
     """
-    path = images_dir / name
+    path = resolve_inside(images_dir, name, what="image", source=source)
     if path.is_file():
         return path
     for ext in IMAGE_EXTENSIONS:
-        candidate = path.with_name(path.name + ext)
+        candidate = resolve_inside(images_dir, name + ext, what="image", source=source)
         if candidate.is_file():
             return candidate
     return path
@@ -105,8 +108,8 @@ def _open(path: Path, what: str) -> Image.Image:
         img.load()
     except FileNotFoundError as exc:
         raise InputError(f"{what} not found", source=str(path)) from exc
-    except (OSError, SyntaxError, ValueError, Image.DecompressionBombError) as exc:
-        raise InputError(f"cannot decode {what} ({exc})", source=str(path)) from exc
+    except (OSError, SyntaxError, ValueError, Image.DecompressionBombError, MemoryError, EOFError) as exc:
+        raise InputError(f"cannot decode {what} ({describe_failure(exc)})", source=str(path)) from exc
     return img
 
 
@@ -160,8 +163,8 @@ def load_depth(frame: Frame) -> np.ndarray | None:
             raw = np.load(path, allow_pickle=False)
         except FileNotFoundError as exc:
             raise InputError("depth file not found", source=str(path)) from exc
-        except (OSError, ValueError) as exc:
-            raise InputError(f"cannot read depth array ({exc})", source=str(path)) from exc
+        except (OSError, ValueError, MemoryError, EOFError) as exc:
+            raise InputError(f"cannot read depth array ({describe_failure(exc)})", source=str(path)) from exc
         if raw.ndim == 3 and raw.shape[2] == 1:
             raw = raw[..., 0]
         if raw.ndim != 2 or raw.dtype.kind not in "uif":

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.errors import InputError, input_boundary
 from bayesian_fields_core.scene.files import load_json
 from bayesian_fields_core.scene.geometry import (
     RIGID_TOLERANCE,
@@ -43,7 +43,7 @@ def _entry_frame(entry: Any, where: str, images_dir: Path) -> Frame:
         rotation = np.asarray(entry["rotation"], dtype=np.float64)
         fx, fy = float(entry["fx"]), float(entry["fy"])
         width, height = int(entry["width"]), int(entry["height"])
-    except (TypeError, ValueError) as exc:
+    except (TypeError, ValueError, OverflowError) as exc:
         raise InputError(f"camera entry has non-numeric fields ({exc})", source=where) from exc
     if position.shape != (3,) or rotation.shape != (3, 3):
         raise InputError(
@@ -56,21 +56,29 @@ def _entry_frame(entry: Any, where: str, images_dir: Path) -> Frame:
         raise InputError("rotation is not a rotation matrix", source=where)
     if fx <= 0 or fy <= 0 or width <= 0 or height <= 0:
         raise InputError(f"invalid intrinsics fx={fx} fy={fy} width={width} height={height}", source=where)
-    name = str(entry["img_name"])
+    name = entry["img_name"]
+    if not isinstance(name, str):
+        raise InputError(f"img_name must be a string, got {type(name).__name__}", source=where)
+    image_path = resolve_image_path(images_dir, name, source=where)  # containment checked first
     return Frame(
         name=name,
         K=intrinsics(fx, fy, width / 2.0, height / 2.0),
         world_to_camera=invert_rigid(rigid(rotation, position)),
         width=width,
         height=height,
-        image_path=resolve_image_path(images_dir, name),
+        image_path=image_path,
     )
 
 
 def read_cameras_json(path: str | Path, images_dir: str | Path | None = None) -> list[Frame]:
     """Frames of an INRIA cameras.json; images are looked up in `images_dir` (default: `images/`
-    beside the file)."""
+    beside the file), and every img_name must stay inside it (`resolve_inside`)."""
     path = Path(path)
+    with input_boundary(str(path), what="cannot read cameras.json"):
+        return _read_cameras_json(path, images_dir)
+
+
+def _read_cameras_json(path: Path, images_dir: str | Path | None) -> list[Frame]:
     doc = load_json(path)
     if not isinstance(doc, list) or not doc:
         raise InputError("expected a non-empty JSON list of cameras", source=str(path))

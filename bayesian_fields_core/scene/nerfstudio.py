@@ -19,8 +19,8 @@ from typing import Any
 import numpy as np
 from PIL import Image
 
-from bayesian_fields_core.errors import InputError
-from bayesian_fields_core.scene.files import load_json
+from bayesian_fields_core.errors import InputError, input_boundary
+from bayesian_fields_core.scene.files import load_json, resolve_inside
 from bayesian_fields_core.scene.geometry import (
     OPENGL_TO_OPENCV,
     RIGID_TOLERANCE,
@@ -33,6 +33,9 @@ from bayesian_fields_core.scene.types import Frame
 
 PINHOLE_CAMERA_MODELS = ("OPENCV", "PINHOLE", "SIMPLE_PINHOLE")
 """nerfstudio `camera_model` values whose k1..p2 coefficients we can undistort."""
+
+MASK_PATH_KEYS = ("mask_path", "mask_file_path")
+"""Per-frame mask keys nerfstudio datasets use; checked for containment though not loaded."""
 
 DEFAULT_DEPTH_UNIT_SCALE = 1e-3
 """Metres per depth-image unit when `depth_unit_scale_factor` is absent (nerfstudio's default)."""
@@ -57,6 +60,23 @@ def _image_size(path: Path, where: str) -> tuple[int, int]:
         ) from exc
 
 
+def _field_of_view(angle: float, key: str, where: str) -> float:
+    """A field of view in radians strictly between 0 and pi (else the focal length is 0 or inf)."""
+    if not 0.0 < angle < math.pi:
+        raise InputError(f"{key}={angle} is not a field of view in (0, pi) radians", source=where)
+    return angle
+
+
+def _path_field(entry: dict, key: str, root: Path, where: str) -> Path | None:
+    """The entry's `key` path resolved inside `root`, None when absent; refused when it escapes."""
+    value = entry.get(key)
+    if value is None:
+        return None
+    if not isinstance(value, str):
+        raise InputError(f"{key} must be a string, got {type(value).__name__}", source=where)
+    return resolve_inside(root, value, what=key, source=where)
+
+
 def _frame_camera(entry: dict, top: dict, image_path: Path, where: str):
     """(K, width, height, distortion) of one frame from its keys over the top-level ones."""
     model = entry.get("camera_model", top.get("camera_model", "OPENCV"))
@@ -74,15 +94,19 @@ def _frame_camera(entry: dict, top: dict, image_path: Path, where: str):
         angle_x = _number(entry, top, "camera_angle_x", where)
         if angle_x is None:
             raise InputError("no intrinsics: neither fl_x nor camera_angle_x is given", source=where)
-        fx = 0.5 * w / math.tan(0.5 * angle_x)
+        fx = 0.5 * w / math.tan(0.5 * _field_of_view(angle_x, "camera_angle_x", where))
     if fy is None:
         angle_y = _number(entry, top, "camera_angle_y", where)
-        fy = 0.5 * h / math.tan(0.5 * angle_y) if angle_y is not None else fx
+        fy = (
+            0.5 * h / math.tan(0.5 * _field_of_view(angle_y, "camera_angle_y", where))
+            if angle_y is not None
+            else fx
+        )
     cx = _number(entry, top, "cx", where)
     cy = _number(entry, top, "cy", where)
     cx = w / 2.0 if cx is None else cx
     cy = h / 2.0 if cy is None else cy
-    if fx <= 0 or fy <= 0 or w <= 0 or h <= 0 or w != int(w) or h != int(h):
+    if not (0 < fx < math.inf and 0 < fy < math.inf) or w <= 0 or h <= 0 or w != int(w) or h != int(h):
         raise InputError(f"invalid intrinsics fl_x={fx} fl_y={fy} w={w} h={h}", source=where)
     coeffs = {k: v for k in DISTORTION_KEYS if (v := _number(entry, top, k, where)) is not None}
     if (k4 := _number(entry, top, "k4", where)) not in (None, 0.0):
@@ -111,8 +135,14 @@ def _pose(entry: dict, where: str) -> np.ndarray:
 
 
 def read_transforms(path: str | Path) -> list[Frame]:
-    """Frames of a transforms.json; image and depth paths are relative to the file's folder."""
+    """Frames of a transforms.json; image, depth and mask paths are relative to the file's folder
+    and must stay inside it (`resolve_inside`). Any parse failure is an InputError."""
     path = Path(path)
+    with input_boundary(str(path), what="cannot read transforms.json"):
+        return _read_transforms(path)
+
+
+def _read_transforms(path: Path) -> list[Frame]:
     doc = load_json(path)
     if not isinstance(doc, dict):
         raise InputError("top level must be a JSON object", source=str(path))
@@ -126,9 +156,12 @@ def read_transforms(path: str | Path) -> list[Frame]:
         where = f"{path} frames[{i}]"
         if not isinstance(entry, dict) or not isinstance(entry.get("file_path"), str):
             raise InputError("frame has no file_path string", source=where)
-        image_path = resolve_image_path(root, entry["file_path"])
+        # Every path is checked for containment before anything is opened (image size, depth).
+        image_path = resolve_image_path(root, entry["file_path"], source=where)
+        depth_path = _path_field(entry, "depth_file_path", root, where)
+        for key in MASK_PATH_KEYS:  # not read by this loader, but never allowed to point outside
+            _path_field(entry, key, root, where)
         K, w, h, dist = _frame_camera(entry, doc, image_path, where)
-        depth = entry.get("depth_file_path")
         frames.append(
             Frame(
                 name=entry["file_path"],
@@ -137,7 +170,7 @@ def read_transforms(path: str | Path) -> list[Frame]:
                 width=w,
                 height=h,
                 image_path=image_path,
-                depth_path=root / depth if isinstance(depth, str) else None,
+                depth_path=depth_path,
                 depth_scale=depth_scale if depth_scale is not None else DEFAULT_DEPTH_UNIT_SCALE,
                 distortion=dist,
             )

@@ -22,7 +22,8 @@ from pathlib import Path
 import numpy as np
 from numpy.lib import recfunctions
 
-from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.errors import InputError, describe_failure, input_boundary
+from bayesian_fields_core.scene.sanity import check_splat
 from bayesian_fields_core.scene.types import Gaussians, sh_coefficient_count
 
 DEFAULT_MAX_GAUSSIANS = 20_000_000
@@ -89,6 +90,7 @@ class PlyHeader:
     data_offset: int
     skip_lines: int = 0
     file_size: int = 0
+    trailing_elements: int = 0  # elements declared after `vertex` (their rows follow the vertices)
     comments: list[str] = field(default_factory=list)
 
     @property
@@ -180,9 +182,14 @@ def read_ply_header(path: str | Path, *, max_gaussians: int = DEFAULT_MAX_GAUSSI
 
     Checks: PLY magic, a `vertex` element of scalar properties, every required property present
     and float-typed, an f_rest count meaning SH degree 0..3, the vertex count within
-    `max_gaussians`, and the file long enough to hold the declared rows. Reads only the header.
+    `max_gaussians` and above 0, and (binary) the file as long as the declared rows (shorter:
+    truncated; a row or more longer: the count does not match the body). Reads only the header.
     """
-    path = Path(path)
+    with input_boundary(str(path), what="cannot read PLY header"):
+        return _read_ply_header(Path(path), max_gaussians)
+
+
+def _read_ply_header(path: Path, max_gaussians: int) -> PlyHeader:
     text, header_len = _read_header_bytes(path)
     fmt, elements, comments = _parse_elements(path, text)
     file_size = os.path.getsize(path)
@@ -212,8 +219,11 @@ def read_ply_header(path: str | Path, *, max_gaussians: int = DEFAULT_MAX_GAUSSI
         raise _fail(path, f"required properties must be float or double: {', '.join(not_float)}")
     if count > max_gaussians:
         raise _fail(path, f"vertex count {count} exceeds the limit max_gaussians={max_gaussians}")
+    if count == 0:
+        raise _fail(path, "the splat has no Gaussians (element vertex 0)")
 
     header = PlyHeader(path, fmt, count, props, sh_degree, header_len, file_size=file_size, comments=comments)
+    header.trailing_elements = len(elements) - vindex - 1
     if fmt == "ascii":
         header.skip_lines = sum(e[1] for e in elements[:vindex])
         # Every value takes at least one character plus a separator (or the newline).
@@ -239,6 +249,19 @@ def read_ply_header(path: str | Path, *, max_gaussians: int = DEFAULT_MAX_GAUSSI
             path,
             f"truncated vertex data: expected {count} x {stride} = {needed} bytes, got {max(available, 0)}",
         )
+    after = elements[vindex + 1 :]
+    if not any(p[1] == "list" for _, _, eprops in after for p in eprops):
+        declared = needed + sum(
+            c * np.dtype([(p[0], order + p[1]) for p in ps]).itemsize for _, c, ps in after
+        )
+        # A few stray bytes (a trailing newline some writers add) are tolerated; a whole row or
+        # more means the vertex count is smaller than the data.
+        if available - declared >= stride:
+            raise _fail(
+                path,
+                f"the body is {available - declared} bytes longer than the header declares "
+                f"({count} vertices x {stride} bytes); the vertex count does not match the data",
+            )
     return header
 
 
@@ -260,16 +283,24 @@ def _read_rows(header: PlyHeader) -> np.ndarray:
         raw.seek(header.data_offset)
         text = io.TextIOWrapper(raw, encoding="ascii", errors="strict")
         try:
+            # Without trailing elements every remaining row must be a vertex, so a body longer
+            # than the header's count is caught (max_rows=None reads to the end).
             values = np.loadtxt(
                 text,
                 dtype=np.float64,
                 skiprows=header.skip_lines,
-                max_rows=header.count,
+                max_rows=header.count if header.trailing_elements else None,
                 ndmin=2,
                 comments=None,
             )
         except (ValueError, UnicodeDecodeError) as exc:
-            raise _fail(path, f"malformed ASCII vertex data ({exc})") from exc
+            raise _fail(path, f"malformed ASCII vertex data ({describe_failure(exc)})") from exc
+    if values.shape[0] > header.count:
+        raise _fail(
+            path,
+            f"the body has {values.shape[0]} rows but the header declares {header.count} vertices; "
+            "the vertex count does not match the data",
+        )
     if values.shape[0] != header.count or (header.count and values.shape[1] != len(header.properties)):
         raise _fail(
             path,
@@ -298,7 +329,18 @@ def _check_finite(path: Path, groups: dict[tuple[str, ...], np.ndarray]) -> None
 
 
 def read_ply(path: str | Path, *, max_gaussians: int = DEFAULT_MAX_GAUSSIANS) -> Gaussians:
-    """Load a splat; properties outside the INRIA set (normals included) land in `extra`."""
+    """Load a splat; properties outside the INRIA set (normals included) land in `extra`.
+
+    Refuses, as InputError: anything `read_ply_header` refuses, non-finite values, the degenerate
+    splats of `scene.sanity.check_splat`, and any other failure to parse the file.
+    """
+    with input_boundary(str(path), what="cannot read PLY"):
+        gaussians = _read_ply(Path(path), max_gaussians)
+    check_splat(gaussians, source=str(path))
+    return gaussians
+
+
+def _read_ply(path: Path, max_gaussians: int) -> Gaussians:
     header = read_ply_header(path, max_gaussians=max_gaussians)
     rows = _read_rows(header)
     n = header.count

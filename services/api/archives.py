@@ -6,6 +6,13 @@ file or a folder only (no symlinks, hardlinks, devices), at most `max_members` m
 sum of the *declared* sizes under `max_bytes`. Declared sizes can lie (a crafted zip header), so
 the bytes actually produced while extracting are counted too and extraction stops the moment they
 pass the limit: a decompression bomb costs at most `max_bytes` of disk.
+
+Members the filesystem could not hold are refused before extraction too, by name: a path component
+longer than NAME_MAX (255 bytes), a path deeper than `MAX_MEMBER_DEPTH` parts or longer than
+`MAX_MEMBER_PATH_BYTES`, a name that is both a file and a folder, a name that is not UTF-8 or has
+control characters, a zip compression method Python cannot decode. Whatever else goes wrong while
+reading or writing a member (a corrupt stream, a CRC mismatch, ...) is an InputError too
+(`input_boundary`), so an archive never answers 500.
 """
 
 from __future__ import annotations
@@ -19,9 +26,17 @@ from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 from typing import IO
 
-from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.errors import InputError, input_boundary
 
 _CHUNK = 1 << 20
+NAME_MAX = 255
+"""Longest path component, in bytes, that Linux filesystems accept."""
+MAX_MEMBER_DEPTH = 32
+"""Most path components a member may have (image archives are one or two folders deep)."""
+MAX_MEMBER_PATH_BYTES = 1024
+"""Longest member path, in bytes (well inside PATH_MAX once joined to the scene folder)."""
+_ZIP_METHODS = {zipfile.ZIP_STORED: "stored", zipfile.ZIP_DEFLATED: "deflate", zipfile.ZIP_BZIP2: "bzip2",
+                zipfile.ZIP_LZMA: "lzma"}  # fmt: skip
 ARCHIVE_SUFFIXES = (".zip", ".tar", ".tar.gz", ".tgz", ".tar.bz2", ".tbz2", ".tar.xz", ".txz")
 
 
@@ -47,6 +62,12 @@ def safe_member_path(name: str, *, source: str) -> PurePosixPath:
     """The member's relative path, or InputError when it could escape the target folder."""
     if "\\" in name or "\x00" in name:
         raise InputError(f"archive member {name!r} has a backslash or NUL in its path", source=source)
+    if any(ord(c) < 32 or ord(c) == 127 for c in name):
+        raise InputError(f"archive member {name!r} has a control character in its path", source=source)
+    try:
+        name.encode("utf-8")
+    except UnicodeEncodeError:
+        raise InputError(f"archive member {name!r} has a name that is not UTF-8", source=source) from None
     path = PurePosixPath(name)
     if path.is_absolute() or (path.parts and ":" in path.parts[0]):
         raise InputError(f"archive member {name!r} has an absolute path", source=source)
@@ -55,7 +76,37 @@ def safe_member_path(name: str, *, source: str) -> PurePosixPath:
     parts = [p for p in path.parts if p not in ("", ".")]
     if not parts:
         raise InputError(f"archive member {name!r} has an empty path", source=source)
+    shown = name if len(name) <= 80 else name[:60] + "..."
+    long_part = next((p for p in parts if len(p.encode("utf-8")) > NAME_MAX), None)
+    if long_part is not None:
+        raise InputError(
+            f"archive member {shown!r} has a path component of {len(long_part.encode('utf-8'))} bytes; "
+            f"at most {NAME_MAX} are allowed",
+            source=source,
+        )
+    if len(parts) > MAX_MEMBER_DEPTH or len("/".join(parts).encode("utf-8")) > MAX_MEMBER_PATH_BYTES:
+        raise InputError(
+            f"archive member {shown!r} is too deep ({len(parts)} components); at most "
+            f"{MAX_MEMBER_DEPTH} components and {MAX_MEMBER_PATH_BYTES} bytes are allowed",
+            source=source,
+        )
     return PurePosixPath(*parts)
+
+
+def _check_layout(paths: list[PurePosixPath], source: str) -> None:
+    """Refuse a name used both as a file and as a folder, and a file listed twice."""
+    files: set[PurePosixPath] = set()
+    for rel in paths:
+        if rel in files:
+            raise InputError(f"archive has the file {str(rel)!r} twice", source=source)
+        files.add(rel)
+    for rel in paths:
+        for parent in rel.parents:
+            if parent in files:
+                raise InputError(
+                    f"archive member {str(parent)!r} is both a file and a folder (of {str(rel)!r})",
+                    source=source,
+                )
 
 
 def _zip_members(zf: zipfile.ZipFile, source: str) -> list[_Member]:
@@ -68,13 +119,21 @@ def _zip_members(zf: zipfile.ZipFile, source: str) -> list[_Member]:
             raise InputError(f"archive member {info.filename!r} is not a regular file", source=source)
         if info.flag_bits & 0x1:
             raise InputError(f"archive member {info.filename!r} is encrypted", source=source)
+        if not info.is_dir() and info.compress_type not in _ZIP_METHODS:
+            raise InputError(
+                f"archive member {info.filename!r} uses zip compression method {info.compress_type}; "
+                f"supported: {', '.join(_ZIP_METHODS.values())}",
+                source=source,
+            )
         members.append(_Member(info.filename, info.file_size, info.is_dir(), info))
     return members
 
 
-def _tar_members(tf: tarfile.TarFile, source: str) -> list[_Member]:
+def _tar_members(tf: tarfile.TarFile, source: str, max_members: int) -> list[_Member]:
     members = []
     for info in tf:  # streams through the headers; content is not read yet
+        if len(members) >= max_members:
+            raise InputError(f"archive has more than {max_members} members", source=source)
         if info.issym():
             raise InputError(f"archive member {info.name!r} is a symbolic link", source=source)
         if info.islnk():
@@ -86,7 +145,7 @@ def _tar_members(tf: tarfile.TarFile, source: str) -> list[_Member]:
 
 
 @contextmanager
-def _open_archive(path: Path, source: str) -> Iterator[tuple[list[_Member], object]]:
+def _open_archive(path: Path, source: str, max_members: int) -> Iterator[tuple[list[_Member], object]]:
     if zipfile.is_zipfile(path):
         try:
             with zipfile.ZipFile(path) as zf:
@@ -100,7 +159,7 @@ def _open_archive(path: Path, source: str) -> Iterator[tuple[list[_Member], obje
         raise InputError(f"not a readable zip or tar archive ({exc})", source=source) from None
     with tf:
         try:
-            members = _tar_members(tf, source)
+            members = _tar_members(tf, source, max_members)
         except (tarfile.TarError, EOFError, OSError) as exc:
             raise InputError(f"corrupt tar archive: {exc}", source=source) from None
         yield members, tf
@@ -118,9 +177,15 @@ def extract_archive(path: Path, dest: Path, limits: ArchiveLimits, *, source: st
     """Extract `path` into `dest` after the checks above; returns the relative file paths written.
 
     A single top-level folder shared by every member (``images/a.png``, ``images/b.png``) is
-    stripped, so archives of a folder and of its contents land the same way.
+    stripped, so archives of a folder and of its contents land the same way. Every failure is an
+    InputError naming the archive (`source`) and, where known, the member.
     """
-    with _open_archive(path, source) as (members, handle):
+    with input_boundary(source, what="cannot extract the archive"):
+        return _extract(path, dest, limits, source)
+
+
+def _extract(path: Path, dest: Path, limits: ArchiveLimits, source: str) -> list[PurePosixPath]:
+    with _open_archive(path, source, limits.max_members) as (members, handle):
         if len(members) > limits.max_members:
             raise InputError(
                 f"archive has {len(members)} members; at most {limits.max_members} are allowed", source=source
@@ -137,22 +202,18 @@ def extract_archive(path: Path, dest: Path, limits: ArchiveLimits, *, source: st
             raise InputError("archive contains no files", source=source)
         tops = {p.parts[0] for _, p in files}
         strip = len(tops) == 1 and all(len(p.parts) > 1 for _, p in files)
+        if strip:
+            files = [(m, PurePosixPath(*p.parts[1:])) for m, p in files]
+        _check_layout([p for _, p in files], source)
         written: list[PurePosixPath] = []
-        seen: set[PurePosixPath] = set()
         budget = limits.max_bytes
         dest.mkdir(parents=True, exist_ok=True)
         for member, rel in files:
-            rel = PurePosixPath(*rel.parts[1:]) if strip else rel
-            if rel in seen:
-                raise InputError(f"archive has the file {str(rel)!r} twice", source=source)
-            seen.add(rel)
             target = dest.joinpath(*rel.parts)
-            target.parent.mkdir(parents=True, exist_ok=True)
-            try:
+            with input_boundary(source, what=f"cannot extract {member.name[:80]!r}"):
+                target.parent.mkdir(parents=True, exist_ok=True)
                 with _open_member(handle, member) as src, target.open("wb") as out:
                     budget = _copy_bounded(src, out, budget, limits.max_bytes, source)
-            except (zipfile.BadZipFile, tarfile.TarError, EOFError, OSError) as exc:
-                raise InputError(f"cannot extract {member.name!r}: {exc}", source=source) from None
             written.append(rel)
         return written
 

@@ -54,8 +54,8 @@ def clean_filename(raw: str, *, field_name: str) -> str:
     name = PurePosixPath(raw.replace("\\", "/")).name.strip()
     if not name or name in (".", "..") or name.startswith(".") or any(ord(c) < 32 for c in name):
         raise InputError(f"unusable file name {raw!r}", source=field_name)
-    if len(name) > 255:
-        raise InputError(f"file name longer than 255 characters: {name[:40]!r}...", source=field_name)
+    if len(name.encode("utf-8", "surrogatepass")) > 255:  # NAME_MAX counts bytes, not characters
+        raise InputError(f"file name longer than 255 bytes: {name[:40]!r}...", source=field_name)
     return name
 
 

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.errors import InputError, input_boundary
 from bayesian_fields_core.scene.trainer_transforms import DATAPARSER_TRANSFORMS, SPLAT_TRANSFORM
 from bayesian_fields_core.store import Store
 
@@ -86,7 +86,15 @@ def _transform_file(files: Sequence[UploadedFile]) -> UploadedFile | None:
 
 
 def assemble_scene(files: Sequence[UploadedFile], scene_dir: Path, limits: ArchiveLimits) -> None:
-    """Lay the uploaded files out as a scene folder (files are moved, archives extracted)."""
+    """Lay the uploaded files out as a scene folder (files are moved, archives extracted).
+
+    Any failure to lay a file out (a name the filesystem refuses, ...) is the upload's fault:
+    InputError, so a 4xx."""
+    with input_boundary("upload", what="cannot lay out the uploaded files"):
+        _assemble(files, scene_dir, limits)
+
+
+def _assemble(files: Sequence[UploadedFile], scene_dir: Path, limits: ArchiveLimits) -> None:
     splat = _one_splat(files)
     cams = _camera_files(files)
     transform = _transform_file(files)
@@ -129,13 +137,20 @@ def validate_scene(
     """Run the core validator (with the geometric alignment check unless `alignment` is false)
     and the service's size limits; returns the validation summary.
 
-    Messages name files relative to the scene folder, never the API's temp paths."""
+    Messages name files relative to the scene folder, never the API's temp paths (the loaders
+    report resolved paths, so the resolved folder is stripped too). The frame limit is checked
+    by the validator before any image is decoded."""
     from bayesian_fields_core.scene.validate import validate_scene_folder
 
     try:
-        summary = validate_scene_folder(scene_dir, max_gaussians=max_gaussians, alignment=alignment)
+        summary = validate_scene_folder(
+            scene_dir, max_gaussians=max_gaussians, max_frames=max_frames, alignment=alignment
+        )
     except InputError as exc:
-        raise InputError(str(exc).replace(f"{scene_dir}/", "").replace(str(scene_dir), "<scene>")) from None
+        message = str(exc)
+        for folder in {str(scene_dir.resolve()), str(scene_dir)}:
+            message = message.replace(f"{folder}/", "").replace(folder, "<scene>")
+        raise InputError(message) from None
     gaussians = summary.get("gaussians", summary.get("num_gaussians"))
     if isinstance(gaussians, int) and gaussians > max_gaussians:
         raise InputError(f"{gaussians} Gaussians; at most {max_gaussians} are allowed", source="splat")

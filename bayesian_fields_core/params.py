@@ -41,6 +41,13 @@ class PipelineParams(BaseModel):
         "median",
         description="Depth image for visibility: rendered median or expected depth, or the input depth maps.",
     )
+    fusion_backend: Literal["auto", "numpy", "torch"] = Field(
+        "auto",
+        description=(
+            "Where projection, depth test and log-odds update run: 'numpy' on the host, 'torch' on "
+            "the render device (depth stays on the GPU); 'auto' = torch when that device is CUDA."
+        ),
+    )
     depth_tolerance: float = Field(
         0.05, ge=0, description="Absolute visibility tolerance on centre depth, metres."
     )

@@ -30,6 +30,17 @@ class PipelineParams(BaseModel):
         0.05, gt=0, lt=1, description="Prior probability that a Gaussian is relevant to a task."
     )
 
+    crop_batch_size: int = Field(
+        64,
+        ge=1,
+        description="Mask crops per encoder call, pooled across consecutive frames (bounds model memory).",
+    )
+    prefetch_frames: int = Field(
+        2,
+        ge=0,
+        description="Frames each perception step (decode, segment, crop) may run ahead of encoding; 0 = no threads.",
+    )
+
     # --- fusion (steps 4-5) ----------------------------------------------------------------------
     fusion: Literal["bayes", "average"] = Field(
         "bayes", description="'bayes' = the method; 'average' = ablation averaging cosine scores then Eq. 3."

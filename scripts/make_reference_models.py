@@ -78,7 +78,8 @@ def clip_config():
 def bpe_vocabulary() -> tuple[dict[str, int], list[str]]:
     """CLIP's byte-level BPE vocabulary (49408 tokens) and merges from open_clip's packaged file.
 
-    Layout (CLIP's): the 256 byte symbols, the same with the end-of-word marker, one token per
+    Layout (CLIP's): the 256 byte symbols (printable bytes first, in byte order, then the others
+    in byte order), the same with the end-of-word marker, one token per
     merge (the first 48894 merges of the file), then the start and end tokens.
     """
     import open_clip
@@ -95,7 +96,7 @@ def bpe_vocabulary() -> tuple[dict[str, int], list[str]]:
             printable.append(b)
             codes.append(256 + extra)
             extra += 1
-    symbols = [chr(c) for _, c in sorted(zip(printable, codes, strict=True))]
+    symbols = [chr(c) for c in codes]  # CLIP's order: printable bytes first, then the rest
     tokens = symbols + [s + "</w>" for s in symbols] + ["".join(m.split()) for m in merges] + [START, END]
     if len(tokens) != 49408:
         raise SystemExit(f"{path}: expected 49408 tokens, built {len(tokens)}")

@@ -16,12 +16,12 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
+# Modules the second venv has and the project venv lacks; the tests skip when any is missing.
 MISSING = [
     m
     for m in ("ultralytics", "open_clip", "torchvision", "onnxruntime")
     if importlib.util.find_spec(m) is None
 ]
-"""Modules the second venv has and the project venv lacks; the tests skip when any is missing."""
 
 
 @pytest.fixture(scope="session")

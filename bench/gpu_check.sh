@@ -34,7 +34,7 @@ run() {
   local models="$WORK/models-$MODE"
   if [ ! -f "$models/profiles/reference-fastsam-hf-clip.yaml" ]; then
     local scales=x; [ "$MODE" = cpu ] && scales=s
-    "$VENV/bin/python" "$ROOT/scripts/make_reference_models.py" --out "$models" --fastsam "$scales" \
+    "$VENV/bin/python" "$ROOT/scripts/make_reference_models.py" --out "$models" --fastsam "$scales" --minimal \
       --device "$([ "$MODE" = gpu ] && echo cuda || echo cpu)" | grep -E "^  [a-zA-Z]|^done"
   fi
   echo "== measure (setup took $(( $(date +%s) - t0 )) s)"

@@ -229,7 +229,7 @@ def profile_text(name: str, comment: str, segmenter: dict, encoder: dict) -> str
     return head + yaml.safe_dump(body, sort_keys=False)
 
 
-def write_profiles(out: Path, scales: list[str], device: str) -> list[Path]:
+def write_profiles(out: Path, scales: list[str], device: str, *, minimal: bool = False) -> list[Path]:
     """One profile per encoder (HF, open_clip, ONNX), each with a reference FastSAM."""
     folder = out / "profiles"
     folder.mkdir(parents=True, exist_ok=True)
@@ -282,7 +282,7 @@ def write_profiles(out: Path, scales: list[str], device: str) -> list[Path]:
         ),
     ]
     paths = []
-    for name, comment, seg, enc in specs:
+    for name, comment, seg, enc in specs[:1] if minimal else specs:
         path = folder / f"{name}.yaml"
         path.write_text(profile_text(name, comment, seg, enc), encoding="utf-8")
         paths.append(path)
@@ -295,6 +295,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--fastsam", default="x,s", help="FastSAM scales, biggest first (x,s)")
     parser.add_argument("--device", default="cpu", help="device written into the profiles")
+    parser.add_argument(
+        "--minimal",
+        action="store_true",
+        help="only the HF CLIP, FastSAM and their profile (bench/gpu_check.sh)",
+    )
     args = parser.parse_args(argv)
     out: Path = args.out.resolve()
     out.mkdir(parents=True, exist_ok=True)
@@ -323,11 +328,12 @@ def main(argv: list[str] | None = None) -> int:
 
     print(f"reference models -> {out}")
     hf = step("hf clip ViT-B/16", write_hf_clip, out, args.seed)
-    step("open_clip checkpoint", write_open_clip, out, hf)
-    step("onnx towers", export_clip_onnx, hf, out / ONNX_DIR)
+    if not args.minimal:
+        step("open_clip checkpoint", write_open_clip, out, hf)
+        step("onnx towers", export_clip_onnx, hf, out / ONNX_DIR)
     for scale in scales:
         step(f"FastSAM-{scale}", write_fastsam, out, scale, args.seed)
-    for path in write_profiles(out, scales, args.device):
+    for path in write_profiles(out, scales, args.device, minimal=args.minimal):
         print(f"  profile {path}")
     print(f"done in {sum(s for _, s in steps):.1f} s")
     return 0

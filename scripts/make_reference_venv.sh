@@ -10,6 +10,12 @@ set -euo pipefail
 VENV="${1:-${BFIELDS_REFERENCE_VENV:-/tmp/venv-tv}}"
 ROOT="$(cd "$(dirname "$0")/.." && pwd)"
 start=$(date +%s)
+# Already complete (an earlier run): pip's resolver alone costs minutes on a busy machine.
+if [ -x "$VENV/bin/python" ] && "$VENV/bin/python" -c "import torchvision, ultralytics, open_clip, onnxruntime, pytest, bayesian_fields_core" 2>/dev/null \
+   && [ "$("$VENV/bin/python" -c 'import bayesian_fields_core, pathlib; print(pathlib.Path(bayesian_fields_core.__file__).parents[1])')" = "$ROOT" ]; then
+  echo "reference venv ready at $VENV (already complete)"
+  exit 0
+fi
 [ -x "$VENV/bin/python" ] || python3 -m venv "$VENV"
 "$VENV/bin/pip" install -q torch==2.14.1 torchvision==0.29.1
 # The project without its dependency list (it pins the other torch), then that list minus torch.

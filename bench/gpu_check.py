@@ -95,6 +95,10 @@ def main(argv: list[str] | None = None) -> int:
         print("no CUDA device: run with --cpu for the smoke test", file=sys.stderr)
         return 2
     device = "cuda" if gpu else "cpu"
+    if not gpu:
+        # Many small torch ops per frame: on a shared CPU, OpenMP threads spinning at barriers
+        # cost far more than they gain (the renderer tests run single-threaded for this reason).
+        torch.set_num_threads(1)
     n_g = args.gaussians or (400_000 if gpu else 20_000)
     n_f = args.frames or (300 if gpu else 6)
     n_p = args.perceive_frames or (20 if gpu else 2)

@@ -18,7 +18,7 @@ ROOT="$(cd "$(dirname "$0")/.." && pwd)"
 VENV="${BFIELDS_REFERENCE_VENV:-/tmp/venv-tv}"
 WORK="${GPU_CHECK_WORK:-/tmp/bfields-gpu-check}"
 LIMIT="${GPU_CHECK_TIMEOUT:-540}"
-export HOME="$WORK/home" YOLO_CONFIG_DIR="$WORK/yolo" HF_HOME="$WORK/hf" HF_HUB_OFFLINE=1 YOLO_OFFLINE=1
+export HOME="$WORK/home" YOLO_CONFIG_DIR="$WORK/yolo" HF_HOME="$WORK/hf" HF_HUB_OFFLINE=1 YOLO_OFFLINE=1 PYTHONUNBUFFERED=1
 mkdir -p "$WORK" "$HOME"
 
 run() {

@@ -70,6 +70,17 @@ class PipelineParams(BaseModel):
         0.05, gt=0, lt=1, description="Prior probability that a Gaussian is relevant to a task."
     )
 
+    crop_batch_size: int = Field(
+        64,
+        ge=1,
+        description="Mask crops per encoder call, pooled across consecutive frames (bounds model memory).",
+    )
+    prefetch_frames: int = Field(
+        2,
+        ge=0,
+        description="Frames each perception step (decode, segment, crop) may run ahead of encoding; 0 = no threads.",
+    )
+
     # --- fusion (steps 4-5) ----------------------------------------------------------------------
     fusion: Literal["bayes", "average"] = Field(
         "bayes", description="'bayes' = the method; 'average' = ablation averaging cosine scores then Eq. 3."
@@ -80,6 +91,13 @@ class PipelineParams(BaseModel):
     depth_source: Literal["median", "expected", "input"] = Field(
         "median",
         description="Depth image for visibility: rendered median or expected depth, or the input depth maps.",
+    )
+    fusion_backend: Literal["auto", "numpy", "torch"] = Field(
+        "auto",
+        description=(
+            "Where projection, depth test and log-odds update run: 'numpy' on the host, 'torch' on "
+            "the render device (depth stays on the GPU); 'auto' = torch when that device is CUDA."
+        ),
     )
     depth_tolerance: float = Field(
         0.05,

@@ -79,6 +79,7 @@ class FastSAMSegmenter:
         device: str = "cpu",
         min_area: int = 100,
         threshold: float = 0.5,
+        half: bool = False,
     ) -> None:
         os.environ.setdefault("YOLO_CONFIG_DIR", str(Path(tempfile.gettempdir()) / "bfields-ultralytics"))
         os.environ.setdefault("YOLO_OFFLINE", "1")
@@ -93,6 +94,7 @@ class FastSAMSegmenter:
         self.conf, self.iou, self.imgsz = float(conf), float(iou), int(imgsz)
         self.retina_masks, self.device = bool(retina_masks), device
         self.min_area, self.threshold = int(min_area), float(threshold)
+        self.half = bool(half)  # fp16 inference (a GPU's tensor cores); masks may differ slightly
 
     @property
     def params(self) -> dict[str, Any]:
@@ -104,6 +106,8 @@ class FastSAMSegmenter:
             "retina_masks": self.retina_masks,
             "min_area": self.min_area,
             "threshold": self.threshold,
+            # Only when set, so fp32 fingerprints (and the caches keyed on them) stay as they were.
+            **({"half": True} if self.half else {}),
         }
 
     def segment(self, image: np.ndarray) -> np.ndarray:
@@ -117,6 +121,7 @@ class FastSAMSegmenter:
             imgsz=self.imgsz,
             conf=self.conf,
             iou=self.iou,
+            half=self.half,
             verbose=False,
         )
         masks = results[0].masks if results else None

@@ -55,7 +55,8 @@ class HFClipEncoder:
     """A transformers ``CLIPModel`` as an :class:`~bayesian_fields_core.perception.encoder.Encoder`.
 
     Parameters: ``path`` (model folder), ``device`` ("cpu", "cuda", "cuda:1"...), ``resize_mode``
-    ("shortest_crop" or "square", see ``clip_inputs``), ``max_batch`` (None = one batch per call).
+    ("shortest_crop" or "square", see ``clip_inputs``), ``max_batch`` (None = one batch per call),
+    ``dtype`` ("float32"; "float16" or "bfloat16" on a GPU halves memory and uses tensor cores).
     """
 
     kind = "hf_clip"
@@ -67,6 +68,7 @@ class HFClipEncoder:
         device: str = "cpu",
         resize_mode: ResizeMode = "shortest_crop",
         max_batch: int | None = None,
+        dtype: str = "float32",
     ) -> None:
         from transformers import CLIPModel
 
@@ -78,8 +80,11 @@ class HFClipEncoder:
             model = CLIPModel.from_pretrained(str(self.path), local_files_only=True)
         except (OSError, ValueError) as exc:
             raise ModelError(f"{self.path}: cannot load CLIPModel ({exc})") from exc
+        if dtype not in ("float32", "float16", "bfloat16"):
+            raise ModelError(f"dtype must be float32, float16 or bfloat16, got {dtype!r}")
+        self.dtype = getattr(torch, dtype)
         self.device = torch.device(device)
-        self.model = model.eval().to(self.device)
+        self.model = model.eval().to(self.device, dtype=self.dtype)
         self.dim = int(model.config.projection_dim)
         self.preprocess = ClipImagePreprocessor.from_folder(self.path, resize_mode)
         self.tokenizer = ClipTokenizer(self.path)
@@ -90,7 +95,8 @@ class HFClipEncoder:
     @property
     def params(self) -> dict[str, Any]:
         """Settings that change the embeddings (for the cache fingerprint)."""
-        return {"resize_mode": self.preprocess.mode}
+        extra = {} if self.dtype == torch.float32 else {"dtype": str(self.dtype).removeprefix("torch.")}
+        return {"resize_mode": self.preprocess.mode, **extra}
 
     def _chunks(self, n: int) -> list[slice]:
         step = self.max_batch or max(n, 1)
@@ -104,7 +110,7 @@ class HFClipEncoder:
         out = []
         with torch.inference_mode():
             for part in self._chunks(len(images)):
-                x = torch.from_numpy(pixels[part]).to(self.device)
+                x = torch.from_numpy(pixels[part]).to(self.device, dtype=self.dtype)
                 out.append(_embeddings(self.model.get_image_features(pixel_values=x), "image").float().cpu())
         return l2_normalize(torch.cat(out).numpy())
 

@@ -4,7 +4,8 @@
 opacities, view-independent 3D covariances) so that fusion can render hundreds of frames without
 re-conversion. The torch backend (CPU or CUDA) implements the 3DGS forward pass: EWA projection,
 tile binning, depth-sorted front-to-back compositing; with backend "auto" the gsplat CUDA
-rasteriser is used instead when it is installed and a GPU is present.
+rasteriser is used instead when it is installed and a GPU is present; its median depth comes
+from gsplat's own traversal too (`gsplat_median`), so no torch rasteriser runs on that path.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ import torch
 
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.render.composite import composite
-from bayesian_fields_core.render.gsplat_backend import gsplat_available, rasterize_gsplat
+from bayesian_fields_core.render.gsplat_backend import gsplat_available, median_depth_gsplat, rasterize_gsplat
 from bayesian_fields_core.render.output import RasterSettings, RenderOutput
 from bayesian_fields_core.render.projection import covariance_3d, project
 from bayesian_fields_core.render.sh import sh_to_rgb
@@ -126,38 +127,9 @@ class GaussianRenderer:
         depth_only: bool = False,
     ) -> RenderOutput:
         """Render one view; `depth_only` skips colour (and SH evaluation) and returns rgb=None."""
-        K, w2c = _check_camera(K, world_to_camera, width, height)
-        bg = _check_background(background)
-        width, height = int(width), int(height)
-        K_t = torch.as_tensor(K, device=self.device)
-        w2c_t = torch.as_tensor(w2c, device=self.device)
-        with torch.no_grad():
-            if self.backend == "gsplat":
-                rgb, depth, alpha = rasterize_gsplat(
-                    self.means,
-                    self.quats,
-                    self.scales,
-                    self.opacities,
-                    self.sh,
-                    K_t,
-                    w2c_t,
-                    width,
-                    height,
-                    near_plane=self.settings.near_plane,
-                    eps2d=self.settings.eps2d,
-                    tile_size=self.settings.tile_size,
-                    depth_only=depth_only,
-                )
-                median = self._render_torch(K_t, w2c_t, width, height, depth_only=True)[2]
-            else:
-                rgb, depth, median, alpha = self._render_torch(
-                    K_t, w2c_t, width, height, depth_only=depth_only
-                )
-            if rgb is not None:
-                rgb = (rgb + (1.0 - alpha)[..., None] * torch.as_tensor(bg, device=self.device)).clamp_(
-                    0.0, 1.0
-                )
-            depth = torch.where(alpha >= self.settings.min_depth_alpha, depth, torch.zeros_like(depth))
+        rgb, depth, median, alpha = self.render_tensors(
+            K, world_to_camera, width, height, background=background, depth_only=depth_only
+        )
 
         def to_np(t: torch.Tensor) -> np.ndarray:
             return np.ascontiguousarray(t.detach().float().cpu().numpy())
@@ -168,6 +140,58 @@ class GaussianRenderer:
             median_depth=to_np(median),
             alpha=to_np(alpha),
         )
+
+    def render_tensors(
+        self,
+        K: np.ndarray,
+        world_to_camera: np.ndarray,
+        width: int,
+        height: int,
+        *,
+        background: Sequence[float] = (0.0, 0.0, 0.0),
+        depth_only: bool = False,
+    ) -> tuple[torch.Tensor | None, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """(rgb (H,W,3) | None, depth, median depth, alpha (H,W)) as float32 tensors on `device`.
+
+        What `render` returns, left on the device: the CUDA fusion path reads the depth where it
+        was rendered instead of copying every frame to the host and back.
+        """
+        K, w2c = _check_camera(K, world_to_camera, width, height)
+        bg = _check_background(background)
+        width, height = int(width), int(height)
+        K_t = torch.as_tensor(K, device=self.device)
+        w2c_t = torch.as_tensor(w2c, device=self.device)
+        s = self.settings
+        with torch.no_grad():
+            if self.backend == "gsplat":
+                rgb, depth, alpha, meta = rasterize_gsplat(
+                    self.means,
+                    self.quats,
+                    self.scales,
+                    self.opacities,
+                    self.sh,
+                    K_t,
+                    w2c_t,
+                    width,
+                    height,
+                    near_plane=s.near_plane,
+                    eps2d=s.eps2d,
+                    tile_size=s.tile_size,
+                    depth_only=depth_only,
+                )
+                median = median_depth_gsplat(
+                    meta, width, height, level=s.median_transmittance, max_alpha=s.max_alpha
+                )
+            else:
+                rgb, depth, median, alpha = self._render_torch(
+                    K_t, w2c_t, width, height, depth_only=depth_only
+                )
+            if rgb is not None:
+                rgb = (rgb + (1.0 - alpha)[..., None] * torch.as_tensor(bg, device=self.device)).clamp_(
+                    0.0, 1.0
+                )
+            depth = torch.where(alpha >= s.min_depth_alpha, depth, torch.zeros_like(depth))
+        return rgb, depth, median, alpha
 
     def _render_torch(
         self, K: torch.Tensor, w2c: torch.Tensor, width: int, height: int, *, depth_only: bool

@@ -56,6 +56,17 @@ def _depth_for_frame(ctx: JobContext, renderer_factory: Any, frame: Any) -> np.n
     return out.median_depth if ctx.params.depth_source == "median" else out.depth
 
 
+def _cache_pairs(store: Any, key: str, gaussian_ids: np.ndarray, mask_ids: np.ndarray) -> None:
+    put_arrays(
+        store,
+        key,
+        gaussian_ids=gaussian_ids.astype(
+            np.uint32 if gaussian_ids.size == 0 or gaussian_ids.max() < 2**32 else np.int64
+        ),
+        mask_ids=mask_ids.astype(np.int32),
+    )
+
+
 def associations(ctx: JobContext, index: int, frame: Any, labels: np.ndarray, renderer_factory) -> tuple:
     """(gaussian_ids, mask_ids) of one frame, from the scene cache or computed and cached."""
     store = ctx.scene_store
@@ -76,15 +87,60 @@ def associations(ctx: JobContext, index: int, frame: Any, labels: np.ndarray, re
         depth_tolerance=ctx.params.depth_tolerance,
         relative_tolerance=ctx.params.depth_tolerance_relative,
     )
-    put_arrays(
-        store,
-        key,
-        gaussian_ids=gaussian_ids.astype(
-            np.uint32 if gaussian_ids.size == 0 or gaussian_ids.max() < 2**32 else np.int64
-        ),
-        mask_ids=mask_ids.astype(np.int32),
-    )
+    _cache_pairs(store, key, gaussian_ids, mask_ids)
     return gaussian_ids, mask_ids, True
+
+
+def associations_on_device(
+    ctx: JobContext, index: int, frame: Any, labels: np.ndarray, renderer_factory, means: Any
+) -> tuple:
+    """`associations` with the depth image, projection and depth test on `means.device`.
+
+    The rendered depth stays where the renderer left it; only the pairs (a few per cent of the
+    Gaussians) are copied to the host, for the scene cache.
+    """
+    import torch
+
+    from ..fusion.visibility_torch import mask_associations_torch
+
+    store = ctx.scene_store
+    assert store is not None
+    device = means.device
+    key = frame_key(ctx.visibility_prefix, index)
+    if store.exists(key):
+        cached = get_arrays(store, key)
+        gids = torch.as_tensor(cached["gaussian_ids"].astype(np.int64), device=device)
+        return gids, torch.as_tensor(cached["mask_ids"].astype(np.int32), device=device), False
+    if ctx.params.depth_source == "input":
+        depth = torch.as_tensor(_depth_for_frame(ctx, renderer_factory, frame), device=device)
+    else:
+        _rgb, expected, median, _alpha = renderer_factory().render_tensors(
+            frame.K, frame.world_to_camera, frame.width, frame.height, depth_only=True
+        )
+        depth = (median if ctx.params.depth_source == "median" else expected).to(device)
+    gids, mids = mask_associations_torch(
+        means,
+        frame.K,
+        frame.world_to_camera,
+        frame.width,
+        frame.height,
+        depth,
+        torch.as_tensor(labels, device=device),
+        depth_tolerance=ctx.params.depth_tolerance,
+        relative_tolerance=ctx.params.depth_tolerance_relative,
+    )
+    _cache_pairs(store, key, gids.cpu().numpy(), mids.cpu().numpy())
+    return gids, mids, True
+
+
+def fusion_on_torch(ctx: JobContext, device: str) -> bool:
+    """Whether this job's Bayesian update runs as torch ops on `device` (see `fusion_backend`)."""
+    import torch
+
+    backend = ctx.params.fusion_backend
+    if ctx.params.fusion != "bayes" or backend == "numpy":
+        return False
+    return backend == "torch" or torch.device(device).type == "cuda"
 
 
 def run(ctx: JobContext) -> dict[str, Any]:
@@ -98,7 +154,16 @@ def run(ctx: JobContext) -> dict[str, Any]:
     lik = likelihood_params(ctx)
     use_bayes = ctx.params.fusion == "bayes"
 
-    logodds = init_logodds(len(gaussians), n_tasks, ctx.params.prior)
+    device = ctx.params.device or ctx.models.render_device
+    on_torch = fusion_on_torch(ctx, device)
+    if on_torch:
+        import torch
+
+        from ..fusion.bayes_torch import bayes_update_torch, init_logodds_torch
+
+        means_t = torch.as_tensor(np.ascontiguousarray(gaussians.means, np.float32), device=device)
+        logodds_t = init_logodds_torch(len(gaussians), n_tasks, means_t.device, ctx.params.prior)
+    logodds = None if on_torch else init_logodds(len(gaussians), n_tasks, ctx.params.prior)
     averaging = None if use_bayes else CosineAverager(len(gaussians), n_tasks)
 
     ctx.record_cache_use("fuse", [ctx.visibility_key(index) for index, _ in frames])
@@ -109,7 +174,7 @@ def run(ctx: JobContext) -> dict[str, Any]:
         if renderer is None:
             from ..render import GaussianRenderer
 
-            renderer = GaussianRenderer(gaussians, device=ctx.params.device or ctx.models.render_device)
+            renderer = GaussianRenderer(gaussians, device=device)
         return renderer
 
     accepted_chunks: list[np.ndarray] = []
@@ -120,10 +185,30 @@ def run(ctx: JobContext) -> dict[str, Any]:
         perception = get_arrays(scene_store, ctx.perception_key(index))
         labels = perception["labels"].astype(np.int32)
         embeddings = perception["embeddings"].astype(np.float32)
-        gaussian_ids, mask_ids, was_rendered = associations(ctx, index, frame, labels, renderer_factory)
-        rendered += int(was_rendered)
         phi = embeddings @ text.T
         llr = log_likelihood_ratio(phi, lik)
+        if on_torch:
+            gaussian_ids, mask_ids, was_rendered = associations_on_device(
+                ctx, index, frame, labels, renderer_factory, means_t
+            )
+            accepted = (
+                bayes_update_torch(
+                    logodds_t,
+                    gaussian_ids,
+                    mask_ids,
+                    torch.as_tensor(llr, device=means_t.device),
+                    outlier_rejection=ctx.params.outlier_rejection,
+                )
+                .cpu()
+                .numpy()
+            )
+            rendered += int(was_rendered)
+            accepted_chunks.append(accepted)
+            mask_counts[n] = len(phi)
+            ctx.progress("fuse", (n + 1) / len(frames))
+            continue
+        gaussian_ids, mask_ids, was_rendered = associations(ctx, index, frame, labels, renderer_factory)
+        rendered += int(was_rendered)
         if use_bayes:
             accepted = bayes_update(
                 logodds, gaussian_ids, mask_ids, llr, outlier_rejection=ctx.params.outlier_rejection
@@ -135,6 +220,8 @@ def run(ctx: JobContext) -> dict[str, Any]:
         mask_counts[n] = len(phi)
         ctx.progress("fuse", (n + 1) / len(frames))
 
+    if on_torch:
+        logodds = logodds_t.cpu().numpy()  # the only host copy of the state: after the last frame
     if use_bayes:
         probs = probabilities(logodds)
     else:
@@ -167,6 +254,7 @@ def run(ctx: JobContext) -> dict[str, Any]:
             "frames_rendered": rendered,
             "masks": int(mask_counts.sum()),
             "masks_rejected": int((~accepted_all).sum()),
+            "fusion_backend": "torch" if on_torch else "numpy",
             "likelihood": {"mu0": lik.mu0, "mu1": lik.mu1, "s": lik.s, "s_eps": lik.s_eps},
         },
     )

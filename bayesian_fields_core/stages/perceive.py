@@ -16,7 +16,10 @@ from typing import Any
 import numpy as np
 
 from ..context import JobContext
-from ..perception.crops import embed_masks
+from ..errors import CancelledError
+from ..perception.batching import CropBatcher
+from ..perception.crops import mask_crops
+from ..perception.prefetch import pipelined
 from ..scene.images import load_image
 from ..store import put_arrays
 from .markers import write_marker
@@ -40,52 +43,98 @@ def alignment_summary(report: Any) -> dict[str, Any]:
 
 
 def run(ctx: JobContext) -> dict[str, Any]:
+    """Segment and embed every frame not yet in the perception cache.
+
+    Decoding, segmentation and cropping run ahead in threads (`pipelined`, at most
+    `prefetch_frames` frames per step), and crops of consecutive frames are encoded together in
+    batches of `crop_batch_size` (`CropBatcher`); each frame is written once its last crop is
+    encoded, so a crash still resumes frame by frame.
+    """
     store = ctx.scene_store
     assert store is not None
     # Refuse a splat that does not line up with its cameras before any frame is segmented.
     alignment = ctx.alignment()
     frames = ctx.selected_frames()
-    # Built on first need only: a fully cached scene (a re-run with new tasks) loads no model.
-    segmenter = encoder = None
-    computed = 0
+    t_hash = time.perf_counter()
+    keys = {index: ctx.perception_key(index) for index, _ in frames}
+    hash_seconds = time.perf_counter() - t_hash
+    ctx.record_cache_use("perceive", list(keys.values()))
+    todo = [(n, index, frame) for n, (index, frame) in enumerate(frames)]
+    todo = [t for t in todo if not store.exists(keys[t[1]])]
+    done_frames = len(frames) - len(todo)
     masks_total = 0
-    seg_time = embed_time = 0.0
+    timings = {"decode": 0.0, "segment": 0.0, "crop": 0.0, "embed": 0.0}
     t0 = time.perf_counter()
-    keys = [ctx.perception_key(index) for index, _ in frames]
-    hash_seconds = time.perf_counter() - t0
-    ctx.record_cache_use("perceive", keys)
-    for n, ((_, frame), key) in enumerate(zip(frames, keys, strict=True)):
-        ctx.check_cancel()
-        if not store.exists(key):
-            if segmenter is None:
-                segmenter, encoder = ctx.models.segmenter, ctx.models.encoder
-            image = load_image(frame)
-            t = time.perf_counter()
-            labels = segmenter.segment(image)
-            seg_time += time.perf_counter() - t
-            t = time.perf_counter()
-            embeddings = embed_masks(encoder, image, labels).astype(np.float32)
-            embed_time += time.perf_counter() - t
+    batcher = None
+    if todo:
+        # Built on first need only, in this thread: a fully cached scene loads no model, and each
+        # model is then used from one thread only (the segmenter in its step, the encoder here).
+        segmenter, encoder = ctx.models.segmenter, ctx.models.encoder
+        batcher = CropBatcher(encoder, ctx.params.crop_batch_size)
+
+        def timed(name: str, fn: Any) -> Any:
+            def step(item: tuple) -> tuple:
+                t = time.perf_counter()
+                out = fn(item)
+                timings[name] += time.perf_counter() - t
+                return out
+
+            return step
+
+        steps = [
+            timed("decode", lambda it: (it[0], load_image(it[1]))),
+            timed("segment", lambda it: (it[0], it[1], segmenter.segment(it[1]))),
+            timed("crop", lambda it: (it[0], it[2], mask_crops(it[1], it[2]))),
+        ]
+
+        def write(index: int, labels: np.ndarray, embeddings: np.ndarray) -> None:
+            nonlocal masks_total, done_frames
             put_arrays(
                 store,
-                key,
+                keys[index],
                 labels=labels.astype(smallest_label_dtype(embeddings.shape[0])),
-                embeddings=embeddings,
+                embeddings=embeddings.astype(np.float32),
             )
-            computed += 1
             masks_total += int(embeddings.shape[0])
-        ctx.progress("perceive", (n + 1) / len(frames))
+            done_frames += 1
+            ctx.progress("perceive", done_frames / len(frames))
+
+        for index, labels, crops in pipelined(
+            ((index, frame) for _n, index, frame in todo), steps, ctx.params.prefetch_frames
+        ):
+            try:
+                ctx.check_cancel()
+            except CancelledError:
+                # Frames already received are finished and cached, so a resume skips them.
+                for (i, lab), emb in batcher.flush():
+                    write(i, lab, emb)
+                raise
+            t = time.perf_counter()
+            ready = list(batcher.add((index, labels), crops))
+            timings["embed"] += time.perf_counter() - t
+            for (i, lab), emb in ready:
+                write(i, lab, emb)
+        t = time.perf_counter()
+        ready = list(batcher.flush())
+        timings["embed"] += time.perf_counter() - t
+        for (i, lab), emb in ready:
+            write(i, lab, emb)
+    ctx.progress("perceive", 1.0)
     return write_marker(
         ctx,
         "perceive",
         {
             "seconds": time.perf_counter() - t0,
             "frames": len(frames),
-            "frames_computed": computed,
-            "frames_cached": len(frames) - computed,
+            "frames_computed": len(todo),
+            "frames_cached": len(frames) - len(todo),
             "masks_computed": masks_total,
-            "segment_seconds": seg_time,
-            "embed_seconds": embed_time,
+            "decode_seconds": timings["decode"],
+            "segment_seconds": timings["segment"],
+            "crop_seconds": timings["crop"],
+            "embed_seconds": timings["embed"],
+            "encoder_calls": 0 if batcher is None else batcher.calls,
+            "crop_batch_size": ctx.params.crop_batch_size,
             "hash_seconds": hash_seconds,
             "cache_prefix": ctx.perception_prefix,
             "alignment": None if alignment is None else alignment_summary(alignment),

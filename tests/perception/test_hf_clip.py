@@ -97,3 +97,17 @@ def test_errors(tiny_clip_dir: Path, tmp_path: Path) -> None:
     enc = HFClipEncoder(tiny_clip_dir)
     with pytest.raises(InputError, match=r"images\[1\]"):
         enc.encode_images([np.zeros((8, 8, 3), np.uint8), np.zeros((8, 8), np.uint8)])
+
+
+def test_reduced_precision_dtype_is_close_and_fingerprinted(
+    tiny_clip_dir: Path, scene_image: np.ndarray
+) -> None:
+    full = HFClipEncoder(tiny_clip_dir)
+    half = HFClipEncoder(tiny_clip_dir, dtype="bfloat16")  # float16 matmuls need a GPU; bf16 runs on CPUs
+    assert "dtype" not in full.params and half.params["dtype"] == "bfloat16"
+    crops = [scene_image[5:25, 5:35], scene_image[10:50, 45:75]]
+    a, b = full.encode_images(crops), half.encode_images(crops)
+    assert b.dtype == np.float32 and b.shape == a.shape
+    assert ((a * b).sum(axis=1) > 0.98).all()
+    with pytest.raises(ModelError, match="dtype"):
+        HFClipEncoder(tiny_clip_dir, dtype="int8")

@@ -23,7 +23,7 @@ from ..errors import InputError
 from ..objects.obb import OrientedBox
 
 FORMAT_NAME = "bayesian-fields-result"
-FORMAT_VERSION = "1.1"
+FORMAT_VERSION = "1.2"
 """MAJOR.MINOR. A reader accepts any MINOR of its MAJOR (minors only add optional fields and files);
 a new MAJOR (a changed meaning, dtype rule or layout) is refused with a clear error."""
 
@@ -34,6 +34,7 @@ PROBABILITIES_KEY = "probabilities.bin"
 RELEVANCE_KEY = "relevance.bin"
 OBJECT_EXPORT_DIR = "exports/objects/"
 SCENE_EXPORT_KEY = "exports/scene_objects.ply"
+TASK_EXPORT_DIR = "exports/tasks/"
 
 ID_DTYPES = (np.dtype("<u1"), np.dtype("<u2"), np.dtype("<u4"))
 CODECS = ("raw", "zlib", "lzma")

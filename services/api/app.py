@@ -18,7 +18,7 @@ from services.common.settings import ServiceSettings, apply_log_level, get_setti
 from services.common.storage import build_store
 from services.worker.celery_app import make_celery
 
-from .routes import health, jobs, scenes
+from .routes import health, jobs, scenes, ui
 from .routes.health import metrics_registry
 from .state import AppState
 
@@ -48,7 +48,7 @@ def create_app(settings: ServiceSettings | None = None) -> FastAPI:
     app = FastAPI(title="Bayesian Fields API", version="1.0.0", description=DESCRIPTION)
     app.state.bf = state
     app.state.key_ring = state.key_ring
-    for module in (scenes, jobs, health):
+    for module in (scenes, jobs, health, ui):
         app.include_router(module.router)
 
     @app.exception_handler(InputError)

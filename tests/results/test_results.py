@@ -11,7 +11,14 @@ import pytest
 
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.objects.obb import minimum_obb
-from bayesian_fields_core.results import Result, SelectedObject, read_result, result_sizes, write_result
+from bayesian_fields_core.results import (
+    FORMAT_VERSION,
+    Result,
+    SelectedObject,
+    read_result,
+    result_sizes,
+    write_result,
+)
 from bayesian_fields_core.results.export import BACKGROUND_GREY, SH_C0, object_palette
 from bayesian_fields_core.results.format import (
     compress,
@@ -204,7 +211,7 @@ def test_relevance_round_trip_and_optional(setup):
     written = write_result(store, "r", res)
     back = read_result(store, "r")
     np.testing.assert_array_equal(back.relevance, res.relevance)
-    assert back.format_version == "1.1"
+    assert back.format_version == FORMAT_VERSION
     assert result_sizes(store, "r")["total/object_map"] == sum(
         written[k] for k in ("summary.json", "object_ids.bin", "probabilities.bin", "relevance.bin")
     )

@@ -153,7 +153,10 @@ def evaluate_scene(
     visibility_s = 0.0
     full_ctx: JobContext | None = None
     for row, overrides in METHOD_ROWS.items():
-        params = PipelineParams.model_validate({**(base_params or {}), "top_k": top_k, **overrides})
+        # previews off: the tables never look at them, and rendering them would add to every row's time
+        params = PipelineParams.model_validate(
+            {"previews": False, **(base_params or {}), "top_k": top_k, **overrides}
+        )
         store = LocalStore(out_dir / case.name / _slug(row))
         ctx = JobContext(
             store=store,

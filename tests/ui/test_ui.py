@@ -43,7 +43,7 @@ def _login(page, api: ApiServer, tenant: str) -> float:  # noqa: ANN001
     return load_s
 
 
-def test_ui_flow(api_server: ApiServer, ui_workers, browser, images_zip: Path) -> None:  # noqa: ANN001
+def test_ui_flow(api_server: ApiServer, ui_workers, browser, images_zip: Path, tmp_path: Path) -> None:  # noqa: ANN001
     api = api_server
     ctx_a = browser.new_context(viewport={"width": 1200, "height": 900})
     page = ctx_a.new_page()
@@ -137,7 +137,38 @@ def test_ui_flow(api_server: ApiServer, ui_workers, browser, images_zip: Path) -
     assert resp.status_code == 404
     ctx_a.close()
     ctx_b.close()
+    _view_job(api, job_id, tmp_path)
     print(f"/ui load {load_s * 1000:.0f} ms; job page with previews {job_page_s * 1000:.0f} ms")
+
+
+def _view_job(api: ApiServer, job_id: str, tmp_path: Path) -> None:
+    """`bfields view --job`: the job's result comes through the client; the scene's geometry from
+    the result's own export (the scene folder is not on this machine), or from --scene."""
+    pytest.importorskip("viser")
+    from argparse import Namespace
+
+    from bayesian_fields_core.viewer.command import _fetch_job
+    from bayesian_fields_core.viewer.data import load_view
+
+    args = Namespace(
+        job=job_id, server=api.base_url, api_key=api.keys["tenant-a"], download_dir=str(tmp_path / "dl")
+    )
+    folder = _fetch_job(args)
+    data = load_view(folder)
+    assert data.total_gaussians == 21651 and data.frames == [] and data.tasks == TASKS
+    assert data.summary["scene"]["store_prefix"].endswith("/input/")
+    assert len(load_view(folder, scene_dir=SAMPLE).frames) == 20
+    from bayesian_fields_core.errors import InputError
+
+    with pytest.raises(InputError, match="not found"):
+        _fetch_job(
+            Namespace(
+                job=job_id,
+                server=api.base_url,
+                api_key=api.keys["tenant-b"],
+                download_dir=str(tmp_path / "b"),
+            )
+        )
 
 
 def _shots() -> bool:

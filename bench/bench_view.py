@@ -89,7 +89,7 @@ def measure(run: Path, label: str, browser: bool) -> None:
             page = b.new_page(viewport={"width": 1280, "height": 720})
             t = time.perf_counter()
             page.goto(viewer.url)
-            page.wait_for_selector("canvas")
+            page.wait_for_selector("canvas", state="attached", timeout=120_000)
             t_page = time.perf_counter() - t
             page.wait_for_timeout(3000)
             fps = page.evaluate(

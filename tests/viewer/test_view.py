@@ -84,7 +84,7 @@ def test_viewer_in_chromium(viewer, browser) -> None:  # noqa: ANN001
     page = browser.new_page(viewport={"width": 1000, "height": 700})
     try:
         page.goto(viewer.url)
-        page.wait_for_selector("canvas", timeout=30_000)
+        page.wait_for_selector("canvas", state="attached", timeout=90_000)
         deadline = time.monotonic() + 30
         while not viewer.server.get_clients() and time.monotonic() < deadline:
             time.sleep(0.2)

@@ -333,6 +333,10 @@ def build_parser() -> argparse.ArgumentParser:
     srv.add_argument("--workers", type=int, default=1)
     srv.set_defaults(func=cmd_serve)
 
+    from .viewer.command import add_view_parser
+
+    add_view_parser(sub)
+
     try:
         from services.client.cli import register_client_commands
     except ImportError:

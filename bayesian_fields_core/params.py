@@ -172,6 +172,15 @@ class PipelineParams(BaseModel):
         True, description="Write one .ply per selected object and a recoloured scene .ply."
     )
     store_primitive_ids: bool = Field(True, description="Store per-Gaussian primitive ids in the result.")
+    previews: bool = Field(
+        True, description="Render one preview PNG per task and a contact sheet into the result."
+    )
+    preview_max_side: int = Field(
+        480,
+        ge=32,
+        le=4096,
+        description="Longest side, in pixels, of a preview render (frames are scaled down).",
+    )
 
     # --- execution ------------------------------------------------------------------------------
     device: str | None = Field(

@@ -12,8 +12,29 @@ from rich.table import Table
 from .results.format import Result
 
 
+def _files(out: Path) -> dict[str, Any]:
+    """Preview and export paths recorded in the result's summary.json (absent keys: none)."""
+    try:
+        summary = json.loads((out / "result" / "summary.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
+    root = out / "result"
+    previews = summary.get("previews") or {}
+    exports = summary.get("exports") or {}
+    return {
+        "previews": {p["task"]: str(root / p["file"]) for p in previews.get("tasks", [])},
+        "contact_sheet": str(root / previews["contact_sheet"]) if previews.get("contact_sheet") else None,
+        "task_exports": {t: str(root / k) for t, k in (exports.get("tasks") or {}).items()},
+        "object_exports": {int(i): str(root / k) for i, k in (exports.get("objects") or {}).items()},
+        "scene_export": str(root / exports["scene"]) if exports.get("scene") else None,
+    }
+
+
 def result_summary(result: Result, reports: dict[str, dict[str, Any]], out: Path) -> dict[str, Any]:
-    """A JSON-able digest of a run for `--json` and scripts."""
+    """A JSON-able digest of a run for `--json` and scripts: per task its ranked objects (with
+    oriented box and export path), the preview image and the task's recoloured splat."""
+    files = _files(out)
+    objects_ply = files.get("object_exports", {})
     return {
         "output": str(out),
         "tasks": {
@@ -28,11 +49,17 @@ def result_summary(result: Result, reports: dict[str, dict[str, Any]], out: Path
                         if o.capture_centroid is not None
                         else {}
                     ),
+                    "box": o.box.to_dict(),
+                    "export": objects_ply.get(o.object_id),
                 }
                 for o in objects
             ]
             for task, objects in result.selections.items()
         },
+        "previews": files.get("previews", {}),
+        "contact_sheet": files.get("contact_sheet"),
+        "task_exports": files.get("task_exports", {}),
+        "scene_export": files.get("scene_export"),
         "counts": result.counts(),
         "frames": {
             "layout": result.layout,
@@ -89,3 +116,11 @@ def print_result(
         f"{perceive.get('frames_cached', 0)} from cache"
     )
     console.print(f"result written to {out / 'result'}")
+    files = _files(out)
+    if files.get("contact_sheet"):
+        console.print(f"previews: {files['contact_sheet']} (all tasks)")
+        for task, path in files["previews"].items():
+            console.print(f"  {task}: {path}")
+    if files.get("task_exports"):
+        console.print(f"per-task splats: {Path(next(iter(files['task_exports'].values()))).parent}/")
+    console.print(f"look at it: bfields view {out}")

@@ -154,9 +154,10 @@ def evaluate_scene(
     full_ctx: JobContext | None = None
     for row, overrides in METHOD_ROWS.items():
         # The first row checks the scene's alignment; the other rows run on the very same scene.
+        # Previews off: the tables never look at them, and rendering them would add to every row.
         checked = {} if full_ctx is None else {"alignment_check": False}
         params = PipelineParams.model_validate(
-            {**(base_params or {}), "top_k": top_k, **overrides, **checked}
+            {"previews": False, **(base_params or {}), "top_k": top_k, **overrides, **checked}
         )
         store = LocalStore(out_dir / case.name / _slug(row))
         ctx = JobContext(

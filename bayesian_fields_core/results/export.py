@@ -3,7 +3,8 @@
 Both are ordinary INRIA-layout splats, so any splat viewer opens them with no plug-in: the object
 files are the object's Gaussians with every attribute untouched; the scene file gives each object
 one flat, distinct colour (degree-0 SH only, f_rest zeroed so the colour does not change with the
-view) and dims everything else to grey.
+view) and dims everything else to grey. Per-task files colour one task's selected objects by rank.
+Recoloured files carry an int32 `object_id` vertex property (-1 = none), so a viewer can filter.
 """
 
 from __future__ import annotations
@@ -50,7 +51,29 @@ def recolour(gaussians: Gaussians, object_ids: np.ndarray, num_objects: int) -> 
         quats=gaussians.quats,
         opacity_logits=gaussians.opacity_logits,
         sh=sh,
-        extra=dict(gaussians.extra),
+        extra={**gaussians.extra, "object_id": np.asarray(ids, dtype=np.int32)},
+    )
+
+
+def task_recolour(gaussians: Gaussians, object_ids: np.ndarray, selected: list[int]) -> Gaussians:
+    """A copy of the splat showing one task: its selected objects (ids in rank order) in their rank
+    colour (`previews.RANK_COLOURS`), every other Gaussian grey; `object_id` as in `recolour`."""
+    from .previews import rank_colour
+
+    ids = np.asarray(object_ids)
+    rgb = np.full((len(gaussians), 3), BACKGROUND_GREY, dtype=np.float32)
+    for rank, object_id in enumerate(selected):
+        rgb[ids == object_id] = rank_colour(rank)
+    # Degree 0 only: a flat colour needs no f_rest, and one file per task must stay small
+    # (about 70 bytes a Gaussian instead of 248 for a degree-3 splat).
+    sh = ((rgb - 0.5) / SH_C0)[:, None, :].astype(np.float32)
+    return Gaussians(
+        means=gaussians.means,
+        log_scales=gaussians.log_scales,
+        quats=gaussians.quats,
+        opacity_logits=gaussians.opacity_logits,
+        sh=sh,
+        extra={**gaussians.extra, "object_id": ids.astype(np.int32)},
     )
 
 

@@ -34,6 +34,7 @@ PROBABILITIES_KEY = "probabilities.bin"
 RELEVANCE_KEY = "relevance.bin"
 OBJECT_EXPORT_DIR = "exports/objects/"
 SCENE_EXPORT_KEY = "exports/scene_objects.ply"
+TASK_EXPORT_DIR = "exports/tasks/"
 
 ID_DTYPES = (np.dtype("<u1"), np.dtype("<u2"), np.dtype("<u4"))
 CODECS = ("raw", "zlib", "lzma")

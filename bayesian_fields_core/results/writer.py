@@ -12,9 +12,9 @@ from typing import Any
 import numpy as np
 
 from ..errors import InputError
-from ..scene.types import Gaussians
+from ..scene.types import Frame, Gaussians
 from ..store import Store, put_json
-from .export import put_ply, recolour
+from .export import put_ply, recolour, task_recolour
 from .format import (
     FORMAT_NAME,
     FORMAT_VERSION,
@@ -26,11 +26,13 @@ from .format import (
     RELEVANCE_KEY,
     SCENE_EXPORT_KEY,
     SUMMARY_KEY,
+    TASK_EXPORT_DIR,
     Result,
     SelectedObject,
     encode_array,
     encode_ids,
 )
+from .previews import CONTACT_SHEET_KEY, PREVIEW_DIR, contact_sheet, render_previews
 
 
 def normalise_prefix(prefix: str) -> str:
@@ -42,6 +44,10 @@ def object_export_key(object_id: int) -> str:
     return f"{OBJECT_EXPORT_DIR}object_{object_id:05d}.ply"
 
 
+def task_export_key(task_index: int) -> str:
+    return f"{TASK_EXPORT_DIR}task_{task_index:02d}.ply"
+
+
 def write_result(
     store: Store,
     prefix: str,
@@ -49,9 +55,15 @@ def write_result(
     *,
     gaussians: Gaussians | None = None,
     export_ply: bool = True,
+    frames: list[Frame] | None = None,
+    preview_max_side: int | None = None,
+    scene: dict[str, Any] | None = None,
 ) -> dict[str, int]:
     """Write `result` under `prefix`; with `gaussians` (the scene's splat) and `export_ply`, also the
-    per-object and recoloured-scene `.ply` exports. Returns {key relative to prefix: bytes written}.
+    per-object, per-task and recoloured-scene `.ply` exports; with `gaussians`, `frames` and
+    `preview_max_side`, one preview PNG per task and a contact sheet (`results.previews`). `scene`
+    (free-form JSON: where the scene came from) is recorded so a viewer can find the splat again.
+    Returns {key relative to prefix: bytes written}.
 
     Stale files of an earlier result under the same prefix are removed first, so the directory
     always holds exactly what the summary describes.
@@ -64,6 +76,7 @@ def write_result(
         )
     store.delete(prefix + SUMMARY_KEY)  # first: a half-rewritten result is never readable
     store.delete_prefix(prefix + "exports/")
+    store.delete_prefix(prefix + PREVIEW_DIR)
     sizes: dict[str, int] = {}
 
     def put(name: str, data: bytes) -> None:
@@ -92,7 +105,7 @@ def write_result(
     else:
         store.delete(prefix + RELEVANCE_KEY)
 
-    exports: dict[str, Any] = {"objects": {}, "scene": None}
+    exports: dict[str, Any] = {"objects": {}, "scene": None, "tasks": {}}
     if gaussians is not None and export_ply:
         ids = np.asarray(result.object_ids)
         for object_id in sorted({o.object_id for objs in result.selections.values() for o in objs}):
@@ -103,6 +116,21 @@ def write_result(
             store, prefix + SCENE_EXPORT_KEY, recolour(gaussians, ids, result.num_objects)
         )
         exports["scene"] = SCENE_EXPORT_KEY
+        for t, task in enumerate(result.tasks):
+            key = task_export_key(t)
+            chosen = [o.object_id for o in result.selections.get(task, [])]
+            sizes[key] = put_ply(store, prefix + key, task_recolour(gaussians, ids, chosen))
+            exports["tasks"][task] = key
+
+    previews: dict[str, Any] = {"tasks": [], "contact_sheet": None}
+    if gaussians is not None and frames and preview_max_side:
+        rendered = render_previews(result, gaussians, frames, max_side=preview_max_side)
+        for preview in rendered:
+            put(preview.key, preview.png)
+            previews["tasks"].append(preview.entry())
+        if rendered:
+            put(CONTACT_SHEET_KEY, contact_sheet(rendered))
+            previews["contact_sheet"] = CONTACT_SHEET_KEY
 
     def describe(obj: SelectedObject) -> dict[str, Any]:
         return {**obj.to_dict(), "export": exports["objects"].get(str(obj.object_id))}
@@ -119,6 +147,8 @@ def write_result(
             for task in result.tasks
         ],
         "exports": exports,
+        "previews": previews,
+        "scene": scene,
         "parameters": result.parameters,
         "models": result.models,
         "timings_s": {k: float(v) for k, v in result.timings_s.items()},

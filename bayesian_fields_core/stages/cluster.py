@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -264,6 +265,9 @@ def run(ctx: JobContext) -> dict[str, Any]:
         result,
         gaussians=ctx.scene().splat_frame_gaussians() if ctx.params.export_ply else None,
         export_ply=ctx.params.export_ply,
+        frames=ctx.scene().frames,
+        preview_max_side=ctx.params.preview_max_side if ctx.params.previews else None,
+        scene=_scene_record(ctx),
     )
     timings["write"] = time.perf_counter() - t
     ctx.progress("cluster", 1.0)
@@ -277,6 +281,17 @@ def run(ctx: JobContext) -> dict[str, Any]:
             "result_bytes": sizes,
         },
     )
+
+
+def _scene_record(ctx: JobContext) -> dict[str, Any]:
+    """Where the result's scene lives, for `bfields view`: a local folder (CLI) or a store prefix."""
+    scene = ctx.scene()
+    return {
+        "folder": str(Path(ctx.scene_dir).resolve()) if ctx.scene_dir is not None else None,
+        "store_prefix": None if ctx.scene_dir is not None else f"{ctx.scene_prefix}input/",
+        "num_gaussians": len(scene.gaussians),
+        "num_frames": len(scene.frames),
+    }
 
 
 def build_result(ctx: JobContext, object_map: ObjectMap, timings: dict[str, float]) -> Result:

@@ -22,7 +22,7 @@ from services.common.storage import build_store
 from services.worker.celery_app import make_celery
 
 from .edge import Utf8Guard, install_handlers
-from .routes import health, jobs, scenes
+from .routes import health, jobs, scenes, ui
 from .routes.health import metrics_registry
 from .state import AppState
 from .sweeper import Sweeper, lifespan
@@ -93,7 +93,7 @@ def create_app(settings: ServiceSettings | None = None) -> FastAPI:
     app = FastAPI(title="Bayesian Fields API", version="1.0.0", description=DESCRIPTION, lifespan=sweeper)
     app.state.bf = state
     app.state.key_ring = state.key_ring
-    for module in (scenes, jobs, health):
+    for module in (scenes, jobs, health, ui):
         app.include_router(module.router)
     install_handlers(app, settings.retry_after_s)
     app.add_middleware(Utf8Guard)

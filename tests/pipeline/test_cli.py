@@ -49,7 +49,12 @@ def test_run_prints_objects_per_task(
     for objects in summary["tasks"].values():
         for obj in objects:
             assert obj["num_gaussians"] > 0 and 0.0 <= obj["probability"] <= 1.0
+            assert len(obj["box"]["extents"]) == 3 and Path(obj["export"]).is_file()
     assert (tmp_path / "out" / "result" / "summary.json").is_file()
+    assert Path(summary["contact_sheet"]).is_file() and list(summary["previews"]) == tasks
+    assert all(
+        Path(summary["previews"][t]).is_file() and Path(summary["task_exports"][t]).is_file() for t in tasks
+    )
 
     # The human table, on a second run of the same scene: perception comes from the cache.
     assert main(args) == 0

@@ -11,10 +11,16 @@ import pytest
 
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.objects.obb import minimum_obb
-from bayesian_fields_core.results import Result, SelectedObject, read_result, result_sizes, write_result
+from bayesian_fields_core.results import (
+    FORMAT_VERSION,
+    Result,
+    SelectedObject,
+    read_result,
+    result_sizes,
+    write_result,
+)
 from bayesian_fields_core.results.export import BACKGROUND_GREY, SH_C0, object_palette
 from bayesian_fields_core.results.format import (
-    FORMAT_VERSION,
     compress,
     decode_ids,
     decompress,

@@ -1,0 +1,242 @@
+"""Per-task preview images of a result and a contact sheet of all tasks.
+
+A preview is what a person looks at first: the scene rendered with the project's renderer from the
+input view that sees the task's top object best, the task's selected objects tinted in their rank
+colour and outlined, everything else dimmed, and a legend strip (task, rank, object id, p).
+
+Each preview costs two renders of one view at reduced resolution (`preview_max_side`): the tinted
+colour image, and a label image (each selected object a flat palette colour, the rest opaque black)
+whose per-pixel nearest palette colour gives the object masks that are outlined. Occlusion is thus
+the renderer's own. The best view is chosen without rendering: the frame in which most of the top
+object's Gaussian centres project inside the image (in front of the camera), ties broken by the
+larger projected footprint.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from PIL import Image, ImageDraw, ImageFont
+
+from ..scene.types import Frame, Gaussians
+from .export import SH_C0
+from .format import Result
+
+PREVIEW_DIR = "previews/"
+CONTACT_SHEET_KEY = "previews/contact_sheet.png"
+RANK_COLOURS = np.array(
+    [
+        [1.00, 0.25, 0.20],  # rank 1: red
+        [1.00, 0.75, 0.10],  # rank 2: amber
+        [0.25, 0.85, 0.30],  # rank 3: green
+        [0.25, 0.60, 1.00],  # rank 4: blue
+        [0.85, 0.35, 1.00],  # rank 5: violet
+    ],
+    dtype=np.float32,
+)
+"""Colour of a task's k-th object (cycled past 5) in previews, task exports and the viewer."""
+
+DIM = 0.35
+"""Brightness factor of Gaussians outside the task's selection in a preview."""
+
+TINT = 0.65
+"""Weight of the rank colour when tinting a selected object's Gaussians (1 = flat colour)."""
+
+_MAX_VIEW_POINTS = 4000
+
+
+def rank_colour(rank: int) -> np.ndarray:
+    """(3,) RGB in [0, 1] of the object at 0-based `rank`."""
+    return RANK_COLOURS[rank % len(RANK_COLOURS)]
+
+
+def preview_key(task_index: int) -> str:
+    return f"{PREVIEW_DIR}task_{task_index:02d}.png"
+
+
+@dataclass
+class Preview:
+    """One task's preview: the PNG bytes and what is listed in summary.json."""
+
+    task: str
+    key: str
+    frame: str | None
+    png: bytes
+    width: int
+    height: int
+
+    def entry(self) -> dict[str, Any]:
+        return {"task": self.task, "file": self.key, "frame": self.frame, "width": self.width,
+                "height": self.height}  # fmt: skip
+
+
+def best_view(frames: list[Frame], points: np.ndarray) -> int:
+    """Index of the frame that sees `points` (M, 3) best: most centres in front of the camera and
+    inside the image; ties go to the larger projected bounding box (a closer view)."""
+    if len(points) > _MAX_VIEW_POINTS:
+        points = points[np.linspace(0, len(points) - 1, _MAX_VIEW_POINTS).astype(np.int64)]
+    best, best_score = 0, (-1, -1.0)
+    homo = np.concatenate([points, np.ones((len(points), 1))], axis=1).T  # (4, M)
+    for i, frame in enumerate(frames):
+        cam = (frame.world_to_camera @ homo)[:3]
+        front = cam[2] > 1e-3
+        if not front.any():
+            continue
+        uv = (frame.K @ cam[:, front])[:2] / cam[2, front]
+        inside = (uv[0] >= 0) & (uv[0] < frame.width) & (uv[1] >= 0) & (uv[1] < frame.height)
+        count = int(inside.sum())
+        area = 0.0
+        if count:
+            span = uv[:, inside].max(axis=1) - uv[:, inside].min(axis=1)
+            area = float(span[0] * span[1]) / float(frame.width * frame.height)
+        if (count, area) > best_score:
+            best, best_score = i, (count, area)
+    return best
+
+
+def _flat_sh(g: Gaussians, rgb: np.ndarray) -> Gaussians:
+    """A copy of `g` whose colour is `rgb` (N, 3) from every direction (degree-0 SH only)."""
+    sh = np.zeros((len(g), 1, 3), dtype=np.float32)
+    sh[:, 0, :] = (np.clip(rgb, 0.0, 1.0) - 0.5) / SH_C0
+    return Gaussians(g.means, g.log_scales, g.quats, g.opacity_logits, sh)
+
+
+def base_colours(g: Gaussians) -> np.ndarray:
+    """(N, 3) view-independent colour of each Gaussian (its degree-0 SH term)."""
+    return np.clip(0.5 + SH_C0 * np.asarray(g.sh[:, 0, :], dtype=np.float32), 0.0, 1.0)
+
+
+def _scaled_camera(frame: Frame, max_side: int) -> tuple[np.ndarray, int, int]:
+    scale = min(1.0, max_side / max(frame.width, frame.height))
+    K = np.array(frame.K, dtype=np.float64)
+    K[:2] *= scale
+    return K, max(1, round(frame.width * scale)), max(1, round(frame.height * scale))
+
+
+def _font(size: int) -> ImageFont.ImageFont | ImageFont.FreeTypeFont:
+    try:
+        return ImageFont.load_default(size=size)
+    except TypeError:  # Pillow < 10.1 has only the bitmap font
+        return ImageFont.load_default()
+
+
+def _outline(labels: np.ndarray) -> np.ndarray:
+    """(H, W) bool: pixels of a labelled region (label >= 0) whose 4-neighbour differs."""
+    edge = np.zeros(labels.shape, dtype=bool)
+    inside = labels >= 0
+    for axis in (0, 1):
+        diff = np.diff(labels, axis=axis) != 0
+        pad = [(0, 0), (0, 0)]
+        pad[axis] = (1, 0)
+        edge |= np.pad(diff, pad) & inside
+        pad[axis] = (0, 1)
+        edge |= np.pad(diff, pad) & inside
+    return edge
+
+
+def _legend(image: Image.Image, task: str, rows: list[tuple[int, int, float]]) -> Image.Image:
+    """The image with a legend strip below: the task, then one line per (rank, object, p)."""
+    width = max(image.width, 320)
+    line = 16
+    font, title_font = _font(12), _font(14)
+    lines = max(len(rows), 1)
+    strip = 8 + 18 + line * lines + 6
+    out = Image.new("RGB", (width, image.height + strip), (24, 24, 28))
+    out.paste(image, ((width - image.width) // 2, 0))
+    draw = ImageDraw.Draw(out)
+    y = image.height + 6
+    draw.text((8, y), task, fill=(240, 240, 240), font=title_font)
+    y += 20
+    if not rows:
+        draw.text((8, y), "no object selected", fill=(180, 180, 180), font=font)
+    for rank, object_id, p in rows:
+        colour = tuple(int(c * 255) for c in rank_colour(rank))
+        draw.rectangle((8, y + 2, 20, y + 13), fill=colour)
+        draw.text((26, y), f"#{rank + 1}  object {object_id}   p = {p:.3f}", fill=(230, 230, 230), font=font)
+        y += line
+    return out
+
+
+def _png(image: Image.Image) -> bytes:
+    buf = io.BytesIO()
+    image.save(buf, format="PNG", optimize=False, compress_level=6)
+    return buf.getvalue()
+
+
+def render_previews(
+    result: Result,
+    gaussians: Gaussians,
+    frames: list[Frame],
+    *,
+    max_side: int,
+    device: str = "cpu",
+) -> list[Preview]:
+    """One preview per task of `result` (in task order), rendered from the scene's frames."""
+    from ..render.renderer import GaussianRenderer
+
+    if not frames:
+        return []
+    ids = np.asarray(result.object_ids)
+    base = base_colours(gaussians)
+    previews = []
+    for t, task in enumerate(result.tasks):
+        objects = result.selections.get(task, [])
+        top = ids == objects[0].object_id if objects else np.ones(len(ids), dtype=bool)
+        index = best_view(frames, np.asarray(gaussians.means)[top]) if top.any() else 0
+        frame = frames[index]
+        K, width, height = _scaled_camera(frame, max_side)
+        tinted = base * DIM
+        flat = np.zeros_like(base)
+        rank_of = np.full(len(ids), -1, dtype=np.int64)
+        for rank, obj in enumerate(objects):
+            mask = ids == obj.object_id
+            colour = rank_colour(rank)
+            tinted[mask] = (1 - TINT) * base[mask] + TINT * colour
+            flat[mask] = colour
+            rank_of[mask] = rank
+        colour_img = GaussianRenderer(_flat_sh(gaussians, tinted), device=device, backend="torch").render(
+            K, frame.world_to_camera, width, height, background=(0.08, 0.08, 0.1)
+        )
+        rgb = (np.clip(colour_img.rgb, 0, 1) * 255).astype(np.uint8)
+        if objects:
+            label_img = GaussianRenderer(_flat_sh(gaussians, flat), device=device, backend="torch").render(
+                K, frame.world_to_camera, width, height
+            )
+            palette = np.array([rank_colour(r) for r in range(len(objects))])  # (k, 3)
+            dist = ((label_img.rgb[:, :, None, :] - palette[None, None]) ** 2).sum(-1)  # (H, W, k)
+            labels = np.where(dist.min(-1) < 0.12, dist.argmin(-1), -1)
+            edge = _outline(labels)
+            rgb[edge] = (palette[labels[edge]] * 255).astype(np.uint8)
+            rgb[edge & (labels >= 0)] = np.maximum(rgb[edge & (labels >= 0)], 60)
+        rows = [(r, o.object_id, o.probability) for r, o in enumerate(objects)]
+        image = _legend(Image.fromarray(rgb), task, rows)
+        previews.append(
+            Preview(
+                task=task,
+                key=preview_key(t),
+                frame=frame.name,
+                png=_png(image),
+                width=image.width,
+                height=image.height,
+            )  # fmt: skip
+        )
+    return previews
+
+
+def contact_sheet(previews: list[Preview], *, thumb_width: int = 320) -> bytes:
+    """PNG of every task's preview in a grid (about square), each scaled to `thumb_width`."""
+    images = [Image.open(io.BytesIO(p.png)).convert("RGB") for p in previews]
+    thumbs = [im.resize((thumb_width, max(1, round(im.height * thumb_width / im.width)))) for im in images]
+    cols = max(1, math.ceil(math.sqrt(len(thumbs))))
+    rows = max(1, math.ceil(len(thumbs) / cols))
+    cell_h = max((t.height for t in thumbs), default=1)
+    gap = 4
+    sheet = Image.new("RGB", (cols * (thumb_width + gap) + gap, rows * (cell_h + gap) + gap), (10, 10, 12))
+    for i, thumb in enumerate(thumbs):
+        r, c = divmod(i, cols)
+        sheet.paste(thumb, (gap + c * (thumb_width + gap), gap + r * (cell_h + gap)))
+    return _png(sheet)

@@ -1,0 +1,254 @@
+"""`bfields view`: the result in the browser, on viser (nerfstudio's viewer library).
+
+The splat is drawn as Gaussians by viser's own WebGL splat renderer (the client bundle ships in the
+viser wheel, so the page works offline). The GUI panel holds a task selector, the colouring (task
+highlight, per-Gaussian relevance heat map, all objects by id, original colours), toggles for boxes
+and cameras, the selected task's legend and the clicked object's details. Changing the task only
+re-sends colours and boxes; the Gaussians' geometry is sent once.
+"""
+
+from __future__ import annotations
+
+import html
+import threading
+from typing import Any
+
+import numpy as np
+
+from ..results.export import object_palette
+from ..results.previews import rank_colour
+from ..scene.geometry import quat_to_rotmat, rotmat_to_quat
+from .data import ViewData
+
+COLOURINGS = ("task highlight", "relevance heat map", "all objects", "original colours")
+
+
+def _hex(rgb: np.ndarray) -> str:
+    return "#" + "".join(f"{int(round(float(c) * 255)):02x}" for c in rgb)
+
+
+def covariances(data: ViewData) -> np.ndarray:
+    """(M, 3, 3) world covariances R diag(s^2) R^T of the shown Gaussians."""
+    rot = quat_to_rotmat(np.asarray(data.gaussians.quats, dtype=np.float64))
+    scales = np.exp(np.asarray(data.gaussians.log_scales, dtype=np.float64))
+    return np.einsum("nij,nj,nkj->nik", rot, scales**2, rot).astype(np.float32)
+
+
+class ResultViewer:
+    """One viser server showing one result. `select_task` / `set_colouring` are what the GUI calls;
+    `shown_colours` is the (M, 3) colour array last sent for the splat."""
+
+    def __init__(self, data: ViewData, *, host: str = "127.0.0.1", port: int = 8080) -> None:
+        import viser
+
+        self.data = data
+        self.server = viser.ViserServer(host=host, port=port, label="Bayesian Fields", verbose=False)
+        self._lock = threading.Lock()
+        self._boxes: list[Any] = []
+        self._frustums: list[Any] = []
+        self.task = data.tasks[0]
+        self.colouring = COLOURINGS[0]
+        means = np.asarray(data.gaussians.means, dtype=np.float32)
+        self.centre = means.mean(0) if len(means) else np.zeros(3, np.float32)
+        self.extent = float(np.linalg.norm(means.max(0) - means.min(0))) if len(means) else 1.0
+        self._set_up_direction()
+        self.server.scene.set_background_image(np.full((8, 8, 3), 26, dtype=np.uint8))
+        self.shown_colours = data.task_colours(self.task)
+        self.splats = self.server.scene.add_gaussian_splats(
+            "/splat",
+            centers=means,
+            covariances=covariances(data),
+            rgbs=self.shown_colours,
+            opacities=np.asarray(data.gaussians.opacities, dtype=np.float32)[:, None],
+        )
+        self._build_gui()
+        self._add_cameras()
+        self._refresh()
+        self.server.scene.on_click()(self._on_scene_click)
+
+    # ---- scene -------------------------------------------------------------------------------
+    def _set_up_direction(self) -> None:
+        """Up = the cameras' mean -y axis (OpenCV), so the scene opens the right way up."""
+        if not self.data.frames:
+            return
+        ups = [-np.linalg.inv(f.world_to_camera)[:3, 1] for f in self.data.frames]
+        up = np.mean(ups, axis=0)
+        if np.linalg.norm(up) > 1e-6:
+            self.server.scene.set_up_direction(tuple(float(x) for x in up / np.linalg.norm(up)))
+            first = self.data.frames[0]
+            self.server.initial_camera.position = tuple(float(x) for x in first.camera_centre)
+            self.server.initial_camera.look_at = tuple(float(x) for x in self.centre)
+
+    def _add_cameras(self) -> None:
+        for i, frame in enumerate(self.data.frames):
+            c2w = np.linalg.inv(frame.world_to_camera)
+            handle = self.server.scene.add_camera_frustum(
+                f"/cameras/{i:04d}",
+                fov=float(2 * np.arctan(frame.height / (2 * frame.K[1, 1]))),
+                aspect=frame.width / frame.height,
+                scale=0.04 * self.extent,
+                thickness=0.002 * self.extent,
+                color=(200, 200, 210),
+                wxyz=tuple(rotmat_to_quat(c2w[:3, :3])),
+                position=tuple(c2w[:3, 3]),
+                visible=self.gui_cameras.value,
+            )
+            self._frustums.append(handle)
+
+    def _draw_boxes(self) -> None:
+        for handle in self._boxes:
+            handle.remove()
+        self._boxes = []
+        if not self.gui_boxes.value:
+            return
+        for rank, obj in enumerate(self.data.result.selections.get(self.task, [])):
+            colour = tuple(int(c * 255) for c in rank_colour(rank))
+            wxyz = tuple(rotmat_to_quat(obj.box.rotation))
+            self._boxes.append(
+                self.server.scene.add_box(
+                    f"/boxes/{rank}",
+                    color=colour,
+                    dimensions=tuple(obj.box.extents),
+                    wireframe=True,
+                    wxyz=wxyz,
+                    position=tuple(obj.box.center),
+                )  # fmt: skip
+            )
+            # a child of the box: it moves with it and is removed with it
+            self.server.scene.add_label(
+                f"/boxes/{rank}/label",
+                f"#{rank + 1} object {obj.object_id}  p={obj.probability:.3f}",
+                position=tuple(np.asarray(obj.box.extents) * 0.5),
+                anchor="bottom-left",
+            )
+
+    # ---- GUI ---------------------------------------------------------------------------------
+    def _build_gui(self) -> None:
+        gui = self.server.gui
+        d = self.data
+        gui.add_markdown(
+            f"**{d.total_gaussians:,} Gaussians** ({len(d.kept):,} shown), {d.result.num_objects} objects, "
+            f"{len(d.tasks)} tasks, {len(d.frames)} cameras"
+        )
+        self.gui_task = gui.add_dropdown("Task", options=tuple(d.tasks), initial_value=self.task)
+        self.gui_colouring = gui.add_dropdown("Colour", options=COLOURINGS, initial_value=self.colouring)
+        self.gui_boxes = gui.add_checkbox("Boxes and labels", initial_value=True)
+        self.gui_cameras = gui.add_checkbox("Input cameras", initial_value=False)
+        self.gui_legend = gui.add_html("")
+        self.gui_object = gui.add_number(
+            "Object id", initial_value=-1, min=-1, max=d.result.num_objects - 1, step=1
+        )
+        self.gui_info = gui.add_html(
+            "<p>Click an object in the scene (or type its id) to see its probabilities.</p>"
+        )
+
+        @self.gui_task.on_update
+        def _(_: Any) -> None:
+            self.select_task(self.gui_task.value)
+
+        @self.gui_colouring.on_update
+        def _(_: Any) -> None:
+            self.set_colouring(self.gui_colouring.value)
+
+        @self.gui_boxes.on_update
+        def _(_: Any) -> None:
+            self._draw_boxes()
+
+        @self.gui_cameras.on_update
+        def _(_: Any) -> None:
+            for handle in self._frustums:
+                handle.visible = self.gui_cameras.value
+
+        @self.gui_object.on_update
+        def _(_: Any) -> None:
+            if int(self.gui_object.value) >= 0:
+                self.show_object(int(self.gui_object.value))
+
+    def select_task(self, task: str) -> None:
+        if task not in self.data.tasks:
+            raise ValueError(f"unknown task {task!r}")
+        self.task = task
+        if self.gui_task.value != task:
+            self.gui_task.value = task
+        self._refresh()
+
+    def set_colouring(self, colouring: str) -> None:
+        if colouring not in COLOURINGS:
+            raise ValueError(f"unknown colouring {colouring!r}")
+        self.colouring = colouring
+        if self.gui_colouring.value != colouring:
+            self.gui_colouring.value = colouring
+        self._refresh()
+
+    def colours(self) -> np.ndarray:
+        d = self.data
+        if self.colouring == "task highlight":
+            return d.task_colours(self.task)
+        if self.colouring == "relevance heat map":
+            return d.heat(self.task)
+        if self.colouring == "all objects":
+            return d.object_colours()
+        return d.base
+
+    def _refresh(self) -> None:
+        with self._lock:
+            self.shown_colours = self.colours()
+            self.splats.rgbs = self.shown_colours
+            self._draw_boxes()
+            self.gui_legend.content = self._legend_html()
+
+    def _legend_html(self) -> str:
+        d = self.data
+        if self.colouring == "all objects":
+            palette = object_palette(d.result.num_objects)
+            ids = sorted({o.object_id for objs in d.result.selections.values() for o in objs})
+            rows = "".join(
+                f'<div><span style="background:{_hex(palette[i])};display:inline-block;width:12px;height:12px"></span>'
+                f" object {i}</div>"
+                for i in ids
+            )
+            return f"<p><b>All {d.result.num_objects} objects</b>, one colour each (selected ones listed), grey = none</p>{rows}"
+        if self.colouring == "relevance heat map":
+            return (
+                f"<p><b>{html.escape(self.task)}</b>: p(relevant) per Gaussian ({d.relevance_source}),"
+                " dark blue 0 to yellow 1</p>"
+            )
+        objs = d.result.selections.get(self.task, [])
+        rows = "".join(
+            f'<div><span style="background:{_hex(rank_colour(r))};display:inline-block;width:12px;height:12px"></span>'
+            f" #{r + 1} object {o.object_id} p={o.probability:.3f} ({o.num_gaussians} G)</div>"
+            for r, o in enumerate(objs)
+        )
+        return f"<p><b>{html.escape(self.task)}</b></p>{rows or '<div>no object selected</div>'}"
+
+    def show_object(self, object_id: int) -> dict[str, Any]:
+        info = self.data.object_info(object_id)
+        rows = "".join(
+            f"<tr><td>{html.escape(t)}</td><td>{v['relevance']:.3f}</td><td>{v['conditional']:.3f}</td></tr>"
+            for t, v in info["tasks"].items()
+        )
+        box = info["box"]
+        box_text = (
+            "centre (" + ", ".join(f"{c:+.3f}" for c in box["center"]) + "), extents ("
+            + ", ".join(f"{c:.3f}" for c in box["extents"]) + ")"
+            if box else "no box"
+        )  # fmt: skip
+        self.gui_info.content = (
+            f"<p><b>Object {object_id}</b>: {info['num_gaussians']} Gaussians; {box_text}</p>"
+            f"<table><tr><th>task</th><th>p(rel.)</th><th>p(task|obj)</th></tr>{rows}</table>"
+        )
+        return info
+
+    def _on_scene_click(self, event: Any) -> None:
+        object_id = self.data.pick(np.asarray(event.ray_origin), np.asarray(event.ray_direction))
+        if object_id is not None:
+            self.gui_object.value = object_id
+            self.show_object(object_id)
+
+    @property
+    def url(self) -> str:
+        host = self.server.get_host()
+        return f"http://{'127.0.0.1' if host in ('0.0.0.0', '') else host}:{self.server.get_port()}"
+
+    def stop(self) -> None:
+        self.server.stop()

@@ -1,0 +1,219 @@
+// Bayesian Fields web page: plain JS over the JSON API. The API key lives in sessionStorage and
+// goes out as X-API-Key on every call, so the API's own auth and tenant isolation apply.
+"use strict";
+const KEY = "bfields-api-key";
+const POLL_MS = 1500;
+const key = () => sessionStorage.getItem(KEY);
+
+async function api(path, opts = {}) {
+  const headers = Object.assign({ "X-API-Key": key() || "" }, opts.headers || {});
+  const resp = await fetch(path, Object.assign({}, opts, { headers }));
+  const text = await resp.text();
+  let body = null;
+  try { body = text ? JSON.parse(text) : null; } catch (e) { body = text; }
+  if (!resp.ok) throw new Error((body && body.detail) ? (typeof body.detail === "string" ? body.detail : JSON.stringify(body.detail)) : `HTTP ${resp.status}`);
+  return body;
+}
+
+function el(tag, attrs = {}, ...children) {
+  const node = document.createElement(tag);
+  for (const [k, v] of Object.entries(attrs)) {
+    if (k === "class") node.className = v; else if (k === "text") node.textContent = v; else node.setAttribute(k, v);
+  }
+  for (const c of children) node.append(c);
+  return node;
+}
+const $ = (id) => document.getElementById(id);
+const bar = (p) => el("span", { class: "bar" }, el("span", { style: `width:${Math.round(p)}%` }));
+const when = (t) => (t ? new Date(t).toLocaleTimeString() : "");
+const tasksOf = (text) => text.split("\n").map((s) => s.trim()).filter(Boolean);
+const timings = (t) => Object.entries(t || {}).map(([k, v]) => `${k} ${Number(v).toFixed(1)}`).join(", ");
+
+// An artifact's bytes as an object URL: API-served links need the key header; presigned ones not.
+async function artifactUrl(url) {
+  if (!url.startsWith("/")) return url;
+  const resp = await fetch(url, { headers: { "X-API-Key": key() } });
+  if (!resp.ok) throw new Error(`HTTP ${resp.status} for ${url}`);
+  return URL.createObjectURL(await resp.blob());
+}
+
+// ---- index: login, upload, scenes, jobs --------------------------------------------------
+async function initIndex() {
+  const showApp = (on) => {
+    $("login-section").classList.toggle("hidden", on);
+    $("app").classList.toggle("hidden", !on);
+    $("logout").classList.toggle("hidden", !on);
+    $("who").textContent = on ? "signed in with an API key" : "";
+  };
+  $("login-form").addEventListener("submit", async (ev) => {
+    ev.preventDefault();
+    sessionStorage.setItem(KEY, $("api-key").value.trim());
+    try { await api("/v1/jobs?limit=1"); $("login-error").textContent = ""; showApp(true); refresh(); }
+    catch (e) { sessionStorage.removeItem(KEY); $("login-error").textContent = e.message; }
+  });
+  $("logout").addEventListener("click", (ev) => { ev.preventDefault(); sessionStorage.removeItem(KEY); showApp(false); });
+  $("upload-form").addEventListener("submit", upload);
+  $("submit-job").addEventListener("click", () => submitJobs(false));
+  $("submit-batch").addEventListener("click", () => submitJobs(true));
+  if (key()) { showApp(true); refresh(); }
+  setInterval(() => { if (key()) refreshJobs().catch(() => {}); }, POLL_MS);
+}
+
+async function refresh() { await Promise.all([refreshScenes(), refreshJobs()]); }
+
+async function refreshScenes() {
+  const body = await api("/v1/scenes?limit=100");
+  const rows = $("scenes").tBodies[0];
+  rows.replaceChildren(...body.items.map((s) => el("tr", { "data-scene": s.id },
+    el("td", {}, el("input", { type: "checkbox", class: "pick", value: s.id })),
+    el("td", { text: s.id }), el("td", { text: s.name || "" }),
+    el("td", { text: String((s.summary || {}).gaussians ?? "") }), el("td", { text: String((s.summary || {}).frames ?? "") }),
+    el("td", { text: when(s.created_at) }))));
+}
+
+async function refreshJobs() {
+  const body = await api("/v1/jobs?limit=50");
+  const rows = $("jobs").tBodies[0];
+  rows.replaceChildren(...body.items.map((j) => el("tr", { "data-job": j.id, "data-state": j.state },
+    el("td", {}, el("a", { href: `/ui/job?id=${encodeURIComponent(j.id)}`, text: j.id })),
+    el("td", { text: j.scene_id }), el("td", { text: j.tasks.join("; ") }),
+    el("td", { class: `state-${j.state}`, text: j.state }), el("td", { text: j.stage || "" }),
+    el("td", {}, bar(j.state === "succeeded" ? 100 : j.progress), ` ${Math.round(j.progress)}%`),
+    el("td", { text: when(j.updated_at) }))));
+  $("jobs-updated").textContent = `(updated ${new Date().toLocaleTimeString()})`;
+}
+
+async function upload(ev) {
+  ev.preventDefault();
+  const status = $("upload-status");
+  const form = new FormData();
+  form.append("name", $("scene-name").value);
+  form.append("splat", $("splat").files[0]);
+  for (const f of $("cameras").files) form.append("cameras", f);
+  for (const f of $("images").files) form.append("images", f);
+  status.textContent = "uploading...";
+  try {
+    const scene = await api("/v1/scenes", { method: "POST", body: form });
+    status.textContent = `scene ${scene.id} ready (${scene.summary.gaussians} Gaussians, ${scene.summary.frames} frames)`;
+    const tasks = tasksOf($("upload-tasks").value);
+    if (tasks.length) {
+      const job = await api("/v1/jobs", { method: "POST", headers: { "Content-Type": "application/json" },
+        body: JSON.stringify({ scene_id: scene.id, tasks }) });
+      status.textContent += `; job ${job.id} submitted`;
+    }
+    await refresh();
+  } catch (e) { status.textContent = ""; status.append(el("span", { class: "error", text: e.message })); }
+}
+
+async function submitJobs(asBatch) {
+  const status = $("submit-status");
+  const scenes = [...document.querySelectorAll("input.pick:checked")].map((c) => c.value);
+  const tasks = tasksOf($("job-tasks").value);
+  if (!scenes.length || !tasks.length) { status.textContent = "tick at least one scene and give tasks"; return; }
+  const json = { "Content-Type": "application/json" };
+  try {
+    if (asBatch) {
+      const b = await api("/v1/batches", { method: "POST", headers: json, body: JSON.stringify({ scene_ids: scenes, task_lists: [tasks] }) });
+      status.textContent = "";
+      $("batches").append(el("div", {}, "batch ", el("a", { href: `/ui/batch?id=${encodeURIComponent(b.id)}`, text: b.id }), ` (${b.jobs.length} jobs)`));
+    } else {
+      for (const s of scenes) await api("/v1/jobs", { method: "POST", headers: json, body: JSON.stringify({ scene_id: s, tasks }) });
+      status.textContent = `${scenes.length} job(s) submitted`;
+    }
+    await refreshJobs();
+  } catch (e) { status.textContent = ""; status.append(el("span", { class: "error", text: e.message })); }
+}
+
+// ---- job page: live status, previews, downloads -------------------------------------------
+async function initJob() {
+  const id = new URLSearchParams(location.search).get("id") || "";
+  $("job-id").textContent = id;
+  if (!key()) { $("need-key").classList.remove("hidden"); return; }
+  let shown = false;
+  const tick = async () => {
+    let job;
+    try { job = await api(`/v1/jobs/${encodeURIComponent(id)}`); }
+    catch (e) { $("job-error").textContent = e.message; return; }
+    $("job-state").textContent = job.state; $("job-state").className = `state-${job.state}`;
+    document.body.dataset.state = job.state;
+    $("job-stage").textContent = job.stage || "";
+    const p = job.state === "succeeded" ? 100 : job.progress;
+    $("job-bar").style.width = `${p}%`; $("job-progress").textContent = `${Math.round(p)}%`;
+    $("job-tasks").textContent = job.tasks.join("; ");
+    $("job-timings").textContent = timings(job.timings);
+    $("job-error").textContent = job.error || "";
+    if (job.state === "succeeded" && !shown) { shown = true; await showResult(id); }
+    if (!["succeeded", "failed", "cancelled"].includes(job.state)) setTimeout(tick, POLL_MS);
+  };
+  tick();
+}
+
+async function showResult(id) {
+  const res = await api(`/v1/jobs/${encodeURIComponent(id)}/result`);
+  const byPath = Object.fromEntries(res.artifacts.map((a) => [a.path, a]));
+  const previews = (res.summary.previews || {}).tasks || [];
+  const sheet = (res.summary.previews || {}).contact_sheet;
+  const gallery = $("previews");
+  for (const p of previews) {
+    const art = byPath[`result/${p.file}`];
+    if (!art) continue;
+    const img = el("img", { alt: `preview: ${p.task}`, "data-task": p.task, width: p.width, height: p.height });
+    gallery.append(el("figure", {}, img, el("figcaption", { text: p.task })));
+    img.src = await artifactUrl(art.url);
+  }
+  const rows = $("downloads").tBodies[0];
+  for (const a of res.artifacts) {
+    const link = el("a", { href: "#", "data-path": a.path, text: a.path });
+    link.addEventListener("click", async (ev) => {
+      ev.preventDefault();
+      const href = await artifactUrl(a.url);
+      const tmp = el("a", { href, download: a.path.split("/").pop() });
+      document.body.append(tmp); tmp.click(); tmp.remove();
+    });
+    rows.append(el("tr", {}, el("td", {}, link), el("td", { text: `${a.size} bytes` })));
+  }
+  if (sheet) document.body.dataset.contactSheet = sheet;
+  $("result").classList.remove("hidden");
+}
+
+// ---- batch page: one row per scene --------------------------------------------------------
+async function initBatch() {
+  const id = new URLSearchParams(location.search).get("id") || "";
+  $("batch-id").textContent = id;
+  if (!key()) { $("need-key").classList.remove("hidden"); return; }
+  const thumbs = {};
+  const names = {};
+  const tick = async () => {
+    const b = await api(`/v1/batches/${encodeURIComponent(id)}`);
+    $("batch-summary").textContent = `${Math.round(b.progress)}% - ` + Object.entries(b.counts).map(([k, v]) => `${v} ${k}`).join(", ");
+    const rows = [];
+    for (const j of b.jobs) {
+      if (!(j.scene_id in names)) {
+        try { names[j.scene_id] = (await api(`/v1/scenes/${encodeURIComponent(j.scene_id)}`)).name || j.scene_id; }
+        catch (e) { names[j.scene_id] = j.scene_id; }
+      }
+      const detail = await api(`/v1/jobs/${encodeURIComponent(j.id)}`);
+      if (j.state === "succeeded" && !(j.id in thumbs)) {
+        const res = await api(`/v1/jobs/${encodeURIComponent(j.id)}/result`);
+        const sheet = (res.summary.previews || {}).contact_sheet;
+        const art = res.artifacts.find((a) => a.path === `result/${sheet}`);
+        thumbs[j.id] = art ? await artifactUrl(art.url) : null;
+      }
+      const thumb = thumbs[j.id] ? el("img", { class: "thumb", src: thumbs[j.id], alt: `preview of ${j.id}` }) : "";
+      rows.push(el("tr", { "data-job": j.id, "data-state": j.state },
+        el("td", { text: names[j.scene_id] }), el("td", {}, el("a", { href: `/ui/job?id=${encodeURIComponent(j.id)}`, text: j.id })),
+        el("td", { class: `state-${j.state}`, text: j.state }), el("td", { text: j.stage || "" }),
+        el("td", {}, bar(j.state === "succeeded" ? 100 : j.progress)), el("td", { text: timings(detail.timings) }),
+        el("td", {}, thumb)));
+    }
+    $("batch-jobs").tBodies[0].replaceChildren(...rows);
+    document.body.dataset.finished = String(b.finished);
+    if (!b.finished) setTimeout(tick, POLL_MS);
+  };
+  tick().catch((e) => $("batch-summary").textContent = e.message);
+}
+
+document.addEventListener("DOMContentLoaded", () => {
+  const page = document.body.dataset.page;
+  if (page === "index") initIndex(); else if (page === "job") initJob(); else if (page === "batch") initBatch();
+});

@@ -1,0 +1,1 @@
+from tests.ui.browser import browser  # noqa: F401 - fixture found by name

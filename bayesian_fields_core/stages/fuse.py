@@ -106,7 +106,7 @@ def associations_on_device(
     store = ctx.scene_store
     assert store is not None
     device = means.device
-    key = frame_key(ctx.visibility_prefix, index)
+    key = ctx.visibility_key(index)
     if store.exists(key):
         cached = get_arrays(store, key)
         gids = torch.as_tensor(cached["gaussian_ids"].astype(np.int64), device=device)

@@ -29,8 +29,11 @@ def require_chromium() -> None:
     pytest.importorskip("playwright.sync_api", reason="browser tests need playwright (the dev extra)")
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="module")
 def browser() -> Iterator[object]:
+    """One chromium per test module. Not per session: tests/ui and tests/viewer each import this
+    fixture, which would make two session instances, and a second Playwright sync context cannot
+    start while the first is open in the same thread."""
     require_chromium()
     from playwright.sync_api import sync_playwright
 

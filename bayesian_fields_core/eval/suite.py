@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from ..context import JobContext, Models
+from ..fusion.likelihood import resolve_likelihood
 from ..params import PipelineParams
 from ..pipeline import load_models, run_job
 from ..results.reader import read_result
@@ -189,9 +190,8 @@ def evaluate_scene(
 
     assert full_ctx is not None
     text = models.encoder.encode_texts(case.tasks).astype(np.float32)
-    cal = models.calibration
-    mu0 = float(getattr(cal, "mu0", 0.20))
-    mu1 = float(getattr(cal, "mu1", 0.27))
+    likelihood = resolve_likelihood(full_ctx.params, models.calibration)
+    mu0, mu1 = likelihood.mu0, likelihood.mu1
     for row, run in (
         (SEMANTIC_GAUSSIANS, lambda: semantic_gaussians(full_ctx, text, BaselineParams(), mu0, mu1)),
         (CLIO, lambda: clio_style(full_ctx, text, BaselineParams(), mu0)),

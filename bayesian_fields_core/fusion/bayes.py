@@ -16,19 +16,17 @@ import numpy as np
 from scipy.special import expit, logit
 
 from bayesian_fields_core.errors import InputError
-
-DEFAULT_PRIOR = 0.05
-"""Initial relevance probability of every (Gaussian, task) pair (paper: 0.05)."""
+from bayesian_fields_core.params import default
 
 
-def init_logodds(num_gaussians: int, num_tasks: int, prior: float = DEFAULT_PRIOR) -> np.ndarray:
+def init_logodds(num_gaussians: int, num_tasks: int, prior: float = default("prior")) -> np.ndarray:
     """A fresh (N, T) float32 log-odds state at `logit(prior)`."""
     if not 0.0 < prior < 1.0:
         raise InputError(f"must be in (0, 1), got {prior}", source="fusion.prior")
     return np.full((num_gaussians, num_tasks), logit(prior), dtype=np.float32)
 
 
-def accepted_masks(llr: np.ndarray, outlier_rejection: bool = True) -> np.ndarray:
+def accepted_masks(llr: np.ndarray, outlier_rejection: bool = default("outlier_rejection")) -> np.ndarray:
     """(M,) bool: masks that pass OR-phi (some task has `llr >= 0`), or all when disabled.
 
     A ratio of exactly 1 leaves that probability unchanged rather than lowering it, so such a
@@ -48,7 +46,7 @@ def bayes_update(
     mask_ids: np.ndarray,
     llr: np.ndarray,
     *,
-    outlier_rejection: bool = True,
+    outlier_rejection: bool = default("outlier_rejection"),
 ) -> np.ndarray:
     """Apply one frame's measurements to `logodds` (N, T) in place; return `accepted` (M,) bool.
 

@@ -10,11 +10,11 @@ from __future__ import annotations
 import torch
 
 from bayesian_fields_core.errors import InputError
-from bayesian_fields_core.fusion.bayes import DEFAULT_PRIOR
+from bayesian_fields_core.params import default
 
 
 def init_logodds_torch(
-    num_gaussians: int, num_tasks: int, device: torch.device, prior: float = DEFAULT_PRIOR
+    num_gaussians: int, num_tasks: int, device: torch.device, prior: float = default("prior")
 ) -> torch.Tensor:
     """A fresh (N, T) float32 log-odds state at `logit(prior)` on `device`."""
     if not 0.0 < prior < 1.0:
@@ -23,7 +23,9 @@ def init_logodds_torch(
     return torch.full((num_gaussians, num_tasks), value, dtype=torch.float32, device=device)
 
 
-def accepted_masks_torch(llr: torch.Tensor, outlier_rejection: bool = True) -> torch.Tensor:
+def accepted_masks_torch(
+    llr: torch.Tensor, outlier_rejection: bool = default("outlier_rejection")
+) -> torch.Tensor:
     """(M,) bool: masks with some task `llr >= 0` (OR-phi), or all when disabled."""
     if llr.ndim != 2:
         raise InputError(f"expected (M, T), got shape {tuple(llr.shape)}", source="fusion.llr")
@@ -38,7 +40,7 @@ def bayes_update_torch(
     mask_ids: torch.Tensor,
     llr: torch.Tensor,
     *,
-    outlier_rejection: bool = True,
+    outlier_rejection: bool = default("outlier_rejection"),
 ) -> torch.Tensor:
     """Add each accepted mask's `llr` (M, T) to its Gaussians' rows of `logodds` (N, T), in place.
 

@@ -12,11 +12,8 @@ import numpy as np
 import torch
 
 from bayesian_fields_core.errors import InputError
-from bayesian_fields_core.fusion.visibility import (
-    DEFAULT_DEPTH_TOLERANCE,
-    DEFAULT_NEAR,
-    DEFAULT_RELATIVE_TOLERANCE,
-)
+from bayesian_fields_core.fusion.visibility import DEFAULT_NEAR
+from bayesian_fields_core.params import default
 
 
 def camera_coordinates_torch(means: torch.Tensor, world_to_camera: np.ndarray) -> torch.Tensor:
@@ -34,8 +31,8 @@ def mask_associations_torch(
     depth: torch.Tensor,
     labels: torch.Tensor,
     *,
-    depth_tolerance: float = DEFAULT_DEPTH_TOLERANCE,
-    relative_tolerance: float = DEFAULT_RELATIVE_TOLERANCE,
+    depth_tolerance: float = default("depth_tolerance"),
+    relative_tolerance: float = default("depth_tolerance_relative"),
     near: float = DEFAULT_NEAR,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """(gaussian_ids int64 (n,), mask_ids int32 (n,)) on the device; see `mask_associations`.

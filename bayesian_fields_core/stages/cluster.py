@@ -342,10 +342,10 @@ def build_result(ctx: JobContext, object_map: ObjectMap, timings: dict[str, floa
 
 
 def _stage_timings(ctx: JobContext) -> dict[str, float]:
-    from .markers import is_done, read_marker
+    from .markers import STAGES, is_done, read_marker
 
     return {
         stage: float(read_marker(ctx, stage).get("seconds", 0.0))
-        for stage in ("perceive", "fuse")
+        for stage in STAGES[: STAGES.index("cluster")]
         if is_done(ctx, stage)
     }

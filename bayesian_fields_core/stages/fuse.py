@@ -21,7 +21,7 @@ from scipy.special import logit
 from ..context import JobContext
 from ..fusion.averaging import CosineAverager
 from ..fusion.bayes import accepted_masks, bayes_update, init_logodds, probabilities
-from ..fusion.likelihood import LikelihoodParams, log_likelihood_ratio
+from ..fusion.likelihood import LikelihoodParams, log_likelihood_ratio, resolve_likelihood
 from ..fusion.visibility import mask_associations
 from ..scene.images import load_depth
 from ..store import get_arrays, put_arrays
@@ -33,14 +33,7 @@ ACCEPTED_KEY = "fusion/accepted_masks.npz"
 
 def likelihood_params(ctx: JobContext) -> LikelihoodParams:
     """Job parameters override the model's calibration, which overrides the paper's defaults."""
-    cal = ctx.models.calibration
-    p = ctx.params
-    return LikelihoodParams(
-        mu0=p.mu0 if p.mu0 is not None else float(getattr(cal, "mu0", 0.20)),
-        mu1=p.mu1 if p.mu1 is not None else float(getattr(cal, "mu1", 0.27)),
-        s=p.s if p.s is not None else float(getattr(cal, "s", 0.035)),
-        s_eps=p.s_eps,
-    )
+    return resolve_likelihood(ctx.params, ctx.models.calibration)
 
 
 def _depth_for_frame(ctx: JobContext, renderer_factory: Any, frame: Any) -> np.ndarray:
@@ -106,7 +99,7 @@ def associations_on_device(
     store = ctx.scene_store
     assert store is not None
     device = means.device
-    key = frame_key(ctx.visibility_prefix, index)
+    key = ctx.visibility_key(index)
     if store.exists(key):
         cached = get_arrays(store, key)
         gids = torch.as_tensor(cached["gaussian_ids"].astype(np.int64), device=device)

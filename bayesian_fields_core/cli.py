@@ -14,6 +14,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from .artifacts import RESULT_PREFIX
 from .errors import BayesianFieldsError, InputError
 
 DEFAULT_CACHE_DIR = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "bfields"
@@ -143,7 +144,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     with StageProgress(console, enabled=not args.quiet) as progress:
         ctx.progress = progress.update
         reports = run_job(ctx, force=True)
-    result = read_result(LocalStore(out), "result/")
+    result = read_result(LocalStore(out), RESULT_PREFIX)
     from .report import print_result
 
     print_result(result, reports, out, json_output=args.json)
@@ -185,9 +186,22 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
-    from .calibrate_cmd import calibrate
+    from .calibration.entry import CalibrationRequest, calibrate
 
-    calibrate(args)
+    request = CalibrationRequest(
+        out=args.out,
+        scores=args.scores,
+        scenes=tuple(args.scene or ()),
+        profile=args.profile,
+        negatives=args.negatives,
+        max_frames=args.max_frames,
+        model_id=args.model_id,
+    )
+    cal = calibrate(request)
+    print(
+        f"calibration for {cal.model_id}: mu0={cal.mu0:.4f} mu1={cal.mu1:.4f} s={cal.s:.4f} "
+        f"({cal.num_positive} positive, {cal.num_negative} negative scores) -> {request.out}"
+    )
     return 0
 
 

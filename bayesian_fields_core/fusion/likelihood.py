@@ -51,7 +51,7 @@ class LikelihoodParams:
 def resolve_likelihood(params: PipelineParams, calibration: object | None) -> LikelihoodParams:
     """The likelihood a run uses: job parameters override the model's calibration, which
     overrides the paper's values. `calibration` is anything with `mu0`, `mu1`, `s` attributes
-    (`fusion.calibration.Calibration`), or None for a model without one."""
+    (`calibration.model.Calibration`), or None for a model without one."""
 
     def pick(name: str, paper: float) -> float:
         value = getattr(params, name)

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 from scipy.special import logit
 
+from ..artifacts import ACCEPTED_KEY, FUSION_KEY
 from ..context import JobContext
 from ..fusion.averaging import CosineAverager
 from ..fusion.bayes import accepted_masks, bayes_update, init_logodds, probabilities
@@ -26,9 +27,6 @@ from ..fusion.visibility import mask_associations
 from ..scene.images import load_depth
 from ..store import get_arrays, put_arrays
 from .markers import write_marker
-
-FUSION_KEY = "fusion/gaussian_probabilities.npz"
-ACCEPTED_KEY = "fusion/accepted_masks.npz"
 
 
 def likelihood_params(ctx: JobContext) -> LikelihoodParams:

@@ -9,6 +9,7 @@ from __future__ import annotations
 import time
 from typing import Any
 
+from ..artifacts import MARKER_DIR
 from ..context import JobContext
 from ..store import get_json, put_json
 
@@ -16,7 +17,7 @@ STAGES = ("perceive", "fuse", "cluster")
 
 
 def marker_key(ctx: JobContext, stage: str) -> str:
-    return ctx.job_key(f"stages/{stage}.json")
+    return ctx.job_key(f"{MARKER_DIR}{stage}.json")
 
 
 def is_done(ctx: JobContext, stage: str) -> bool:

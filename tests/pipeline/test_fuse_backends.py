@@ -15,9 +15,9 @@ from typing import Any
 import numpy as np
 import pytest
 
+from bayesian_fields_core.artifacts import ACCEPTED_KEY, FUSION_KEY
 from bayesian_fields_core.params import PipelineParams
 from bayesian_fields_core.pipeline import run_stage
-from bayesian_fields_core.stages.fuse import ACCEPTED_KEY, FUSION_KEY
 from bayesian_fields_core.store import LocalStore, get_arrays
 
 from .conftest import counting_models, make_ctx

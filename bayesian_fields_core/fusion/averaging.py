@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import expit, logit
 
-from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.errors import InputError, InvariantError
 from bayesian_fields_core.fusion.likelihood import LikelihoodParams, log_likelihood_ratio
 from bayesian_fields_core.params import default
 
@@ -42,9 +42,11 @@ class CosineAverager:
         Gaussians occur at most once per frame (exclusive masks), so fancy-index `+=` is exact.
         """
         if phi.ndim != 2 or phi.shape[1] != self.sums.shape[1]:
-            raise InputError(f"expected (M, {self.sums.shape[1]}), got {phi.shape}", source="averaging.phi")
+            raise InvariantError(
+                f"expected (M, {self.sums.shape[1]}), got {phi.shape}", source="averaging.phi"
+            )
         if gaussian_ids.shape != mask_ids.shape:
-            raise InputError("gaussian_ids and mask_ids differ in shape", source="averaging.associations")
+            raise InvariantError("gaussian_ids and mask_ids differ in shape", source="averaging.associations")
         if accepted is not None:
             keep = np.asarray(accepted, dtype=bool)[mask_ids]
             gaussian_ids, mask_ids = gaussian_ids[keep], mask_ids[keep]

@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import expit, logit
 
-from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.errors import InputError, InvariantError
 from bayesian_fields_core.params import default
 
 
@@ -34,7 +34,7 @@ def accepted_masks(llr: np.ndarray, outlier_rejection: bool = default("outlier_r
     """
     llr = np.asarray(llr)
     if llr.ndim != 2:
-        raise InputError(f"expected (M, T), got shape {llr.shape}", source="fusion.llr")
+        raise InvariantError(f"expected (M, T), got shape {llr.shape}", source="fusion.llr")
     if not outlier_rejection:
         return np.ones(llr.shape[0], dtype=bool)
     return ~np.all(llr < 0, axis=1)
@@ -56,13 +56,13 @@ def bayes_update(
     that is what lets a plain fancy-index `+=` be correct here.
     """
     if logodds.ndim != 2 or logodds.dtype != np.float32:
-        raise InputError(
+        raise InvariantError(
             f"expected (N, T) float32, got {logodds.shape} {logodds.dtype}", source="fusion.logodds"
         )
     if llr.ndim != 2 or llr.shape[1] != logodds.shape[1]:
-        raise InputError(f"expected (M, {logodds.shape[1]}), got shape {llr.shape}", source="fusion.llr")
+        raise InvariantError(f"expected (M, {logodds.shape[1]}), got shape {llr.shape}", source="fusion.llr")
     if gaussian_ids.shape != mask_ids.shape:
-        raise InputError(
+        raise InvariantError(
             f"gaussian_ids {gaussian_ids.shape} and mask_ids {mask_ids.shape} differ",
             source="fusion.associations",
         )
@@ -70,7 +70,7 @@ def bayes_update(
     if mask_ids.size == 0:
         return accepted
     if mask_ids.min() < 0 or mask_ids.max() >= llr.shape[0]:
-        raise InputError(f"mask id outside [0, {llr.shape[0]})", source="fusion.mask_ids")
+        raise InvariantError(f"mask id outside [0, {llr.shape[0]})", source="fusion.mask_ids")
     keep = accepted[mask_ids]
     logodds[gaussian_ids[keep]] += llr[mask_ids[keep]].astype(np.float32, copy=False)
     return accepted

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import torch
 
-from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.errors import InputError, InvariantError
 from bayesian_fields_core.params import default
 
 
@@ -28,7 +28,7 @@ def accepted_masks_torch(
 ) -> torch.Tensor:
     """(M,) bool: masks with some task `llr >= 0` (OR-phi), or all when disabled."""
     if llr.ndim != 2:
-        raise InputError(f"expected (M, T), got shape {tuple(llr.shape)}", source="fusion.llr")
+        raise InvariantError(f"expected (M, T), got shape {tuple(llr.shape)}", source="fusion.llr")
     if not outlier_rejection:
         return torch.ones(llr.shape[0], dtype=torch.bool, device=llr.device)
     return ~torch.all(llr < 0, dim=1)
@@ -48,15 +48,15 @@ def bayes_update_torch(
     numpy fancy-index `+=`. Returns `accepted` (M,) bool on the device.
     """
     if logodds.ndim != 2 or logodds.dtype != torch.float32:
-        raise InputError(
+        raise InvariantError(
             f"expected (N, T) float32, got {tuple(logodds.shape)} {logodds.dtype}", source="fusion.logodds"
         )
     if llr.ndim != 2 or llr.shape[1] != logodds.shape[1]:
-        raise InputError(
+        raise InvariantError(
             f"expected (M, {logodds.shape[1]}), got shape {tuple(llr.shape)}", source="fusion.llr"
         )
     if gaussian_ids.shape != mask_ids.shape:
-        raise InputError(
+        raise InvariantError(
             f"gaussian_ids {tuple(gaussian_ids.shape)} and mask_ids {tuple(mask_ids.shape)} differ",
             source="fusion.associations",
         )
@@ -64,7 +64,7 @@ def bayes_update_torch(
     if mask_ids.numel() == 0:
         return accepted
     if int(mask_ids.min()) < 0 or int(mask_ids.max()) >= llr.shape[0]:
-        raise InputError(f"mask id outside [0, {llr.shape[0]})", source="fusion.mask_ids")
+        raise InvariantError(f"mask id outside [0, {llr.shape[0]})", source="fusion.mask_ids")
     mask_ids = mask_ids.long()
     keep = accepted[mask_ids]
     logodds.index_add_(0, gaussian_ids.long()[keep], llr.float()[mask_ids[keep]])

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.errors import InputError, InvariantError
 from bayesian_fields_core.params import default
 
 DEFAULT_NEAR = 1e-3
@@ -42,14 +42,16 @@ def _check_inputs(
     labels: np.ndarray,
 ) -> None:
     if means.ndim != 2 or means.shape[1] != 3:
-        raise InputError(f"expected (N, 3), got {means.shape}", source="visibility.means")
+        raise InvariantError(f"expected (N, 3), got {means.shape}", source="visibility.means")
     if K.shape != (3, 3):
-        raise InputError(f"expected (3, 3), got {K.shape}", source="visibility.K")
+        raise InvariantError(f"expected (3, 3), got {K.shape}", source="visibility.K")
     if w2c.shape != (4, 4):
-        raise InputError(f"expected (4, 4), got {w2c.shape}", source="visibility.world_to_camera")
+        raise InvariantError(f"expected (4, 4), got {w2c.shape}", source="visibility.world_to_camera")
     for name, image in (("depth", depth), ("labels", labels)):
         if image.shape != (height, width):
-            raise InputError(f"expected ({height}, {width}), got {image.shape}", source=f"visibility.{name}")
+            raise InvariantError(
+                f"expected ({height}, {width}), got {image.shape}", source=f"visibility.{name}"
+            )
 
 
 def mask_associations(

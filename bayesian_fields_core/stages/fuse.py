@@ -20,6 +20,7 @@ from scipy.special import logit
 
 from ..artifacts import ACCEPTED_KEY, FUSION_KEY
 from ..context import JobContext
+from ..errors import InputError
 from ..fusion.averaging import CosineAverager
 from ..fusion.bayes import accepted_masks, bayes_update, init_logodds, probabilities
 from ..fusion.likelihood import LikelihoodParams, log_likelihood_ratio, resolve_likelihood
@@ -38,7 +39,10 @@ def _depth_for_frame(ctx: JobContext, renderer_factory: Any, frame: Any) -> np.n
     if ctx.params.depth_source == "input":
         depth = load_depth(frame)
         if depth is None:
-            raise ValueError(f"depth_source='input' but frame {frame.name} has no depth image")
+            raise InputError(
+                f"depth_source='input' but frame {frame.name} has no depth image",
+                source="parameters.depth_source",
+            )
         return depth
     # The renderer (torch, resident tensors) is built only when a frame needs rendered depth.
     out = renderer_factory().render(

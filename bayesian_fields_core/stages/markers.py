@@ -6,7 +6,7 @@ marker and the stage runs again (skipping the per-frame cache entries already wr
 
 from __future__ import annotations
 
-import time
+from datetime import UTC, datetime, timedelta
 from typing import Any
 
 from ..artifacts import MARKER_DIR
@@ -29,6 +29,11 @@ def read_marker(ctx: JobContext, stage: str) -> dict[str, Any]:
 
 
 def write_marker(ctx: JobContext, stage: str, report: dict[str, Any]) -> dict[str, Any]:
-    report = {"stage": stage, "finished_at": time.time(), **report}
+    finished = datetime.now(UTC)
+    stamps = {"finished_at": finished.isoformat(timespec="milliseconds")}
+    if isinstance(report.get("seconds"), int | float):
+        started = finished - timedelta(seconds=float(report["seconds"]))
+        stamps = {"started_at": started.isoformat(timespec="milliseconds"), **stamps}
+    report = {"stage": stage, **stamps, **report}
     put_json(ctx.store, marker_key(ctx, stage), report)
     return report

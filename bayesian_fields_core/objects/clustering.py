@@ -106,6 +106,7 @@ def prune_and_select(
     primitive_ids: np.ndarray,
     gaussian_counts: np.ndarray,
     params: PipelineParams,
+    *,
     relevance: np.ndarray | None = None,
     evidence: np.ndarray | None = None,
 ) -> Selection:
@@ -208,8 +209,8 @@ def objects_from_primitives(
             primitive_ids,
             counts,
             params,
-            relevance,
-            evidence,
+            relevance=relevance,
+            evidence=evidence,
         )
     object_ids, num_objects = chosen.object_ids, len(chosen.probabilities)
     selected = np.unique(chosen.selection[chosen.selection >= 0])

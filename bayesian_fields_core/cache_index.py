@@ -16,10 +16,11 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
+from .artifacts import PERCEPTION_CACHE_DIR, VISIBILITY_CACHE_DIR
 from .store import ArtifactNotFound, Store, get_json, put_json
 
 INDEX_DIR = "index/"
-DATA_DIRS = ("perception/", "visibility/", "scenes/")  # scenes/: the pre-content-key layout
+DATA_DIRS = (PERCEPTION_CACHE_DIR, VISIBILITY_CACHE_DIR, "scenes/")  # scenes/: the pre-content-key layout
 
 
 @dataclass

@@ -14,7 +14,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from .errors import BayesianFieldsError, InputError
+from .artifacts import RESULT_PREFIX
+from .errors import BayesianFieldsError, InputError, InvariantError
 
 DEFAULT_CACHE_DIR = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "bfields"
 
@@ -56,12 +57,43 @@ def build_params(params_file: str | None, overrides: list[str]) -> Any:
             raise InputError("expected a mapping of parameter names to values", source=params_file)
         raw.update(loaded)
     raw.update(_parse_param_overrides(overrides))
+    _refuse_unknown(raw, source="--param" if not params_file else f"--param / {params_file}")
     try:
         return PipelineParams.model_validate(raw)
     except ValidationError as exc:
         first = exc.errors()[0]
         loc = ".".join(str(p) for p in first["loc"])
         raise InputError(f"{loc}: {first['msg']}", source="parameters") from None
+
+
+def _refuse_unknown(raw: dict[str, Any], *, source: str) -> None:
+    """An unknown parameter name is refused with the nearest known names (a typo, mostly)."""
+    import difflib
+
+    from .params import PipelineParams
+
+    known = list(PipelineParams.model_fields)
+    for name in raw:
+        if name not in known:
+            near = difflib.get_close_matches(str(name), known, n=3, cutoff=0.6)
+            hint = f"; did you mean {' or '.join(near)}?" if near else "; `bfields params` lists them"
+            raise InputError(f"unknown parameter {name!r}{hint}", source=source)
+
+
+def check_device(device: str | None) -> None:
+    """Refuse a torch device this machine does not have, before any model is loaded."""
+    if device is None or device == "cpu":
+        return
+    import torch
+
+    if device.startswith("cuda"):
+        count = torch.cuda.device_count() if torch.cuda.is_available() else 0
+        index = int(device.partition(":")[2] or 0)
+        if index >= count:
+            found = f"{count} CUDA device(s)" if count else "no CUDA device (a CPU-only torch, or no driver)"
+            raise InputError(f"device {device!r} asked for, but torch finds {found}", source="--param device")
+    elif device == "mps" and not torch.backends.mps.is_available():
+        raise InputError("device 'mps' asked for, but torch finds no MPS device", source="--param device")
 
 
 def _resolve_tasks(args: argparse.Namespace, scene_dir: Path) -> list[str]:
@@ -110,7 +142,7 @@ def local_context(
 def cmd_run(args: argparse.Namespace) -> int:
     from rich.console import Console
 
-    from .pipeline import load_models, run_job
+    from .pipeline import check_inputs, load_models, run_job
     from .progress import StageProgress
     from .results.reader import read_result
     from .store import LocalStore
@@ -121,6 +153,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         raise InputError("not a folder", source=str(scene_dir))
     tasks = _resolve_tasks(args, scene_dir)
     params = build_params(args.params, args.param)
+    check_device(params.device)
     models = load_models(args.profile, device=params.device)
     out = Path(args.out)
     cache_dir = Path(args.cache_dir) if args.cache_dir else DEFAULT_CACHE_DIR
@@ -138,12 +171,13 @@ def cmd_run(args: argparse.Namespace) -> int:
     )
     # Loads the scene and checks that the splat lines up with its cameras and photos (one-line
     # InputError otherwise), before the progress bars start and before perception.
+    check_inputs(ctx)  # parameter-implied input problems, before the alignment renders
     alignment = ctx.alignment()
     console.print(alignment.summary() if alignment is not None else "alignment check: off")
     with StageProgress(console, enabled=not args.quiet) as progress:
         ctx.progress = progress.update
         reports = run_job(ctx, force=True)
-    result = read_result(LocalStore(out), "result/")
+    result = read_result(LocalStore(out), RESULT_PREFIX)
     from .report import print_result
 
     print_result(result, reports, out, json_output=args.json)
@@ -160,6 +194,18 @@ def cmd_cache(args: argparse.Namespace) -> int:
         if args.older_than is None and args.max_size is None:
             raise InputError("give --older-than DUR and/or --max-size SIZE", source="cache prune")
         print(cache_prune(cache_dir, older_than_s=args.older_than, max_size=args.max_size))
+    return 0
+
+
+def cmd_params(args: argparse.Namespace) -> int:
+    from . import params_doc
+
+    if args.json:
+        import json
+
+        print(json.dumps([vars(r) for r in params_doc.rows()], indent=2))
+    else:
+        print(params_doc.markdown_table() if args.markdown else params_doc.text_table(), end="")
     return 0
 
 
@@ -185,9 +231,22 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
-    from .calibrate_cmd import calibrate
+    from .calibration.entry import CalibrationRequest, calibrate
 
-    calibrate(args)
+    request = CalibrationRequest(
+        out=args.out,
+        scores=args.scores,
+        scenes=tuple(args.scene or ()),
+        profile=args.profile,
+        negatives=args.negatives,
+        max_frames=args.max_frames,
+        model_id=args.model_id,
+    )
+    cal = calibrate(request)
+    print(
+        f"calibration for {cal.model_id}: mu0={cal.mu0:.4f} mu1={cal.mu1:.4f} s={cal.s:.4f} "
+        f"({cal.num_positive} positive, {cal.num_negative} negative scores) -> {request.out}"
+    )
     return 0
 
 
@@ -243,7 +302,14 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
     sub = parser.add_subparsers(dest="command", required=True)
 
-    run = sub.add_parser("run", help="run the whole pipeline on a local scene folder")
+    from .params_doc import text_table
+
+    run = sub.add_parser(
+        "run",
+        help="run the whole pipeline on a local scene folder",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog="pipeline parameters (--param NAME=VALUE, or a --params YAML file):\n\n" + text_table(),
+    )
     run.add_argument("scene", help="scene folder (splat .ply + cameras + images/)")
     run.add_argument(
         "--tasks", help="tasks file (.yaml list, .json or one per line); default SCENE/tasks.yaml"
@@ -265,6 +331,12 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
     run.set_defaults(func=cmd_run)
 
+    prm = sub.add_parser("params", help="list every pipeline parameter: type, default, meaning")
+    fmt = prm.add_mutually_exclusive_group()
+    fmt.add_argument("--markdown", action="store_true", help="as the README's Markdown table")
+    fmt.add_argument("--json", action="store_true", help="as JSON")
+    prm.set_defaults(func=cmd_params)
+
     from .cache_cmd import parse_duration, parse_size
 
     cache = sub.add_parser("cache", help="list or prune the local perception/visibility cache")
@@ -282,7 +354,14 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--cache-dir", help=f"the cache folder (default {DEFAULT_CACHE_DIR})")
     cache.set_defaults(func=cmd_cache)
 
-    gen = sub.add_parser("generate", help="generate a synthetic benchmark scene")
+    from .eval.synthetic.__main__ import _parser as generator_parser
+
+    gen = sub.add_parser(
+        "generate",
+        help="generate a synthetic benchmark scene",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog="generator options (after OUT):\n" + generator_parser().format_help().partition("options:")[2],
+    )
     gen.add_argument("out")
     gen.add_argument("--seed", type=int, default=0)
     gen.add_argument("extra", nargs=argparse.REMAINDER, help="options passed to the generator")
@@ -362,6 +441,9 @@ def main(argv: list[str] | None = None) -> int:
     except InputError as exc:
         print(f"bfields: error: {_one_line(exc)}", file=sys.stderr)
         return 2
+    except InvariantError as exc:  # not the input's fault: say so, do not blame the user
+        print(f"bfields: internal error (a bug, please report it): {_one_line(exc)}", file=sys.stderr)
+        return 1
     except BayesianFieldsError as exc:
         print(f"bfields: error: {_one_line(exc)}", file=sys.stderr)
         return 1

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from .artifacts import PERCEPTION_CACHE_DIR, VISIBILITY_CACHE_DIR
 from .errors import CancelledError, InputError
 from .params import PipelineParams
 from .scene.types import Frame, Scene
@@ -158,12 +159,12 @@ class JobContext:
     @property
     def perception_prefix(self) -> str:
         """Cached perception frames of this job's models (any scene): ``<digest>.npz`` below."""
-        return f"{self.cache_root}perception/{self.perception_fingerprint}/"
+        return f"{self.cache_root}{PERCEPTION_CACHE_DIR}{self.perception_fingerprint}/"
 
     @property
     def visibility_prefix(self) -> str:
         """Cached mask-to-Gaussian associations made from this job's models' masks."""
-        return f"{self.cache_root}visibility/{self.perception_fingerprint}/"
+        return f"{self.cache_root}{VISIBILITY_CACHE_DIR}{self.perception_fingerprint}/"
 
     @property
     def perception_fingerprint(self) -> str:

@@ -25,6 +25,18 @@ class InputError(BayesianFieldsError, ValueError):
         super().__init__(f"{source}: {message}" if source else message)
 
 
+class InvariantError(BayesianFieldsError, AssertionError):
+    """An internal invariant broke: arrays one stage hands another disagree in shape or range.
+
+    Not the user's fault (every input was validated at the edge), so never reported as bad
+    input: the CLI says it is a bug and exits 1, and the service records an internal failure.
+    """
+
+    def __init__(self, message: str, *, source: str | None = None) -> None:
+        self.source = source
+        super().__init__(f"{source}: {message}" if source else message)
+
+
 class ModelError(BayesianFieldsError):
     """A model file the operator configured is missing or unusable."""
 

@@ -7,9 +7,17 @@ can carry its exact parameters and a result can report them.
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
+
+PAPER_MU0 = 0.20
+"""Mean cosine score of irrelevant (task, segment) pairs in the paper (Sec. 4.2, FastSAM segments);
+the likelihood falls back on it when neither the job nor the model's calibration sets `mu0`."""
+PAPER_MU1 = 0.27
+"""Mean score of relevant pairs in the paper (tuned); the fallback for `mu1`."""
+PAPER_S = 0.035
+"""Std shared by both likelihoods in the paper (from COCO positives); the fallback for `s`."""
 
 
 class PipelineParams(BaseModel):
@@ -59,12 +67,23 @@ class PipelineParams(BaseModel):
 
     # --- likelihood (METHOD step 3); None means: take it from the model's calibration ------------
     mu0: float | None = Field(
-        None, ge=-1, le=1, description="Mean cosine score of irrelevant segments (paper: 0.20)."
+        None,
+        ge=-1,
+        le=1,
+        description=f"Mean cosine score of irrelevant segments; None: the model's calibration, else the paper's {PAPER_MU0:.2f}.",
     )
     mu1: float | None = Field(
-        None, ge=-1, le=1, description="Mean cosine score of relevant segments (paper: 0.27)."
+        None,
+        ge=-1,
+        le=1,
+        description=f"Mean cosine score of relevant segments; None: the model's calibration, else the paper's {PAPER_MU1:.2f}.",
     )
-    s: float | None = Field(None, gt=0, le=1, description="Std of both likelihoods (paper: 0.035).")
+    s: float | None = Field(
+        None,
+        gt=0,
+        le=1,
+        description=f"Std of both likelihoods; None: the model's calibration, else the paper's {PAPER_S}.",
+    )
     s_eps: float = Field(0.0, ge=0, le=1, description="Extra measurement noise std added in quadrature to s.")
     prior: float = Field(
         0.05, gt=0, lt=1, description="Prior probability that a Gaussian is relevant to a task."
@@ -192,3 +211,15 @@ class PipelineParams(BaseModel):
             "its own device (BFIELDS_WORKER_DEVICE) and ignores a job's value."
         ),
     )
+
+
+def default(name: str) -> Any:
+    """The default of one `PipelineParams` field, for a library function's signature.
+
+    Library functions that take a pipeline tunable write `depth_tolerance: float =
+    default("depth_tolerance")` instead of a second literal, so the model stays the one place a
+    default is written (tests/pipeline/test_params_single_source.py checks it)."""
+    try:
+        return PipelineParams.model_fields[name].default
+    except KeyError:
+        raise KeyError(f"PipelineParams has no field {name!r}") from None

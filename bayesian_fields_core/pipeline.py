@@ -15,7 +15,7 @@ from typing import Any
 from .context import JobContext, Models
 from .errors import InputError
 from .stages import cluster, fuse, perceive
-from .stages.markers import STAGES, is_done, read_marker
+from .stages.markers import STAGES, is_done, marker_key, read_marker
 
 log = logging.getLogger(__name__)
 
@@ -44,7 +44,24 @@ def run_job(ctx: JobContext, *, force: bool = False) -> dict[str, dict[str, Any]
     calibration made for another CLIP fails in a second, not after the whole perception stage.
     """
     _ = ctx.models.calibration
+    check_inputs(ctx)
+    if force:  # a rerun that fails part-way must not leave the previous run's later markers
+        for name in STAGES:
+            ctx.store.delete(marker_key(ctx, name))
     return {name: run_stage(name, ctx, force=force) for name in STAGES}
+
+
+def check_inputs(ctx: JobContext) -> None:
+    """Input problems the parameters imply, found before any stage starts (not after the
+    perception stage, minutes in): `depth_source='input'` needs a depth map on every frame."""
+    if ctx.params.depth_source == "input":
+        missing = [frame.name for _, frame in ctx.selected_frames() if frame.depth_path is None]
+        if missing:
+            raise InputError(
+                f"depth_source='input' but {len(missing)} frame(s) have no depth map "
+                f"(first: {missing[0]}); give depth maps or use depth_source=median",
+                source="parameters.depth_source",
+            )
 
 
 def load_models(profile: Any = None, *, device: str | None = None) -> Models:

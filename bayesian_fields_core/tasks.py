@@ -73,6 +73,10 @@ def normalise_tasks(
 def load_tasks(path: str | Path) -> list[str]:
     """Read tasks from .yaml/.yml, .json, or a text file with one task per line."""
     path = Path(path)
+    if path.is_dir():
+        raise InputError(
+            "is a folder; expected a tasks file (.yaml list, .json or one task per line)", source=str(path)
+        )
     try:
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:

@@ -26,6 +26,7 @@ import torch
 from tokenizers import Tokenizer, models, normalizers, pre_tokenizers, processors
 from transformers import CLIPConfig, CLIPModel, PreTrainedTokenizerFast
 
+from bayesian_fields_core.calibration.model import fit_calibration, save_calibration
 from bayesian_fields_core.eval.synthetic.crops import LabelledCrop, object_crops, scene_crops
 from bayesian_fields_core.eval.vocabulary import (
     BACKGROUND_KINDS,
@@ -35,7 +36,6 @@ from bayesian_fields_core.eval.vocabulary import (
     all_words,
     captions_for,
 )
-from bayesian_fields_core.fusion.calibration import fit_calibration, save_calibration
 from bayesian_fields_core.perception.clip_inputs import CLIP_MEAN, CLIP_STD, ClipImagePreprocessor
 from bayesian_fields_core.perception.hf_clip import hf_clip_model_id
 

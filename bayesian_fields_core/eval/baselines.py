@@ -21,9 +21,9 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from ..context import JobContext
+from ..objects.clustering import ObjectMap, objects_from_primitives
 from ..objects.primitives import PrimitiveBuilder
 from ..objects.probabilities import membership_matrix
-from ..stages.cluster import ObjectMap, objects_from_primitives
 from ..store import get_arrays
 
 

@@ -18,11 +18,13 @@ from typing import Any
 
 import numpy as np
 
+from ..artifacts import RESULT_PREFIX
 from ..context import JobContext, Models
+from ..fusion.likelihood import resolve_likelihood
+from ..objects.clustering import ObjectMap
 from ..params import PipelineParams
 from ..pipeline import load_models, run_job
 from ..results.reader import read_result
-from ..stages.cluster import ObjectMap
 from ..store import LocalStore
 from ..tasks import load_tasks
 from .baselines import BaselineParams, clio_style, semantic_gaussians
@@ -179,7 +181,7 @@ def evaluate_scene(
                 scene = ctx.scene()
                 views = prepare_views(case.folder, scene.gaussians, scene.frames, lerf_views)
         seconds = perceive_s + float(reports["fuse"]["seconds"]) + float(reports["cluster"]["seconds"])
-        result = read_result(store, "result/")
+        result = read_result(store, RESULT_PREFIX)
         selection = {task: [(o.object_id, o.box) for o in objs] for task, objs in result.selections.items()}
         estimates = estimates_from_selection(case.tasks, selection)
         rows[row] = clio_metrics(estimates, case.ground_truth, num_objects=result.num_objects, time_s=seconds)
@@ -189,9 +191,8 @@ def evaluate_scene(
 
     assert full_ctx is not None
     text = models.encoder.encode_texts(case.tasks).astype(np.float32)
-    cal = models.calibration
-    mu0 = float(getattr(cal, "mu0", 0.20))
-    mu1 = float(getattr(cal, "mu1", 0.27))
+    likelihood = resolve_likelihood(full_ctx.params, models.calibration)
+    mu0, mu1 = likelihood.mu0, likelihood.mu1
     for row, run in (
         (SEMANTIC_GAUSSIANS, lambda: semantic_gaussians(full_ctx, text, BaselineParams(), mu0, mu1)),
         (CLIO, lambda: clio_style(full_ctx, text, BaselineParams(), mu0)),

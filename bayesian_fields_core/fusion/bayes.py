@@ -15,20 +15,18 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import expit, logit
 
-from bayesian_fields_core.errors import InputError
-
-DEFAULT_PRIOR = 0.05
-"""Initial relevance probability of every (Gaussian, task) pair (paper: 0.05)."""
+from bayesian_fields_core.errors import InputError, InvariantError
+from bayesian_fields_core.params import default
 
 
-def init_logodds(num_gaussians: int, num_tasks: int, prior: float = DEFAULT_PRIOR) -> np.ndarray:
+def init_logodds(num_gaussians: int, num_tasks: int, prior: float = default("prior")) -> np.ndarray:
     """A fresh (N, T) float32 log-odds state at `logit(prior)`."""
     if not 0.0 < prior < 1.0:
         raise InputError(f"must be in (0, 1), got {prior}", source="fusion.prior")
     return np.full((num_gaussians, num_tasks), logit(prior), dtype=np.float32)
 
 
-def accepted_masks(llr: np.ndarray, outlier_rejection: bool = True) -> np.ndarray:
+def accepted_masks(llr: np.ndarray, outlier_rejection: bool = default("outlier_rejection")) -> np.ndarray:
     """(M,) bool: masks that pass OR-phi (some task has `llr >= 0`), or all when disabled.
 
     A ratio of exactly 1 leaves that probability unchanged rather than lowering it, so such a
@@ -36,7 +34,7 @@ def accepted_masks(llr: np.ndarray, outlier_rejection: bool = True) -> np.ndarra
     """
     llr = np.asarray(llr)
     if llr.ndim != 2:
-        raise InputError(f"expected (M, T), got shape {llr.shape}", source="fusion.llr")
+        raise InvariantError(f"expected (M, T), got shape {llr.shape}", source="fusion.llr")
     if not outlier_rejection:
         return np.ones(llr.shape[0], dtype=bool)
     return ~np.all(llr < 0, axis=1)
@@ -48,7 +46,7 @@ def bayes_update(
     mask_ids: np.ndarray,
     llr: np.ndarray,
     *,
-    outlier_rejection: bool = True,
+    outlier_rejection: bool = default("outlier_rejection"),
 ) -> np.ndarray:
     """Apply one frame's measurements to `logodds` (N, T) in place; return `accepted` (M,) bool.
 
@@ -58,13 +56,13 @@ def bayes_update(
     that is what lets a plain fancy-index `+=` be correct here.
     """
     if logodds.ndim != 2 or logodds.dtype != np.float32:
-        raise InputError(
+        raise InvariantError(
             f"expected (N, T) float32, got {logodds.shape} {logodds.dtype}", source="fusion.logodds"
         )
     if llr.ndim != 2 or llr.shape[1] != logodds.shape[1]:
-        raise InputError(f"expected (M, {logodds.shape[1]}), got shape {llr.shape}", source="fusion.llr")
+        raise InvariantError(f"expected (M, {logodds.shape[1]}), got shape {llr.shape}", source="fusion.llr")
     if gaussian_ids.shape != mask_ids.shape:
-        raise InputError(
+        raise InvariantError(
             f"gaussian_ids {gaussian_ids.shape} and mask_ids {mask_ids.shape} differ",
             source="fusion.associations",
         )
@@ -72,7 +70,7 @@ def bayes_update(
     if mask_ids.size == 0:
         return accepted
     if mask_ids.min() < 0 or mask_ids.max() >= llr.shape[0]:
-        raise InputError(f"mask id outside [0, {llr.shape[0]})", source="fusion.mask_ids")
+        raise InvariantError(f"mask id outside [0, {llr.shape[0]})", source="fusion.mask_ids")
     keep = accepted[mask_ids]
     logodds[gaussian_ids[keep]] += llr[mask_ids[keep]].astype(np.float32, copy=False)
     return accepted

@@ -9,12 +9,12 @@ from __future__ import annotations
 
 import torch
 
-from bayesian_fields_core.errors import InputError
-from bayesian_fields_core.fusion.bayes import DEFAULT_PRIOR
+from bayesian_fields_core.errors import InputError, InvariantError
+from bayesian_fields_core.params import default
 
 
 def init_logodds_torch(
-    num_gaussians: int, num_tasks: int, device: torch.device, prior: float = DEFAULT_PRIOR
+    num_gaussians: int, num_tasks: int, device: torch.device, prior: float = default("prior")
 ) -> torch.Tensor:
     """A fresh (N, T) float32 log-odds state at `logit(prior)` on `device`."""
     if not 0.0 < prior < 1.0:
@@ -23,10 +23,12 @@ def init_logodds_torch(
     return torch.full((num_gaussians, num_tasks), value, dtype=torch.float32, device=device)
 
 
-def accepted_masks_torch(llr: torch.Tensor, outlier_rejection: bool = True) -> torch.Tensor:
+def accepted_masks_torch(
+    llr: torch.Tensor, outlier_rejection: bool = default("outlier_rejection")
+) -> torch.Tensor:
     """(M,) bool: masks with some task `llr >= 0` (OR-phi), or all when disabled."""
     if llr.ndim != 2:
-        raise InputError(f"expected (M, T), got shape {tuple(llr.shape)}", source="fusion.llr")
+        raise InvariantError(f"expected (M, T), got shape {tuple(llr.shape)}", source="fusion.llr")
     if not outlier_rejection:
         return torch.ones(llr.shape[0], dtype=torch.bool, device=llr.device)
     return ~torch.all(llr < 0, dim=1)
@@ -38,7 +40,7 @@ def bayes_update_torch(
     mask_ids: torch.Tensor,
     llr: torch.Tensor,
     *,
-    outlier_rejection: bool = True,
+    outlier_rejection: bool = default("outlier_rejection"),
 ) -> torch.Tensor:
     """Add each accepted mask's `llr` (M, T) to its Gaussians' rows of `logodds` (N, T), in place.
 
@@ -46,15 +48,15 @@ def bayes_update_torch(
     numpy fancy-index `+=`. Returns `accepted` (M,) bool on the device.
     """
     if logodds.ndim != 2 or logodds.dtype != torch.float32:
-        raise InputError(
+        raise InvariantError(
             f"expected (N, T) float32, got {tuple(logodds.shape)} {logodds.dtype}", source="fusion.logodds"
         )
     if llr.ndim != 2 or llr.shape[1] != logodds.shape[1]:
-        raise InputError(
+        raise InvariantError(
             f"expected (M, {logodds.shape[1]}), got shape {tuple(llr.shape)}", source="fusion.llr"
         )
     if gaussian_ids.shape != mask_ids.shape:
-        raise InputError(
+        raise InvariantError(
             f"gaussian_ids {tuple(gaussian_ids.shape)} and mask_ids {tuple(mask_ids.shape)} differ",
             source="fusion.associations",
         )
@@ -62,7 +64,7 @@ def bayes_update_torch(
     if mask_ids.numel() == 0:
         return accepted
     if int(mask_ids.min()) < 0 or int(mask_ids.max()) >= llr.shape[0]:
-        raise InputError(f"mask id outside [0, {llr.shape[0]})", source="fusion.mask_ids")
+        raise InvariantError(f"mask id outside [0, {llr.shape[0]})", source="fusion.mask_ids")
     mask_ids = mask_ids.long()
     keep = accepted[mask_ids]
     logodds.index_add_(0, gaussian_ids.long()[keep], llr.float()[mask_ids[keep]])

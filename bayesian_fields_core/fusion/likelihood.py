@@ -14,23 +14,24 @@ from dataclasses import dataclass
 import numpy as np
 
 from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.params import PAPER_MU0, PAPER_MU1, PAPER_S, PipelineParams
 
 
 @dataclass(frozen=True)
 class LikelihoodParams:
     """Parameters of the two class-conditional score Gaussians.
 
-    mu0: mean cosine score of irrelevant (task, segment) pairs (paper: 0.20 for FastSAM segments).
-    mu1: mean score of relevant pairs (paper: 0.27, tuned).
-    s: standard deviation shared by both classes (paper: 0.035, from COCO positives).
+    mu0: mean cosine score of irrelevant (task, segment) pairs (default: the paper's, `PAPER_MU0`).
+    mu1: mean score of relevant pairs (default `PAPER_MU1`).
+    s: standard deviation shared by both classes (default `PAPER_S`).
     s_eps: standard deviation of the extra measurement noise epsilon (default 0: the paper folds
         it into `s`); the effective variance is `s^2 + s_eps^2`.
     """
 
-    mu0: float = 0.20
-    mu1: float = 0.27
-    s: float = 0.035
-    s_eps: float = 0.0
+    mu0: float = PAPER_MU0
+    mu1: float = PAPER_MU1
+    s: float = PAPER_S
+    s_eps: float = PipelineParams.model_fields["s_eps"].default
 
     def __post_init__(self) -> None:
         for name in ("mu0", "mu1", "s", "s_eps"):
@@ -45,6 +46,20 @@ class LikelihoodParams:
     def variance(self) -> float:
         """Effective variance `s^2 + s_eps^2` of both class-conditional Gaussians."""
         return self.s**2 + self.s_eps**2
+
+
+def resolve_likelihood(params: PipelineParams, calibration: object | None) -> LikelihoodParams:
+    """The likelihood a run uses: job parameters override the model's calibration, which
+    overrides the paper's values. `calibration` is anything with `mu0`, `mu1`, `s` attributes
+    (`calibration.model.Calibration`), or None for a model without one."""
+
+    def pick(name: str, paper: float) -> float:
+        value = getattr(params, name)
+        return float(value) if value is not None else float(getattr(calibration, name, paper))
+
+    return LikelihoodParams(
+        mu0=pick("mu0", PAPER_MU0), mu1=pick("mu1", PAPER_MU1), s=pick("s", PAPER_S), s_eps=params.s_eps
+    )
 
 
 def log_likelihood_ratio(phi: np.ndarray, params: LikelihoodParams) -> np.ndarray:

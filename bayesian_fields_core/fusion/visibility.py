@@ -13,24 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from bayesian_fields_core.errors import InputError
-
-DEFAULT_DEPTH_TOLERANCE = 0.02
-"""Absolute depth slack in scene units (metres for metric scenes).
-
-A surface Gaussian's centre sits within about its own scale (typically 0.5-3 cm indoors) of the
-rendered surface, and alpha-compositing blurs the rendered depth by a similar amount; 2 cm covers
-that without letting an object a hand's width behind a surface through.
-"""
-
-DEFAULT_RELATIVE_TOLERANCE = 0.03
-"""Depth slack as a fraction of the rendered depth.
-
-The footprint of a pixel, and with it the depth spread inside it at grazing angles and silhouette
-edges, grows linearly with distance; 3 % (9 cm at 3 m) keeps far surfaces associated. It also
-keeps the test meaningful for COLMAP scenes whose units are arbitrary, where the absolute term
-means little.
-"""
+from bayesian_fields_core.errors import InputError, InvariantError
+from bayesian_fields_core.params import default
 
 DEFAULT_NEAR = 1e-3
 """Centres closer than this to the camera plane (scene units) are treated as behind it."""
@@ -58,14 +42,16 @@ def _check_inputs(
     labels: np.ndarray,
 ) -> None:
     if means.ndim != 2 or means.shape[1] != 3:
-        raise InputError(f"expected (N, 3), got {means.shape}", source="visibility.means")
+        raise InvariantError(f"expected (N, 3), got {means.shape}", source="visibility.means")
     if K.shape != (3, 3):
-        raise InputError(f"expected (3, 3), got {K.shape}", source="visibility.K")
+        raise InvariantError(f"expected (3, 3), got {K.shape}", source="visibility.K")
     if w2c.shape != (4, 4):
-        raise InputError(f"expected (4, 4), got {w2c.shape}", source="visibility.world_to_camera")
+        raise InvariantError(f"expected (4, 4), got {w2c.shape}", source="visibility.world_to_camera")
     for name, image in (("depth", depth), ("labels", labels)):
         if image.shape != (height, width):
-            raise InputError(f"expected ({height}, {width}), got {image.shape}", source=f"visibility.{name}")
+            raise InvariantError(
+                f"expected ({height}, {width}), got {image.shape}", source=f"visibility.{name}"
+            )
 
 
 def mask_associations(
@@ -77,8 +63,8 @@ def mask_associations(
     depth: np.ndarray,
     labels: np.ndarray,
     *,
-    depth_tolerance: float = DEFAULT_DEPTH_TOLERANCE,
-    relative_tolerance: float = DEFAULT_RELATIVE_TOLERANCE,
+    depth_tolerance: float = default("depth_tolerance"),
+    relative_tolerance: float = default("depth_tolerance_relative"),
     near: float = DEFAULT_NEAR,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Pairs (gaussian_ids int64 (n,), mask_ids int32 (n,)) of visible Gaussians and their mask.

@@ -11,12 +11,9 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from bayesian_fields_core.errors import InputError
-from bayesian_fields_core.fusion.visibility import (
-    DEFAULT_DEPTH_TOLERANCE,
-    DEFAULT_NEAR,
-    DEFAULT_RELATIVE_TOLERANCE,
-)
+from bayesian_fields_core.errors import InputError, InvariantError
+from bayesian_fields_core.fusion.visibility import DEFAULT_NEAR
+from bayesian_fields_core.params import default
 
 
 def camera_coordinates_torch(means: torch.Tensor, world_to_camera: np.ndarray) -> torch.Tensor:
@@ -34,8 +31,8 @@ def mask_associations_torch(
     depth: torch.Tensor,
     labels: torch.Tensor,
     *,
-    depth_tolerance: float = DEFAULT_DEPTH_TOLERANCE,
-    relative_tolerance: float = DEFAULT_RELATIVE_TOLERANCE,
+    depth_tolerance: float = default("depth_tolerance"),
+    relative_tolerance: float = default("depth_tolerance_relative"),
     near: float = DEFAULT_NEAR,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """(gaussian_ids int64 (n,), mask_ids int32 (n,)) on the device; see `mask_associations`.
@@ -45,17 +42,17 @@ def mask_associations_torch(
     `|z - d| <= depth_tolerance + relative_tolerance * d`, label >= 0; ids ascending.
     """
     if means.ndim != 2 or means.shape[1] != 3:
-        raise InputError(f"expected (N, 3), got {tuple(means.shape)}", source="visibility.means")
+        raise InvariantError(f"expected (N, 3), got {tuple(means.shape)}", source="visibility.means")
     for name, image in (("depth", depth), ("labels", labels)):
         if tuple(image.shape) != (height, width):
-            raise InputError(
+            raise InvariantError(
                 f"expected ({height}, {width}), got {tuple(image.shape)}", source=f"visibility.{name}"
             )
     if depth_tolerance < 0 or relative_tolerance < 0:
         raise InputError("depth tolerances must be >= 0", source="visibility.depth_tolerance")
     K = np.asarray(K, dtype=np.float64)
     if K.shape != (3, 3):
-        raise InputError(f"expected (3, 3), got {K.shape}", source="visibility.K")
+        raise InvariantError(f"expected (3, 3), got {K.shape}", source="visibility.K")
     cam = camera_coordinates_torch(means, w2c)
     front = torch.nonzero(cam[2] > near).squeeze(1)
     z = cam[2, front]

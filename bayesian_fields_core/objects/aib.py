@@ -32,9 +32,7 @@ from scipy.special import entr
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.objects.aib_kernel import greedy_merges
 from bayesian_fields_core.objects.edges import unique_pairs
-
-DEFAULT_DELTA = 1e-5
-"""Clio's default threshold on the relative information loss of a merge."""
+from bayesian_fields_core.params import default
 
 PyMode = Literal["uniform", "marginal"]
 _TINY = 1e-12
@@ -104,7 +102,7 @@ def _check(pyx: np.ndarray, edges: np.ndarray, weights: np.ndarray | None) -> np
 def aib(
     pyx: np.ndarray,
     edges: np.ndarray,
-    delta: float = DEFAULT_DELTA,
+    delta: float = default("aib_delta"),
     *,
     weights: np.ndarray | None = None,
     py_mode: PyMode = "uniform",

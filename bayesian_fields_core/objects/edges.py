@@ -22,9 +22,7 @@ from scipy.sparse.csgraph import connected_components
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.jit import compiled
 from bayesian_fields_core.objects.probabilities import membership_matrix
-
-DEFAULT_IDENTICAL_ATOL = 1e-6
-"""Largest per-entry difference of two `p(y|x)` rows that still counts as identical."""
+from bayesian_fields_core.params import default
 
 
 def primitive_boxes(means: np.ndarray, primitive_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -73,7 +71,9 @@ def _sweep(lo: np.ndarray, hi: np.ndarray, order: np.ndarray, end: np.ndarray, a
     return out[:count]
 
 
-def box_overlap_edges(lo: np.ndarray, hi: np.ndarray, *, padding: float = 0.0) -> np.ndarray:
+def box_overlap_edges(
+    lo: np.ndarray, hi: np.ndarray, *, padding: float = default("edge_padding")
+) -> np.ndarray:
     """(E, 2) int64 pairs `i < j` of boxes whose closed, padded extents overlap on all axes,
     sorted."""
     lo = np.ascontiguousarray(np.asarray(lo, dtype=np.float64) - padding)
@@ -93,7 +93,9 @@ def box_overlap_edges(lo: np.ndarray, hi: np.ndarray, *, padding: float = 0.0) -
     return pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
 
 
-def overlap_edges(means: np.ndarray, primitive_ids: np.ndarray, *, padding: float = 0.0) -> np.ndarray:
+def overlap_edges(
+    means: np.ndarray, primitive_ids: np.ndarray, *, padding: float = default("edge_padding")
+) -> np.ndarray:
     """(E, 2) int64 edges `i < j` between primitives whose centre boxes overlap."""
     lo, hi = primitive_boxes(means, primitive_ids)
     return box_overlap_edges(lo, hi, padding=padding)
@@ -117,7 +119,7 @@ def merge_identical(
     pyx: np.ndarray,
     edges: np.ndarray,
     *,
-    atol: float = DEFAULT_IDENTICAL_ATOL,
+    atol: float = default("identical_tolerance"),
     weights: np.ndarray | None = None,
 ) -> MergedGraph:
     """Merge connected primitives whose `p(y|x)` rows agree within `atol` (paper Sec. 4.3).

@@ -14,12 +14,10 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from bayesian_fields_core.errors import InputError
-
-DEFAULT_K = 20
-DEFAULT_STD_RATIO = 2.0
+from bayesian_fields_core.params import default
 
 
-def mean_neighbour_distance(points: np.ndarray, k: int = DEFAULT_K) -> np.ndarray:
+def mean_neighbour_distance(points: np.ndarray, k: int = default("knn_k")) -> np.ndarray:
     """(n,) mean Euclidean distance of each point to its `min(k, n-1)` nearest other points."""
     n = points.shape[0]
     k_eff = min(k, n - 1)
@@ -30,7 +28,7 @@ def mean_neighbour_distance(points: np.ndarray, k: int = DEFAULT_K) -> np.ndarra
 
 
 def statistical_outlier_mask(
-    points: np.ndarray, k: int = DEFAULT_K, std_ratio: float = DEFAULT_STD_RATIO
+    points: np.ndarray, k: int = default("knn_k"), std_ratio: float = default("knn_std_ratio")
 ) -> np.ndarray:
     """(n,) bool keep-mask: mean kNN distance `<= mean + std_ratio * std` over the points.
 

@@ -19,11 +19,12 @@ import numpy as np
 import scipy.sparse as sp
 
 from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.params import default
 
 NullMode = Literal["product", "one_minus_max"]
 
 
-def null_probability(task_probs: np.ndarray, mode: NullMode = "product") -> np.ndarray:
+def null_probability(task_probs: np.ndarray, mode: NullMode = default("null_mode")) -> np.ndarray:
     """(P,) null-task probability from unnormalised (P, T) task probabilities."""
     if mode == "product":
         return np.prod(1.0 - task_probs, axis=1)
@@ -73,7 +74,7 @@ def primitive_probabilities(
     primitive_ids: np.ndarray,
     gaussian_probs: np.ndarray,
     *,
-    null_mode: NullMode = "product",
+    null_mode: NullMode = default("null_mode"),
     num_primitives: int | None = None,
 ) -> np.ndarray:
     """(P, T+1) float64 rows `p(y|x)`: mean Gaussian probabilities, null appended, normalised.

@@ -13,9 +13,7 @@ import numpy as np
 
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.objects.probabilities import membership_matrix
-
-DEFAULT_PRUNE_THRESHOLD = 0.1
-"""Objects whose probability is below this for every task are dropped (paper: 0.1)."""
+from bayesian_fields_core.params import default
 
 
 def object_probabilities(pyx: np.ndarray, labels: np.ndarray, mass: np.ndarray | None = None) -> np.ndarray:
@@ -32,7 +30,7 @@ def object_probabilities(pyx: np.ndarray, labels: np.ndarray, mass: np.ndarray |
     return (members @ (pyx * w[:, None])) / (members @ w)[:, None]
 
 
-def prune_mask(object_pyx: np.ndarray, threshold: float = DEFAULT_PRUNE_THRESHOLD) -> np.ndarray:
+def prune_mask(object_pyx: np.ndarray, threshold: float = default("prune_threshold")) -> np.ndarray:
     """(C,) bool: objects kept, i.e. with `p >= threshold` for at least one task (null excluded)."""
     object_pyx = np.asarray(object_pyx)
     if object_pyx.ndim != 2 or object_pyx.shape[1] < 2:

@@ -28,8 +28,8 @@ from typing import Any, Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
+from bayesian_fields_core.calibration.model import Calibration, load_calibration
 from bayesian_fields_core.errors import InputError, ModelError
-from bayesian_fields_core.fusion.calibration import Calibration, load_calibration
 from bayesian_fields_core.perception.digest import files_digest
 
 # Segmenter params that name files (resolved against the profile folder, hashed in fingerprints).

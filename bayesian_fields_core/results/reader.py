@@ -4,13 +4,15 @@ report the bytes each part takes (the paper's memory table)."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from ..artifacts import RESULT_PREFIX
 from ..errors import InputError
 from ..scene.types import Gaussians
-from ..store import ArtifactNotFound, Store
+from ..store import ArtifactNotFound, LocalStore, Store
 from .format import (
     FORMAT_NAME,
     FORMAT_VERSION,
@@ -96,9 +98,28 @@ def _frames(summary: dict[str, Any], prefix: str) -> tuple[np.ndarray | None, st
     return m, str(frames.get("layout", ""))
 
 
-def read_result(store: Store, prefix: str) -> Result:
-    """The `Result` stored under `prefix` (ids as int64 with -1 = none, probabilities float32)."""
-    prefix = normalise_prefix(prefix)
+def _folder_source(folder: Path, prefix: str | None) -> tuple[Store, str]:
+    """A folder as (store, prefix): a result folder itself, or a folder with `result/` inside."""
+    if prefix is not None:
+        return LocalStore(folder), prefix
+    if (folder / SUMMARY_KEY).is_file():
+        return LocalStore(folder), ""
+    if (folder / RESULT_PREFIX / SUMMARY_KEY).is_file():
+        return LocalStore(folder), RESULT_PREFIX
+    raise InputError(
+        f"no result here (neither {SUMMARY_KEY} nor {RESULT_PREFIX}{SUMMARY_KEY})", source=str(folder)
+    )
+
+
+def read_result(source: Store | str | Path, prefix: str | None = None) -> Result:
+    """The `Result` stored under `prefix` (ids as int64 with -1 = none, probabilities float32).
+
+    `source` is a `Store` (then `prefix` defaults to the pipeline's `result/`) or a plain folder:
+    a run's output folder (`read_result("out/demo")`) or the result folder inside it."""
+    if isinstance(source, str | Path):
+        source, prefix = _folder_source(Path(source), prefix)
+    store = source
+    prefix = normalise_prefix(RESULT_PREFIX if prefix is None else prefix)
     summary = read_summary(store, prefix)
     object_ids = _array(store, prefix, summary, "object_ids", OBJECT_IDS_KEY)
     probabilities = _array(store, prefix, summary, "probabilities", PROBABILITIES_KEY)

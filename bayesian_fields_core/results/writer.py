@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import InputError
+from ..params import default
 from ..scene.types import Frame, Gaussians
 from ..store import Store, put_json
 from .export import put_ply, recolour, task_recolour
@@ -54,7 +55,7 @@ def write_result(
     result: Result,
     *,
     gaussians: Gaussians | None = None,
-    export_ply: bool = True,
+    export_ply: bool = default("export_ply"),
     frames: list[Frame] | None = None,
     preview_max_side: int | None = None,
     scene: dict[str, Any] | None = None,

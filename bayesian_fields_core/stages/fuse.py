@@ -18,36 +18,31 @@ from typing import Any
 import numpy as np
 from scipy.special import logit
 
+from ..artifacts import ACCEPTED_KEY, FUSION_KEY
 from ..context import JobContext
+from ..errors import InputError
 from ..fusion.averaging import CosineAverager
 from ..fusion.bayes import accepted_masks, bayes_update, init_logodds, probabilities
-from ..fusion.likelihood import LikelihoodParams, log_likelihood_ratio
+from ..fusion.likelihood import LikelihoodParams, log_likelihood_ratio, resolve_likelihood
 from ..fusion.visibility import mask_associations
 from ..scene.images import load_depth
 from ..store import get_arrays, put_arrays
 from .markers import write_marker
 
-FUSION_KEY = "fusion/gaussian_probabilities.npz"
-ACCEPTED_KEY = "fusion/accepted_masks.npz"
-
 
 def likelihood_params(ctx: JobContext) -> LikelihoodParams:
     """Job parameters override the model's calibration, which overrides the paper's defaults."""
-    cal = ctx.models.calibration
-    p = ctx.params
-    return LikelihoodParams(
-        mu0=p.mu0 if p.mu0 is not None else float(getattr(cal, "mu0", 0.20)),
-        mu1=p.mu1 if p.mu1 is not None else float(getattr(cal, "mu1", 0.27)),
-        s=p.s if p.s is not None else float(getattr(cal, "s", 0.035)),
-        s_eps=p.s_eps,
-    )
+    return resolve_likelihood(ctx.params, ctx.models.calibration)
 
 
 def _depth_for_frame(ctx: JobContext, renderer_factory: Any, frame: Any) -> np.ndarray:
     if ctx.params.depth_source == "input":
         depth = load_depth(frame)
         if depth is None:
-            raise ValueError(f"depth_source='input' but frame {frame.name} has no depth image")
+            raise InputError(
+                f"depth_source='input' but frame {frame.name} has no depth image",
+                source="parameters.depth_source",
+            )
         return depth
     # The renderer (torch, resident tensors) is built only when a frame needs rendered depth.
     out = renderer_factory().render(

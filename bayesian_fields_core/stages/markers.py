@@ -6,9 +6,10 @@ marker and the stage runs again (skipping the per-frame cache entries already wr
 
 from __future__ import annotations
 
-import time
+from datetime import UTC, datetime, timedelta
 from typing import Any
 
+from ..artifacts import MARKER_DIR
 from ..context import JobContext
 from ..store import get_json, put_json
 
@@ -16,7 +17,7 @@ STAGES = ("perceive", "fuse", "cluster")
 
 
 def marker_key(ctx: JobContext, stage: str) -> str:
-    return ctx.job_key(f"stages/{stage}.json")
+    return ctx.job_key(f"{MARKER_DIR}{stage}.json")
 
 
 def is_done(ctx: JobContext, stage: str) -> bool:
@@ -28,6 +29,11 @@ def read_marker(ctx: JobContext, stage: str) -> dict[str, Any]:
 
 
 def write_marker(ctx: JobContext, stage: str, report: dict[str, Any]) -> dict[str, Any]:
-    report = {"stage": stage, "finished_at": time.time(), **report}
+    finished = datetime.now(UTC)
+    stamps = {"finished_at": finished.isoformat(timespec="milliseconds")}
+    if isinstance(report.get("seconds"), int | float):
+        started = finished - timedelta(seconds=float(report["seconds"]))
+        stamps = {"started_at": started.isoformat(timespec="milliseconds"), **stamps}
+    report = {"stage": stage, **stamps, **report}
     put_json(ctx.store, marker_key(ctx, stage), report)
     return report

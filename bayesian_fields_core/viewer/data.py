@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from ..artifacts import FUSION_KEY, RESULT_PREFIX
 from ..errors import InputError
 from ..objects.obb import OrientedBox, minimum_obb
 from ..results.export import BACKGROUND_GREY, object_palette
@@ -28,7 +29,6 @@ DEFAULT_MAX_GAUSSIANS = 1_000_000
 object and a uniform random sample of the rest (seed 0): WebGL sorting in the browser, not the
 server, is what slows down past about a million splats on a laptop GPU."""
 
-FUSION_KEY = "fusion/gaussian_probabilities.npz"
 
 _HEAT = np.array(  # a perceptual dark-blue -> teal -> yellow ramp (viridis anchor colours)
     [[0.267, 0.005, 0.329], [0.230, 0.322, 0.546], [0.128, 0.567, 0.551], [0.369, 0.789, 0.383],
@@ -140,7 +140,7 @@ def result_root(path: Path) -> tuple[Path, str]:
     """(run folder, result prefix) for a run folder (holding result/) or the result folder itself."""
     path = Path(path)
     if (path / "result" / "summary.json").is_file():
-        return path, "result/"
+        return path, RESULT_PREFIX
     if (path / "summary.json").is_file():
         return path, ""
     raise InputError("no result here (expected summary.json or result/summary.json)", source=str(path))
@@ -209,7 +209,7 @@ def load_view(
 def _gaussian_relevance(root: Path, prefix: str, result: Result) -> tuple[np.ndarray, str]:
     """(N, T) per-Gaussian relevance and where it came from."""
     fused = root / FUSION_KEY
-    if prefix == "result/" and fused.is_file():
+    if prefix == RESULT_PREFIX and fused.is_file():
         with np.load(fused, allow_pickle=False) as data:
             probs = np.asarray(data["probabilities"], dtype=np.float32)
         if probs.shape == (result.num_gaussians, len(result.tasks)):

@@ -40,15 +40,16 @@ from typing import Any
 import redis
 from pydantic import BaseModel, Field
 
+from bayesian_fields_core.stages.markers import STAGES
 from bayesian_fields_core.store import ArtifactNotFound, Store, get_json, put_json
 
 from .quota import TenantQuota
 from .sanitize import redact_locations, scrub
 from .storage import tenant_store
 
-#: Relative cost of each stage, used to turn (stage, fraction) into one overall percentage.
-STAGE_WEIGHTS: dict[str, float] = {"perceive": 0.6, "fuse": 0.25, "cluster": 0.15}
-STAGES: tuple[str, ...] = tuple(STAGE_WEIGHTS)
+#: Relative cost of each stage (in `STAGES` order, which the library defines), used to turn
+#: (stage, fraction) into one overall percentage.
+STAGE_WEIGHTS: dict[str, float] = dict(zip(STAGES, (0.6, 0.25, 0.15), strict=True))
 
 #: Seconds a finished job's live Redis hash is kept (the manifest stays for good).
 FINISHED_HASH_TTL_S = 24 * 3600

@@ -125,6 +125,22 @@ class ServiceSettings(BaseSettings):
     max_active_jobs_per_tenant: int = Field(
         16, gt=0, description="Queued + running jobs a tenant may have; more are refused with 429."
     )
+    stage_lock_ttl_s: int = Field(
+        60,
+        ge=4,
+        le=24 * 3600,
+        description="A stage lock expires this long after its holder stops renewing it (a crashed "
+        "worker's stage is taken over then); the holder renews it every quarter of that.",
+    )
+    recovery_interval_s: float = Field(
+        15.0, gt=0, le=3600, description="Seconds between a worker's scans for orphaned jobs."
+    )
+    recovery_grace_s: float = Field(
+        20.0,
+        ge=0,
+        description="How long a job must look orphaned (running, no stage lock, no queued task) "
+        "before a scan re-enqueues its next stage.",
+    )
 
     # ---- outages (request path of the API) -------------------------------------------------------
     api_backend_timeout_s: float = Field(

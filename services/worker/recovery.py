@@ -23,7 +23,6 @@ one scan at a time do the work.
 
 from __future__ import annotations
 
-import os
 import threading
 import time
 
@@ -38,10 +37,6 @@ from .dispatch import enqueue_stages
 
 log = get_logger(__name__)  # a child of the 'celery' logger: lands in the worker log
 
-#: Seconds between scans and how long a job must look orphaned before it is re-enqueued
-#: (environment: BFIELDS_RECOVERY_INTERVAL_S, BFIELDS_RECOVERY_GRACE_S).
-SCAN_INTERVAL_S = float(os.environ.get("BFIELDS_RECOVERY_INTERVAL_S", "15"))
-GRACE_S = float(os.environ.get("BFIELDS_RECOVERY_GRACE_S", "20"))
 _SUSPECT_KEY = "bf:orphan:{tenant}:{job_id}"
 
 _stop = threading.Event()
@@ -53,12 +48,14 @@ def _has_stage_lock(client: redis.Redis, tenant: str, job_id: str) -> bool:
 
 
 def recover_orphans(
-    app: Celery, jobs: JobStore, settings: ServiceSettings, *, grace_s: float = GRACE_S
+    app: Celery, jobs: JobStore, settings: ServiceSettings, *, grace_s: float | None = None
 ) -> list[str]:
-    """One scan; returns the ids of the jobs it re-enqueued."""
+    """One scan; returns the ids of the jobs it re-enqueued. `grace_s` defaults to
+    `settings.recovery_grace_s`."""
+    grace_s = settings.recovery_grace_s if grace_s is None else grace_s
     client = jobs.redis
     # short expiry: a worker killed mid-scan must not block the other scanners for long
-    lock = client.lock("bf:recovery", timeout=max(10.0, 4 * SCAN_INTERVAL_S), blocking_timeout=0)
+    lock = client.lock("bf:recovery", timeout=max(10.0, 4 * settings.recovery_interval_s), blocking_timeout=0)
     if not lock.acquire(blocking=False):
         return []
     requeued = []
@@ -158,8 +155,10 @@ def _loop(app: Celery, jobs: JobStore, settings: ServiceSettings, interval_s: fl
 
 
 def start_recovery_thread(
-    app: Celery, jobs: JobStore, settings: ServiceSettings, interval_s: float = SCAN_INTERVAL_S
+    app: Celery, jobs: JobStore, settings: ServiceSettings, interval_s: float | None = None
 ) -> None:
+    """Scan every `interval_s` (default `settings.recovery_interval_s`) in a daemon thread."""
+    interval_s = settings.recovery_interval_s if interval_s is None else interval_s
     global _thread
     if _thread is not None and _thread.is_alive():
         return

@@ -67,10 +67,6 @@ try:  # storage errors only exist when boto3 is installed
 except ImportError:  # pragma: no cover - local-store deployments
     pass
 
-#: A stage lock expires this long after its holder stops renewing it (environment:
-#: BFIELDS_STAGE_LOCK_TTL_S); the holder renews it every quarter of that.
-LOCK_TTL_S = max(4, int(os.environ.get("BFIELDS_STAGE_LOCK_TTL_S", "60")))
-HEARTBEAT_S = LOCK_TTL_S / 4
 PROGRESS_INTERVAL_S = 0.5
 
 
@@ -186,22 +182,24 @@ _STEAL = """if redis.call('get', KEYS[1]) == ARGV[1] then
 
 class StageLock:
     """A Redis lock on (job, stage) with a heartbeat, so a redelivered duplicate never runs the
-    same stage concurrently; a crashed holder's lock expires after LOCK_TTL_S.
+    same stage concurrently; a crashed holder's lock expires after `ttl_s`
+    (`ServiceSettings.stage_lock_ttl_s`); the holder renews it every quarter of that.
 
     The lock's value names its owner (``host:pid:process start:random``), so a delivery on the
     same host can see that the owner is dead (a SIGKILLed pool child) and take the lock over at
     once instead of waiting for the TTL."""
 
-    def __init__(self, client: redis.Redis, key: str) -> None:
+    def __init__(self, client: redis.Redis, key: str, ttl_s: int) -> None:
         self.client = client
         self.key = key
+        self.ttl_s = ttl_s
         pid = os.getpid()
         self.token = f"{_HOST}:{pid}:{_process_start(pid)}:{secrets.token_hex(8)}"
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
     def acquire(self) -> bool:
-        if not self.client.set(self.key, self.token, nx=True, ex=LOCK_TTL_S) and not self._steal_from_dead():
+        if not self.client.set(self.key, self.token, nx=True, ex=self.ttl_s) and not self._steal_from_dead():
             return False
         self._thread = threading.Thread(target=self._beat, daemon=True)
         self._thread.start()
@@ -211,13 +209,13 @@ class StageLock:
         """Take the lock over when its owner ran on this host and that process is gone."""
         holder = self.client.get(self.key)
         if holder is None:  # expired between the two calls
-            return bool(self.client.set(self.key, self.token, nx=True, ex=LOCK_TTL_S))
+            return bool(self.client.set(self.key, self.token, nx=True, ex=self.ttl_s))
         host, _, rest = holder.decode(errors="replace").partition(":")
         pid, _, rest = rest.partition(":")
         started = rest.partition(":")[0]
         if host != _HOST or not pid.isdigit() or _process_start(int(pid)) == started:
             return False  # another host's (cannot check) or alive
-        stolen = bool(self.client.eval(_STEAL, 1, self.key, holder, self.token, LOCK_TTL_S))
+        stolen = bool(self.client.eval(_STEAL, 1, self.key, holder, self.token, self.ttl_s))
         if stolen:
             log.warning("stage lock %s: owner pid %s is dead; taken over", self.key, pid)
         return stolen
@@ -231,11 +229,11 @@ class StageLock:
         return max(1.0, (ttl_ms if ttl_ms > 0 else 0) / 1000 + 0.5)
 
     def _beat(self) -> None:
-        while not self._stop.wait(HEARTBEAT_S):
+        while not self._stop.wait(self.ttl_s / 4):
             try:  # re-set after a Redis restart too, so recovery sees the stage is alive
                 current = self.client.get(self.key)
                 if current in (None, self.token.encode()):
-                    self.client.set(self.key, self.token, ex=LOCK_TTL_S)
+                    self.client.set(self.key, self.token, ex=self.ttl_s)
             except redis.RedisError:
                 continue
 
@@ -277,11 +275,11 @@ def execute_stage(task: Task, stage: str, tenant: str, job_id: str, lock_waits: 
     if record.cancel_requested or rt.jobs.is_cancel_requested(tenant, job_id):
         _finish(rt, record, JobState.cancelled, "cancelled by request")
         return "cancelled"
-    lock = StageLock(rt.redis, stage_lock_key(tenant, job_id, stage))
+    lock = StageLock(rt.redis, stage_lock_key(tenant, job_id, stage), rt.settings.stage_lock_ttl_s)
     if not lock.acquire():
         # Another delivery of this stage is running (or its holder died on another host): try
         # again when its lock would have expired. Unlimited: a live holder renews its lock, and
-        # a dead one's lock expires within LOCK_TTL_S, so this ends.
+        # a dead one's lock expires within stage_lock_ttl_s, so this ends.
         countdown = lock.wait_s()
         log.info("stage %s of %s is locked; retry in %.1fs", stage, job_id, countdown)
         raise task.retry(countdown=countdown, kwargs={"lock_waits": lock_waits + 1})

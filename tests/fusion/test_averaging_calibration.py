@@ -5,15 +5,15 @@ import math
 import numpy as np
 import pytest
 
-from bayesian_fields_core.errors import InputError
-from bayesian_fields_core.fusion.averaging import CosineAverager
-from bayesian_fields_core.fusion.bayes import accepted_masks
-from bayesian_fields_core.fusion.calibration import (
+from bayesian_fields_core.calibration.model import (
     Calibration,
     fit_calibration,
     load_calibration,
     save_calibration,
 )
+from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.fusion.averaging import CosineAverager
+from bayesian_fields_core.fusion.bayes import accepted_masks
 from bayesian_fields_core.fusion.likelihood import LikelihoodParams, log_likelihood_ratio
 
 

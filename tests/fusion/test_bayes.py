@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.stats import norm
 
-from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.errors import InputError, InvariantError
 from bayesian_fields_core.fusion.bayes import (
     accepted_masks,
     bayes_update,
@@ -100,10 +100,13 @@ def test_or_phi_rejects_masks_lowering_every_task() -> None:
 
 
 def test_bayes_update_validates_shapes() -> None:
+    """Disagreeing shapes between stages are a broken invariant (a bug), not bad input; a bad
+    parameter value is bad input."""
     logodds = init_logodds(2, 2)
-    with pytest.raises(InputError, match="llr"):
+    with pytest.raises(InvariantError, match="llr") as caught:
         bayes_update(logodds, np.array([0]), np.array([0]), np.zeros((1, 3), dtype=np.float32))
-    with pytest.raises(InputError, match="mask_ids"):
+    assert not isinstance(caught.value, InputError)
+    with pytest.raises(InvariantError, match="mask_ids"):
         bayes_update(logodds, np.array([0]), np.array([4]), np.zeros((1, 2), dtype=np.float32))
     with pytest.raises(InputError, match="prior"):
         init_logodds(2, 2, prior=1.0)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.errors import InvariantError
 from bayesian_fields_core.fusion.bayes import bayes_update, init_logodds
 from bayesian_fields_core.fusion.bayes_torch import bayes_update_torch, init_logodds_torch
 from bayesian_fields_core.fusion.visibility import mask_associations
@@ -76,7 +76,7 @@ def test_associations_torch_tolerances_match_numpy() -> None:
 
 def test_associations_torch_refuses_bad_shapes() -> None:
     means, K, w2c, width, height, depth, labels = _frame(4, n=10)
-    with pytest.raises(InputError, match="visibility.depth"):
+    with pytest.raises(InvariantError, match="visibility.depth"):
         mask_associations_torch(
             torch.as_tensor(means),
             K,
@@ -114,5 +114,5 @@ def test_bayes_update_torch_without_outlier_rejection_and_bad_ids() -> None:
     assert state[1].tolist() == pytest.approx(
         [float(init_logodds(1, 1)[0, 0]) - 1.0, float(init_logodds(1, 1)[0, 0]) - 2.0]
     )
-    with pytest.raises(InputError, match="fusion.mask_ids"):
+    with pytest.raises(InvariantError, match="fusion.mask_ids"):
         bayes_update_torch(state, torch.tensor([1]), torch.tensor([3]), llr)

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.errors import InvariantError
 from bayesian_fields_core.fusion.visibility import mask_associations
 
 K = np.array([[10.0, 0.0, 4.0], [0.0, 10.0, 3.0], [0.0, 0.0, 1.0]])
@@ -65,5 +65,5 @@ def test_world_to_camera_is_applied() -> None:
 
 def test_bad_image_shape_raises() -> None:
     means, depth, labels = _scene()
-    with pytest.raises(InputError, match="visibility.labels"):
+    with pytest.raises(InvariantError, match="visibility.labels"):
         mask_associations(means, K, np.eye(4), W, H, depth, labels[:, :-1])

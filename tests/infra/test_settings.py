@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import ast
 import json
 import os
 import time
@@ -101,3 +102,27 @@ def test_key_ring_file_errors_name_the_file(tmp_path: Path) -> None:
     bad.write_text('{"k": "bad tenant"}')
     with pytest.raises(InputError, match="invalid tenant"):
         ApiKeyRing({}, bad).tenant_for("x")
+
+
+def test_no_service_module_reads_the_environment_itself() -> None:
+    """Service knobs come from `ServiceSettings` alone (documented, validated, in .env.example):
+    no module of the API or the workers reads `os.environ` / `os.getenv` on its own. The client
+    (`services/client`) runs on a user's machine and is not configured by the service's settings."""
+    root = Path(__file__).resolve().parents[2] / "services"
+    readers = []
+    for path in sorted(root.rglob("*.py")):
+        if path.name == "settings.py" or "client" in path.relative_to(root).parts:
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Attribute) and node.attr in {"environ", "getenv"}:
+                if isinstance(node.value, ast.Name) and node.value.id == "os":
+                    readers.append(f"{path.relative_to(root.parent)}:{node.lineno}")
+    assert readers == []
+
+
+def test_stages_are_defined_once() -> None:
+    from bayesian_fields_core.stages.markers import STAGES
+    from services.common import jobs
+
+    assert jobs.STAGES is STAGES
+    assert list(jobs.STAGE_WEIGHTS) == list(STAGES)

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from bayesian_fields_core.objects.clustering import _cluster_mean_operator, objects_from_primitives
 from bayesian_fields_core.objects.probabilities import primitive_probabilities, primitive_relevance
 from bayesian_fields_core.params import PipelineParams
-from bayesian_fields_core.stages.cluster import _cluster_mean_operator, objects_from_primitives
 
 # Three far-apart primitives (no box overlaps, so the AIB merges nothing):
 #  A: 100 Gaussians relevant to both tasks (p = 0.99, 0.99)

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 import yaml
 
+from bayesian_fields_core.calibration.model import Calibration, save_calibration
 from bayesian_fields_core.errors import InputError
-from bayesian_fields_core.fusion.calibration import Calibration, save_calibration
 from bayesian_fields_core.perception import registry
 from bayesian_fields_core.perception.classical import ClassicalSegmenter
 from bayesian_fields_core.perception.hf_clip import HFClipEncoder, hf_clip_model_id

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
+from bayesian_fields_core.calibration.model import load_calibration
 from bayesian_fields_core.cli import main
-from bayesian_fields_core.fusion.calibration import load_calibration
 from tests.scene_transforms import copy_scene, flip_camera_convention, move_splat
 
 from .conftest import N_FRAMES
@@ -275,3 +275,23 @@ def test_eval_rejects_bad_scene_choices(
     assert exit_info.value.code == 2
     assert option in capsys.readouterr().err
     assert not (tmp_path / "s").exists()
+
+
+def test_calibrate_is_one_typed_call(tmp_path: Path) -> None:
+    """The library entry point needs no argparse: a `CalibrationRequest` in, a `Calibration` out
+    (and the file written); a request with two sources or none is refused as bad input."""
+    from bayesian_fields_core.calibration import entry
+    from bayesian_fields_core.errors import InputError
+
+    scores = tmp_path / "scores.json"
+    scores.write_text('{"positive": [0.30, 0.26, 0.28], "negative": [0.19, 0.21, 0.20]}')
+    out = tmp_path / "cal.json"
+    cal = entry.calibrate(entry.CalibrationRequest(out=out, scores=scores, model_id="clip-x@abc"))
+    assert (cal.mu0, cal.mu1) == pytest.approx((0.20, 0.28))
+    assert load_calibration(out, model_id="clip-x@abc") == cal
+    for bad in (
+        entry.CalibrationRequest(out=out),
+        entry.CalibrationRequest(out=out, scores=scores, scenes=(tmp_path,), model_id="m@1"),
+    ):
+        with pytest.raises(InputError, match="either a score file or scenes"):
+            entry.calibrate(bad)

@@ -38,8 +38,10 @@ def primed(scene_dir: Path, profile: dict[str, Any], tmp_path_factory: pytest.Te
     shutil.copytree(scene_dir, scene)
     reports, counts = _run(scene, root / "out", root / "cache", profile)
     assert reports["perceive"]["frames_computed"] == N_FRAMES
-    # Crops of consecutive frames share encoder batches, so calls count batches, not frames.
-    assert counts["encode_images"] == reports["perceive"]["encoder_calls"] > 0
+    # every frame segmented; its crops encoded in batches pooled across frames (crop_batch_size)
+    assert (
+        counts["segment"] == N_FRAMES and counts["encode_images"] == reports["perceive"]["encoder_calls"] > 0
+    )
     return {"scene": scene, "cache": root / "cache"}
 
 

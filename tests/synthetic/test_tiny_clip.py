@@ -7,9 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from bayesian_fields_core.calibration.model import load_calibration
 from bayesian_fields_core.eval.synthetic.crops import object_crops, scene_crops
 from bayesian_fields_core.eval.vocabulary import BACKGROUND_KINDS, COLOURS, KINDS, canonical_captions
-from bayesian_fields_core.fusion.calibration import load_calibration
 from bayesian_fields_core.perception.hf_clip import HFClipEncoder, hf_clip_model_id
 
 MODEL = Path(__file__).resolve().parents[2] / "bayesian_fields_core" / "models" / "tiny-clip"

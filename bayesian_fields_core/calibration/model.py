@@ -18,6 +18,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.fusion.likelihood import LikelihoodParams
+from bayesian_fields_core.params import default
 
 SpreadMode = Literal["positive", "pooled", "negative"]
 
@@ -42,7 +43,7 @@ class Calibration(BaseModel):
             raise ValueError(f"mu1 ({self.mu1}) must exceed mu0 ({self.mu0}): positives must score higher")
         return self
 
-    def to_likelihood_params(self, s_eps: float = 0.0) -> LikelihoodParams:
+    def to_likelihood_params(self, s_eps: float = default("s_eps")) -> LikelihoodParams:
         """The measurement model for this encoder, with optional extra noise `s_eps`."""
         return LikelihoodParams(mu0=self.mu0, mu1=self.mu1, s=self.s, s_eps=s_eps)
 

@@ -26,12 +26,15 @@ import numpy as np
 
 from ..context import JobContext
 from ..errors import InputError
+from ..eval.synthetic import load_ground_truth
 from ..params import PipelineParams
 from ..pipeline import load_models, run_stage
 from ..store import LocalStore, get_arrays
-from .synthetic import load_ground_truth
 
 Negatives = Literal["absent", "unrelated"]
+
+POSITIVE_OVERLAP = 0.5
+"""Share of a mask's visible Gaussians inside a task's GT objects that makes a positive pair."""
 
 
 def label_masks(
@@ -119,7 +122,7 @@ def collect_scores(
     scene_dirs: list[Path],
     profile: str | None,
     *,
-    positive_overlap: float = 0.5,
+    positive_overlap: float = POSITIVE_OVERLAP,
     max_frames: int | None = None,
     negatives: Negatives = "absent",
 ) -> tuple[np.ndarray, np.ndarray, str]:

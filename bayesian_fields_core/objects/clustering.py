@@ -1,0 +1,293 @@
+"""METHOD steps 7-12 as one algorithm: primitives and their conditionals in, an object map out.
+
+Each step is its own function (graph, AIB, pruning and selection, floater removal, geometry);
+`objects_from_primitives` chains them and times each. The `cluster` stage and the evaluation
+baselines both call it, so the method and the baselines share every step after the primitives.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..params import PipelineParams
+from ..results.format import task_scores
+from .aib import aib
+from .edges import MergedGraph, merge_identical, overlap_edges
+from .knn_filter import statistical_outlier_mask
+from .obb import OrientedBox, minimum_obb
+from .probabilities import primitive_probabilities, primitive_relevance
+from .select import prune_mask, top_k
+from .timing import StepTimer
+
+
+@dataclass
+class ObjectMap:
+    """The clustered map before serialisation.
+
+    object_ids: (N,) int64 object of each Gaussian, -1 = none (kNN-removed floaters of selected
+    objects are none). probabilities: (C, T+1) p(y|object), null last. relevance: (C, T)
+    p(y=1|object) when the caller supplied per-primitive relevance, else None. selection: (T, k) object
+    ids per task, best first, -1 padded. boxes / centroids / sizes: per object, after filtering.
+    """
+
+    object_ids: np.ndarray
+    primitive_ids: np.ndarray
+    probabilities: np.ndarray
+    relevance: np.ndarray | None
+    selection: np.ndarray
+    sizes: np.ndarray
+    centroids: np.ndarray
+    boxes: list[OrientedBox | None]
+    counts: dict[str, int] = field(default_factory=dict)
+    timings: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def task_scores(self) -> np.ndarray:
+        """(C, T) each task's score of each object (see `results.format.task_scores`)."""
+        return task_scores(self.probabilities, self.relevance)
+
+
+@dataclass
+class PrimitiveScores:
+    """Per-primitive inputs of the clustering: `pyx` (P, T+1) conditionals (null last), and for
+    the selection score, `relevance` (P, T) mean fused probability and `evidence` (P, T) mean
+    fused log-odds (None when the score does not use them)."""
+
+    pyx: np.ndarray
+    relevance: np.ndarray | None
+    evidence: np.ndarray | None
+
+
+@dataclass
+class Selection:
+    """Surviving objects after pruning, renumbered 0..K-1: `object_ids` (N,), `probabilities`
+    (K, T+1), `relevance` (K, T) or None, `selection` (T, k) -1 padded, `clusters` before pruning."""
+
+    object_ids: np.ndarray
+    probabilities: np.ndarray
+    relevance: np.ndarray | None
+    selection: np.ndarray
+    clusters: int
+
+
+def primitive_scores(
+    primitive_ids: np.ndarray, probabilities: np.ndarray, logodds: np.ndarray, params: PipelineParams
+) -> PrimitiveScores:
+    """Step 7: p(y|x) of every primitive from its Gaussians' (N, T) fused `probabilities`, plus
+    the relevance or evidence that `params.selection_score` ranks by (`logodds` (N, T))."""
+    pyx = primitive_probabilities(primitive_ids, probabilities, null_mode=params.null_mode)
+    relevance = evidence = None
+    if params.selection_score != "conditional":
+        relevance, _ = primitive_relevance(primitive_ids, probabilities, pyx.shape[0])
+    if params.selection_score == "evidence":
+        evidence, _ = primitive_relevance(primitive_ids, logodds, pyx.shape[0])
+    return PrimitiveScores(pyx, relevance, evidence)
+
+
+def primitive_graph(
+    means: np.ndarray,
+    primitive_ids: np.ndarray,
+    pyx: np.ndarray,
+    gaussian_counts: np.ndarray,
+    params: PipelineParams,
+) -> tuple[np.ndarray, MergedGraph]:
+    """Step 8: overlap edges (E, 2) between primitives, then identical neighbours merged."""
+    edges = overlap_edges(means, primitive_ids, padding=params.edge_padding)
+    weights = gaussian_counts if params.aib_px == "size" else None
+    return edges, merge_identical(pyx, edges, atol=params.identical_tolerance, weights=weights)
+
+
+def prune_and_select(
+    object_of_primitive: np.ndarray,
+    cluster_pyx: np.ndarray,
+    primitive_ids: np.ndarray,
+    gaussian_counts: np.ndarray,
+    params: PipelineParams,
+    *,
+    relevance: np.ndarray | None = None,
+    evidence: np.ndarray | None = None,
+) -> Selection:
+    """Steps 10-11: drop clusters below `prune_threshold` for every task, keep `top_k` per task.
+
+    `relevance` (P, T) prunes and ranks by its Gaussian-weighted mean over each cluster; without
+    it (the Clio-style baseline has no such quantity) the conditional `cluster_pyx` (C, T+1) is
+    used. `evidence` (P, T) ranks instead when given."""
+    cluster_mean = _cluster_mean_operator(object_of_primitive, gaussian_counts, len(cluster_pyx))
+    relevance_all = None if relevance is None else cluster_mean @ relevance
+    ranking = cluster_pyx if relevance_all is None else _with_null_column(relevance_all)
+    keep = prune_mask(ranking, params.prune_threshold)
+    if evidence is not None:
+        ranking = _with_null_column(cluster_mean @ evidence)
+    new_id = np.full(cluster_pyx.shape[0], -1, dtype=np.int64)  # pruned clusters become -1
+    new_id[keep] = np.arange(int(keep.sum()))
+    object_of_primitive = new_id[object_of_primitive]
+    probabilities = cluster_pyx[keep]
+    object_ids = np.where(primitive_ids >= 0, object_of_primitive[np.maximum(primitive_ids, 0)], -1)
+    sizes = np.bincount(object_ids[object_ids >= 0], minlength=len(probabilities))
+    selection = (
+        top_k(ranking[keep], sizes, params.top_k, candidates=sizes >= params.min_object_gaussians)
+        if len(probabilities)
+        else np.full((cluster_pyx.shape[1] - 1, params.top_k), -1, dtype=np.int64)
+    )
+    return Selection(
+        object_ids=object_ids,
+        probabilities=probabilities,
+        relevance=None if relevance_all is None else relevance_all[keep],
+        selection=selection,
+        clusters=int(cluster_pyx.shape[0]),
+    )
+
+
+def members_by_object(object_ids: np.ndarray, num_objects: int) -> list[np.ndarray]:
+    """Gaussian indices of each object 0..num_objects-1 (one stable sort, no per-object scan)."""
+    order = np.argsort(object_ids, kind="stable")
+    bounds = np.searchsorted(object_ids[order], np.arange(num_objects + 1))
+    return [order[bounds[o] : bounds[o + 1]] for o in range(num_objects)]
+
+
+def remove_floaters(
+    means: np.ndarray, object_ids: np.ndarray, selected: np.ndarray, num_objects: int, params: PipelineParams
+) -> int:
+    """Step 12a: the kNN filter on each selected object; removed Gaussians get object -1 in
+    `object_ids` (in place). Returns how many were removed."""
+    if not params.knn_filter:
+        return 0
+    members = members_by_object(object_ids, num_objects)
+    removed = 0
+    for obj in selected:  # a loop over selected objects (at most tasks x k), not Gaussians
+        m = members[obj]
+        if len(m) > 1:
+            keep = statistical_outlier_mask(means[m], k=params.knn_k, std_ratio=params.knn_std_ratio)
+            object_ids[m[~keep]] = -1
+            removed += int((~keep).sum())
+    return removed
+
+
+def object_geometry(
+    means: np.ndarray, object_ids: np.ndarray, selected: np.ndarray, num_objects: int
+) -> tuple[np.ndarray, np.ndarray, list[OrientedBox | None]]:
+    """Step 12b: (K,) sizes and (K, 3) centroids of every object, and the minimum oriented box
+    of each selected one (None for the others)."""
+    inside = object_ids >= 0
+    sizes = np.bincount(object_ids[inside], minlength=num_objects)
+    centroids = np.zeros((num_objects, 3))
+    np.add.at(centroids, object_ids[inside], means[inside])
+    centroids /= np.maximum(sizes, 1)[:, None]
+    members = members_by_object(object_ids, num_objects)
+    boxes: list[OrientedBox | None] = [None] * num_objects
+    for obj in selected:
+        if len(members[obj]):
+            boxes[obj] = minimum_obb(means[members[obj]].astype(np.float64))
+    return sizes, centroids, boxes
+
+
+def objects_from_primitives(
+    means: np.ndarray,
+    primitive_ids: np.ndarray,
+    pyx: np.ndarray,
+    params: PipelineParams,
+    relevance: np.ndarray | None = None,
+    evidence: np.ndarray | None = None,
+) -> ObjectMap:
+    """Steps 8-12 from primitives (N,) and their conditionals `pyx` (P, T+1) (shared by the
+    method and the baselines); `relevance` / `evidence` as in `prune_and_select`."""
+    if pyx.shape[0] == 0:
+        return empty_object_map(len(means), primitive_ids, pyx.shape[1], params.top_k)
+    timer = StepTimer()
+    with timer("edges"):
+        counts = np.bincount(primitive_ids[primitive_ids >= 0], minlength=pyx.shape[0]).astype(np.float64)
+        edges, merged = primitive_graph(means, primitive_ids, pyx, counts, params)
+    with timer("aib"):
+        clustering = aib(merged.pyx, merged.edges, params.aib_delta, weights=merged.weights)
+    with timer("select"):
+        chosen = prune_and_select(
+            clustering.labels[merged.labels],
+            clustering.pyx,
+            primitive_ids,
+            counts,
+            params,
+            relevance=relevance,
+            evidence=evidence,
+        )
+    object_ids, num_objects = chosen.object_ids, len(chosen.probabilities)
+    selected = np.unique(chosen.selection[chosen.selection >= 0])
+    with timer("knn"):
+        removed = remove_floaters(means, object_ids, selected, num_objects, params)
+    with timer("boxes"):
+        sizes, centroids, boxes = object_geometry(means, object_ids, selected, num_objects)
+    return ObjectMap(
+        object_ids=object_ids,
+        primitive_ids=primitive_ids,
+        probabilities=chosen.probabilities,
+        relevance=chosen.relevance,
+        selection=chosen.selection,
+        sizes=sizes,
+        centroids=centroids,
+        boxes=boxes,
+        counts=_counts(
+            int(pyx.shape[0]),
+            int(merged.pyx.shape[0]),
+            int(edges.shape[0]),
+            chosen.clusters,
+            num_objects,
+            len(selected),
+            removed,
+        ),
+        timings=timer.seconds,
+    )
+
+
+def _counts(
+    primitives: int, nodes: int, edges: int, clusters: int, objects: int, selected: int, removed: int
+) -> dict[str, int]:
+    return {
+        "primitives": primitives,
+        "nodes_after_identical_merge": nodes,
+        "edges": edges,
+        "clusters": clusters,
+        "objects": objects,
+        "selected_objects": selected,
+        "knn_removed_gaussians": removed,
+    }
+
+
+def empty_object_map(n_gaussians: int, primitive_ids: np.ndarray, n_columns: int, k: int) -> ObjectMap:
+    """The map of a scene where every mask was rejected: no objects, so no task has a match.
+
+    A legitimate outcome (e.g. a task list unrelated to the scene), not an error: the result
+    still records the tasks, with empty selections.
+    """
+    return ObjectMap(
+        object_ids=np.full(n_gaussians, -1, dtype=np.int64),
+        primitive_ids=primitive_ids,
+        probabilities=np.zeros((0, n_columns)),
+        relevance=np.zeros((0, n_columns - 1)),
+        selection=np.full((n_columns - 1, k), -1, dtype=np.int64),
+        sizes=np.zeros(0, dtype=np.int64),
+        centroids=np.zeros((0, 3)),
+        boxes=[],
+        counts=_counts(0, 0, 0, 0, 0, 0, 0),
+        timings={},
+    )
+
+
+def _cluster_mean_operator(
+    cluster_of_primitive: np.ndarray, gaussian_counts: np.ndarray, num_clusters: int
+) -> sp.csr_matrix:
+    """(C, P) sparse operator: times a per-primitive (P, T) mean it gives each cluster's
+    Gaussian-weighted mean, i.e. the mean over all the cluster's Gaussians."""
+    weight = np.bincount(cluster_of_primitive, weights=gaussian_counts, minlength=num_clusters)
+    share = gaussian_counts / np.maximum(weight[cluster_of_primitive], 1e-12)
+    return sp.csr_matrix(
+        (share, (cluster_of_primitive, np.arange(len(cluster_of_primitive)))),
+        shape=(num_clusters, len(cluster_of_primitive)),
+    )
+
+
+def _with_null_column(task_scores: np.ndarray) -> np.ndarray:
+    """(C, T) task scores as the (C, T+1) table `prune_mask` / `top_k` read; the null column is
+    never ranked, so its value does not matter."""
+    return np.concatenate([task_scores, np.zeros((len(task_scores), 1))], axis=1)

@@ -244,6 +244,10 @@ def test_fuzz_task_files(suffix: str, text: str, deep: int) -> None:
         path = Path(tmp) / f"tasks{suffix}"
         path.write_bytes(text.encode("utf-8", "surrogatepass"))
         try:
-            load_tasks(path)
-        except InputError:
-            pass
+            tasks = load_tasks(path)
+        except InputError as exc:
+            assert str(exc).startswith(str(path)), "the refusal names the file"
+            return
+        # Whatever loads obeys the same rules as the API's task lists.
+        assert 1 <= len(tasks) <= MAX_TASKS and len(set(tasks)) == len(tasks)
+        assert all(isinstance(t, str) and t.strip() and len(t) <= MAX_TASK_CHARS for t in tasks)

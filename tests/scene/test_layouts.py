@@ -18,12 +18,12 @@ from bayesian_fields_core.scene.similarity import Similarity
 from bayesian_fields_core.scene.types import Frame, Scene
 from bayesian_fields_core.scene.validate import validate_scene_folder
 
-from .conftest import look_at_frame, random_gaussians
 from .trainer_layouts import (
     SourceScene,
     gsplat_output,
     inria_output,
     scene_yaml_output,
+    small_source_scene,
     splatfacto_output,
 )
 
@@ -31,19 +31,7 @@ from .trainer_layouts import (
 @pytest.fixture
 def source(tmp_path: Path) -> SourceScene:
     """A small scene in its world frame: 300 Gaussians (SH degree 2), 3 cameras, 64x48 images."""
-    g = random_gaussians(300, 2, extra=False)
-    g.means[:] = g.means * 0.3 + np.array([0.3, -0.2, 1.0], dtype=np.float32)
-    frames = [
-        look_at_frame("frame_00000.png", [2.0, 0.5, 1.5], 60.0, 60.0, 32.0, 24.0, 64, 48),
-        look_at_frame("frame_00001.png", [-1.0, 2.0, 2.0], 60.0, 60.0, 32.0, 24.0, 64, 48),
-        look_at_frame("frame_00002.png", [0.5, -2.5, 0.8], 60.0, 60.0, 32.0, 24.0, 64, 48),
-    ]
-    src = tmp_path / "src"
-    src.mkdir()
-    for i, f in enumerate(frames):
-        f.image_path = src / f.name
-        Image.new("RGB", (64, 48), (40 * i, 90, 200)).save(f.image_path)
-    return SourceScene(g, frames)
+    return small_source_scene(tmp_path, sh_degree=2, centre=(0.3, -0.2, 1.0))
 
 
 def assert_same_scene(scene: Scene, src: SourceScene, *, transformed: bool) -> None:

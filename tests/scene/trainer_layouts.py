@@ -27,6 +27,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from PIL import Image
 
 from bayesian_fields_core.scene.colmap import write_colmap_binary
 from bayesian_fields_core.scene.geometry import OPENGL_TO_OPENCV, invert_rigid
@@ -247,3 +248,23 @@ def scene_yaml_output(src: SourceScene, out: Path, splat_to_camera: Similarity) 
         )
     )
     return out
+
+
+def small_source_scene(root: Path, *, sh_degree: int, centre: tuple[float, float, float]) -> SourceScene:
+    """300 random Gaussians around `centre`, 3 cameras looking at them, flat 64x48 images under
+    `root / "src"`: the untransformed scene the layout tests (library and service) start from."""
+    from tests.scene.conftest import look_at_frame, random_gaussians
+
+    g = random_gaussians(300, sh_degree, extra=False)
+    g.means[:] = g.means * 0.3 + np.array(centre, dtype=np.float32)
+    frames = [
+        look_at_frame("frame_00000.png", [2.0, 0.5, 1.5], 60.0, 60.0, 32.0, 24.0, 64, 48),
+        look_at_frame("frame_00001.png", [-1.0, 2.0, 2.0], 60.0, 60.0, 32.0, 24.0, 64, 48),
+        look_at_frame("frame_00002.png", [0.5, -2.5, 0.8], 60.0, 60.0, 32.0, 24.0, 64, 48),
+    ]
+    src = root / "src"
+    src.mkdir()
+    for i, f in enumerate(frames):
+        f.image_path = src / f.name
+        Image.new("RGB", (64, 48), (40 * i, 90, 200)).save(f.image_path)
+    return SourceScene(g, frames)

@@ -9,13 +9,11 @@ from pathlib import Path
 import httpx
 import numpy as np
 import pytest
-from PIL import Image
 
 from bayesian_fields_core.scene.layout import resolve_layout
 from services.client import BFieldsClient
 from tests.integration.fixtures.services import ApiServer
-from tests.scene.conftest import look_at_frame, random_gaussians
-from tests.scene.trainer_layouts import SourceScene, inria_output, splatfacto_output
+from tests.scene.trainer_layouts import SourceScene, inria_output, small_source_scene, splatfacto_output
 
 from .conftest import scene_form
 
@@ -25,19 +23,7 @@ pytestmark = pytest.mark.integration
 @pytest.fixture
 def source(tmp_path: Path) -> SourceScene:
     """300 Gaussians in front of 3 cameras, 64x48 images, in the scene's world frame."""
-    g = random_gaussians(300, 1, extra=False)
-    g.means[:] = g.means * 0.3
-    frames = [
-        look_at_frame("frame_00000.png", [2.0, 0.5, 1.5], 60.0, 60.0, 32.0, 24.0, 64, 48),
-        look_at_frame("frame_00001.png", [-1.0, 2.0, 2.0], 60.0, 60.0, 32.0, 24.0, 64, 48),
-        look_at_frame("frame_00002.png", [0.5, -2.5, 0.8], 60.0, 60.0, 32.0, 24.0, 64, 48),
-    ]
-    src = tmp_path / "src"
-    src.mkdir()
-    for i, f in enumerate(frames):
-        f.image_path = src / f.name
-        Image.new("RGB", (64, 48), (40 * i, 90, 200)).save(f.image_path)
-    return SourceScene(g, frames)
+    return small_source_scene(tmp_path, sh_degree=1, centre=(0.0, 0.0, 0.0))
 
 
 def test_splatfacto_folder_uploads_with_its_frame(

@@ -8,10 +8,13 @@ downloaded)::
     encoder: {kind: hf_clip, path: ../tiny-clip, params: {resize_mode: shortest_crop}}
     calibration: {path: ../tiny-clip/calibration.json}   # or {mu0: 0.2, mu1: 0.27, s: 0.035}
 
-Relative paths (``encoder.path``, ``segmenter.params.weights`` / ``.path``, ``calibration.path``)
-are resolved against the profile file's folder, so a profile travels with its models.
-``profile_fingerprint`` hashes everything that changes the perception output (segmenter kind and
-params with weight files replaced by their content hash, the encoder's model id and params, the
+Each ``kind`` is one typed class in ``perception/kinds.py`` (see ``kind_registry``): its
+``params`` are checked when the profile is read (an unknown or mistyped key is a one-line
+``InputError`` naming the file and the field), and it builds the ``Segmenter`` / ``Encoder``.
+Relative model paths (``encoder.path``, a kind's model-file params such as FastSAM's ``weights``,
+``calibration.path``) are resolved against the profile file's folder, so a profile travels with
+its models. ``profile_fingerprint`` hashes everything that changes the perception output (each
+section's identity: kind and set params, model files by content, the encoder's model id, plus the
 crop settings) and keys the per-scene perception cache; runtime-only settings (device, threads,
 providers, batch size) are left out.
 """
@@ -23,41 +26,39 @@ import json
 import os
 from importlib import resources
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import (
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Field,
+    SerializeAsAny,
+    ValidationError,
+    model_validator,
+)
 
 from bayesian_fields_core.calibration.model import Calibration, load_calibration
 from bayesian_fields_core.errors import InputError, ModelError
-from bayesian_fields_core.perception.digest import files_digest
+from bayesian_fields_core.perception import kinds as _builtin_kinds  # noqa: F401  (registers them)
+from bayesian_fields_core.perception.encoder import Encoder
+from bayesian_fields_core.perception.kind_registry import (
+    ENCODERS,
+    SEGMENTERS,
+    EncoderConfig,
+    SegmenterConfig,
+    resolve_path,
+)
+from bayesian_fields_core.perception.segmenter import Segmenter
 
-# Segmenter params that name files (resolved against the profile folder, hashed in fingerprints).
-SEGMENTER_PATH_KEYS = ("weights", "path")
-# Settings that do not change the output: left out of the fingerprint.
-RUNTIME_KEYS = frozenset({"device", "providers", "threads", "max_batch"})
 # mask_crops defaults used by the perceive stage; part of the fingerprint so a change re-embeds.
 CROP_SETTINGS = {"background": "gray", "pad_fraction": 0.1, "square": True}
 DEFAULT_PROFILE_ENV = "BFIELDS_DEFAULT_PROFILE"
 
-
-class SegmenterConfig(BaseModel):
-    """``kind`` picks the class; ``params`` are its keyword arguments."""
-
-    model_config = ConfigDict(extra="forbid")
-    kind: Literal["classical", "fastsam", "onnx"] = "classical"
-    params: dict[str, Any] = Field(default_factory=dict)
-
-
-class EncoderConfig(BaseModel):
-    """``path``: the HF model folder (hf_clip), the ONNX folder (onnx) or the checkpoint file
-    (open_clip, with ``params.model_name``). ``params``: the encoder's other keyword arguments."""
-
-    model_config = ConfigDict(extra="forbid")
-    kind: Literal["hf_clip", "open_clip", "onnx"] = "hf_clip"
-    path: str
-    device: str = "cpu"
-    params: dict[str, Any] = Field(default_factory=dict)
+#: A profile section validated as the class its ``kind`` names (``SerializeAsAny``: dumped whole).
+SegmenterSection = Annotated[SerializeAsAny[SegmenterConfig], BeforeValidator(SEGMENTERS.parse)]
+EncoderSection = Annotated[SerializeAsAny[EncoderConfig], BeforeValidator(ENCODERS.parse)]
 
 
 class CalibrationConfig(BaseModel):
@@ -85,28 +86,19 @@ class ModelProfile(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
     name: str = "default"
-    segmenter: SegmenterConfig = Field(default_factory=SegmenterConfig)
-    encoder: EncoderConfig
+    segmenter: SegmenterSection = Field(default_factory=lambda: SEGMENTERS.parse({}))
+    encoder: EncoderSection
     calibration: CalibrationConfig | None = None
 
 
-def _resolve(value: str, base: Path) -> str:
-    p = Path(value).expanduser()
-    return str(p if p.is_absolute() else (base / p).resolve())
-
-
 def _with_resolved_paths(profile: ModelProfile, base: Path) -> ModelProfile:
-    seg_params = {
-        k: _resolve(v, base) if k in SEGMENTER_PATH_KEYS and isinstance(v, str) else v
-        for k, v in profile.segmenter.params.items()
-    }
     update: dict[str, Any] = {
-        "segmenter": profile.segmenter.model_copy(update={"params": seg_params}),
-        "encoder": profile.encoder.model_copy(update={"path": _resolve(profile.encoder.path, base)}),
+        "segmenter": profile.segmenter.resolved(base),
+        "encoder": profile.encoder.resolved(base),
     }
     if profile.calibration is not None and profile.calibration.path is not None:
         update["calibration"] = profile.calibration.model_copy(
-            update={"path": _resolve(profile.calibration.path, base)}
+            update={"path": resolve_path(profile.calibration.path, base)}
         )
     return profile.model_copy(update=update)
 
@@ -155,70 +147,22 @@ def default_profile() -> ModelProfile:
     return load_profile(path)
 
 
-def _construct(cls: Any, where: str, *args: Any, **kwargs: Any) -> Any:
-    try:
-        return cls(*args, **kwargs)
-    except TypeError as exc:  # unknown or missing keyword in the profile's params
-        raise InputError(f"bad parameters for {cls.__name__}: {exc}", source=where) from exc
-
-
-def build_segmenter(cfg: SegmenterConfig | ModelProfile, *, device: str | None = None) -> Any:
-    """The configured ``Segmenter`` (``device`` overrides FastSAM's ``params.device``)."""
+def build_segmenter(cfg: SegmenterConfig | ModelProfile, *, device: str | None = None) -> Segmenter:
+    """The configured ``Segmenter`` (``device``, when given, overrides a device in its params)."""
     cfg = cfg.segmenter if isinstance(cfg, ModelProfile) else cfg
-    params = dict(cfg.params)
-    if cfg.kind == "classical":
-        from bayesian_fields_core.perception.classical import ClassicalSegmenter
-
-        return _construct(ClassicalSegmenter, "segmenter.params", **params)
-    if cfg.kind == "fastsam":
-        from bayesian_fields_core.perception.fastsam import FastSAMSegmenter
-
-        if device is not None:
-            params["device"] = device
-        if "weights" not in params:
-            raise InputError("fastsam needs params.weights (the FastSAM .pt file)", source="segmenter.params")
-        return _construct(FastSAMSegmenter, "segmenter.params", **params)
-    from bayesian_fields_core.perception.onnx_segmenter import OnnxSegmenter
-
-    if "path" not in params:
-        raise InputError("onnx segmenter needs params.path (the .onnx file)", source="segmenter.params")
-    return _construct(OnnxSegmenter, "segmenter.params", **params)
+    return cfg.build(device=device)
 
 
-def build_encoder(cfg: EncoderConfig | ModelProfile, *, device: str | None = None) -> Any:
+def build_encoder(cfg: EncoderConfig | ModelProfile, *, device: str | None = None) -> Encoder:
     """The configured ``Encoder``; ``device`` (when given) overrides the profile's."""
     cfg = cfg.encoder if isinstance(cfg, ModelProfile) else cfg
-    params = dict(cfg.params)
-    dev = device or cfg.device
-    if cfg.kind == "hf_clip":
-        from bayesian_fields_core.perception.hf_clip import HFClipEncoder
-
-        return _construct(HFClipEncoder, "encoder.params", cfg.path, device=dev, **params)
-    if cfg.kind == "onnx":
-        from bayesian_fields_core.perception.onnx_clip import OnnxClipEncoder
-
-        return _construct(OnnxClipEncoder, "encoder.params", cfg.path, **params)
-    from bayesian_fields_core.perception.open_clip_encoder import OpenClipEncoder
-
-    if "model_name" not in params:
-        raise InputError("open_clip needs params.model_name (e.g. ViT-B-16)", source="encoder.params")
-    return _construct(OpenClipEncoder, "encoder.params", checkpoint=cfg.path, device=dev, **params)
+    return cfg.build(device=device)
 
 
-def encoder_model_id(cfg: EncoderConfig) -> str:
+def encoder_model_id(cfg: EncoderConfig | ModelProfile) -> str:
     """The encoder's ``model_id`` computed from its files, without loading the model."""
-    if cfg.kind == "hf_clip":
-        from bayesian_fields_core.perception.hf_clip import hf_clip_model_id
-
-        return hf_clip_model_id(cfg.path)
-    if cfg.kind == "onnx":
-        from bayesian_fields_core.perception.onnx_clip import onnx_clip_model_id
-
-        names = {k: cfg.params[k] for k in ("image_model", "text_model") if k in cfg.params}
-        return onnx_clip_model_id(cfg.path, **names)
-    from bayesian_fields_core.perception.open_clip_encoder import open_clip_model_id
-
-    return open_clip_model_id(str(cfg.params.get("model_name", "")), cfg.path)
+    cfg = cfg.encoder if isinstance(cfg, ModelProfile) else cfg
+    return cfg.model_id()
 
 
 def load_profile_calibration(profile: ModelProfile, *, model_id: str | None = None) -> Calibration | None:
@@ -237,26 +181,11 @@ def load_profile_calibration(profile: ModelProfile, *, model_id: str | None = No
         raise InputError(f"invalid inline calibration: {exc}", source="profile.calibration") from exc
 
 
-def _segmenter_identity(cfg: SegmenterConfig) -> dict[str, Any]:
-    if cfg.kind == "classical":
-        params = build_segmenter(cfg).params  # cheap; fills in the defaults
-    else:
-        params = {
-            k: files_digest([v]) if k in SEGMENTER_PATH_KEYS and isinstance(v, str) else v
-            for k, v in cfg.params.items()
-        }
-    return {"kind": cfg.kind, "params": {k: v for k, v in params.items() if k not in RUNTIME_KEYS}}
-
-
 def profile_fingerprint(profile: ModelProfile) -> str:
     """16 hex characters identifying what the perceive stage would produce with this profile."""
     identity = {
-        "segmenter": _segmenter_identity(profile.segmenter),
-        "encoder": {
-            "kind": profile.encoder.kind,
-            "model_id": encoder_model_id(profile.encoder),
-            "params": {k: v for k, v in profile.encoder.params.items() if k not in RUNTIME_KEYS},
-        },
+        "segmenter": profile.segmenter.identity(),
+        "encoder": profile.encoder.identity(),
         "crops": CROP_SETTINGS,
     }
     blob = json.dumps(identity, sort_keys=True, default=str).encode()

@@ -78,16 +78,22 @@ def test_fingerprint_stable_and_sensitive(tmp_path: Path, tiny_clip_dir: Path) -
     same = prof.model_copy(
         update={
             "segmenter": prof.segmenter.model_copy(
-                update={"params": {**prof.segmenter.params, "sigma": 0.8}}
+                update={"params": prof.segmenter.params.model_copy(update={"sigma": 0.8})}
             ),
-            "encoder": prof.encoder.model_copy(update={"device": "cuda", "params": {"max_batch": 8}}),
+            "encoder": prof.encoder.model_copy(
+                update={"device": "cuda", "params": type(prof.encoder.params)(max_batch=8)}
+            ),
         }
     )
     assert registry.profile_fingerprint(same) == fa
     c = _profile_dir(tmp_path / "c", tiny_clip_dir, scale=60)
     assert registry.profile_fingerprint(registry.load_profile(c / "profiles" / "p.yaml")) != fa
     resize = prof.model_copy(
-        update={"encoder": prof.encoder.model_copy(update={"params": {"resize_mode": "square"}})}
+        update={
+            "encoder": prof.encoder.model_copy(
+                update={"params": type(prof.encoder.params)(resize_mode="square")}
+            )
+        }
     )
     assert registry.profile_fingerprint(resize) != fa
     # New weights, same folder name: new fingerprint.
@@ -104,15 +110,27 @@ def test_inline_calibration_and_validation_errors(tmp_path: Path) -> None:
     assert cal is not None and cal.mu1 == 0.27 and cal.model_id == "inline"
     with pytest.raises(InputError, match="either 'path' or"):
         registry.load_profile({"encoder": enc, "calibration": {"mu0": 0.2}})
-    with pytest.raises(InputError, match=r"segmenter\.kind"):
+    with pytest.raises(InputError, match=r"segmenter\.kind: unknown kind 'sam9'; known: classical, fastsam"):
         registry.load_profile({"encoder": enc, "segmenter": {"kind": "sam9"}})
     with pytest.raises(InputError, match="encoder"):
         registry.load_profile({"segmenter": {"kind": "classical"}})
-    bad = registry.load_profile({"encoder": enc, "segmenter": {"params": {"scael": 3}}})
-    with pytest.raises(InputError, match=r"segmenter\.params.*scael"):
-        registry.build_segmenter(bad)
-    with pytest.raises(InputError, match="weights"):
-        registry.build_segmenter(registry.SegmenterConfig(kind="fastsam"))
+    # Per-kind params are typed: unknown keys, wrong types and missing files are refused on reading.
+    with pytest.raises(
+        InputError, match=r"^profile: invalid profile: segmenter\.params\.scael: Extra inputs"
+    ):
+        registry.load_profile({"encoder": enc, "segmenter": {"params": {"scael": 3}}})
+    with pytest.raises(InputError, match=r"segmenter\.params\.weights: Field required"):
+        registry.load_profile({"encoder": enc, "segmenter": {"kind": "fastsam"}})
+    with pytest.raises(InputError, match=r"encoder\.params\.model_name: Field required"):
+        registry.load_profile({"encoder": {"kind": "open_clip", "path": "x.pt"}})
+    with pytest.raises(InputError, match=r"encoder\.params\.dtype: Input should be 'float32'"):
+        registry.load_profile({"encoder": {**enc, "params": {"dtype": "float8"}}})
+    (tmp_path / "typo.yaml").write_text("encoder: {kind: hf_clip, path: x, params: {resize: square}}\n")
+    with pytest.raises(
+        InputError, match=r"typo\.yaml: invalid profile: encoder\.params\.resize: Extra"
+    ) as err:
+        registry.load_profile(tmp_path / "typo.yaml")
+    assert "\n" not in str(err.value)
     with pytest.raises(InputError, match="not found"):
         registry.load_profile(tmp_path / "missing.yaml")
     (tmp_path / "list.yaml").write_text("- 1\n")
@@ -131,7 +149,7 @@ def test_bundled_profiles(monkeypatch: pytest.MonkeyPatch, tmp_path: Path, tiny_
         MODELS / "tiny-clip/calibration.json"
     )
     example = registry.load_profile(MODELS / "profiles" / "fastsam-clip-vitb16.yaml")
-    assert example.segmenter.kind == "fastsam" and example.segmenter.params["weights"].endswith(".pt")
+    assert example.segmenter.kind == "fastsam" and example.segmenter.params.weights.endswith(".pt")
     # The environment variable points the default elsewhere.
     models = _profile_dir(tmp_path, tiny_clip_dir)
     monkeypatch.setenv(registry.DEFAULT_PROFILE_ENV, str(models / "profiles" / "p.yaml"))
@@ -144,3 +162,44 @@ def test_bundled_default_profile_builds() -> None:
     enc = registry.build_encoder(prof)
     assert enc.encode_texts(["a chair"]).shape == (1, enc.dim)
     assert len(registry.profile_fingerprint(prof)) == 16
+
+
+def _readme() -> str:
+    return (REPO / "README.md").read_text(encoding="utf-8")
+
+
+def test_readme_profile_examples_load() -> None:
+    """Every profile in the README (YAML blocks and inline sections) is valid for the typed kinds."""
+    import re
+
+    blocks = [yaml.safe_load(b) for b in re.findall(r"```yaml\n(.*?)```", _readme(), re.S)]
+    profiles = [b for b in blocks if isinstance(b, dict) and "encoder" in b]
+    assert len(profiles) >= 2
+    for doc in profiles:
+        registry.load_profile(doc, base_dir="/models")
+    enc = {"kind": "hf_clip", "path": "x"}
+    sections = [yaml.safe_load(s) for s in re.findall(r"`((?:segmenter|encoder): \{.*?\})`", _readme())]
+    assert {next(iter(s)) for s in sections} == {"segmenter", "encoder"}
+    for section in sections:
+        registry.load_profile({"encoder": enc, **section})
+
+
+def test_readme_kind_table_lists_every_kind_and_param() -> None:
+    """The README's kind table names each registered kind and each of its params."""
+    import re
+
+    from bayesian_fields_core.perception.kind_registry import ENCODERS, SEGMENTERS
+
+    rows = {
+        line.split("|")[1].strip(): line
+        for line in _readme().splitlines()
+        if line.startswith("| segmenter `") or line.startswith("| encoder `")
+    }
+    for section, kinds in (("segmenter", SEGMENTERS), ("encoder", ENCODERS)):
+        for name in kinds.names():
+            if name.startswith("test-"):  # the dummy kinds of test_model_kinds
+                continue
+            row = rows[f"{section} `{name}`"]
+            params = kinds.get(name).model_fields["params"].annotation.model_fields
+            missing = [p for p in params if not re.search(rf"`(params\.)?{p}`", row)]
+            assert name == "classical" or not missing, f"README row {section} {name} lacks {missing}"

@@ -133,7 +133,7 @@ def test_batch_size_does_not_change_embeddings(kind: str, encoders: dict) -> Non
 def _fastsam(reference_dir: Path, profile: str):
     from bayesian_fields_core.perception.fastsam import FastSAMSegmenter
 
-    params = dict(_profile(reference_dir, profile).segmenter.params)
+    params = _profile(reference_dir, profile).segmenter.params.kwargs()
     # conf 0: random heads score near 0, so every candidate the head proposes is kept; they
     # overlap heavily, which is what exercises the exclusive assignment.
     params.update(conf=0.0, min_area=20)

@@ -8,7 +8,6 @@ Input errors print one clear line and exit with status 2, never a traceback.
 from __future__ import annotations
 
 import argparse
-import logging
 import os
 import sys
 from pathlib import Path
@@ -140,14 +139,13 @@ def local_context(
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from rich.console import Console
-
+    from .cli_output import stderr_console
     from .pipeline import check_inputs, load_models, run_job
     from .progress import StageProgress
     from .results.reader import read_result
     from .store import LocalStore
 
-    console = Console(stderr=True)
+    console = stderr_console()
     scene_dir = Path(args.scene)
     if not scene_dir.is_dir():
         raise InputError("not a folder", source=str(scene_dir))
@@ -299,7 +297,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="bfields", description="Task-driven semantic maps on Gaussian splats (Bayesian Fields)."
     )
-    parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
+    parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages (as run -v)")
     sub = parser.add_subparsers(dest="command", required=True)
 
     from .params_doc import text_table
@@ -328,7 +326,22 @@ def build_parser() -> argparse.ArgumentParser:
         "overrides the scene folder's (README: Bring your own scene)",
     )
     run.add_argument("--json", action="store_true", help="print the summary as JSON")
-    run.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
+    run.add_argument(
+        "-q",
+        "--quiet",
+        action="store_true",
+        help="no progress bars and no messages but the alignment check, warnings, errors and the "
+        "result; third-party "
+        "progress bars and chatter are off unless -v",
+    )
+    run.add_argument(
+        "-v",
+        "--verbose",
+        dest="run_verbose",
+        action="store_true",
+        help="also log cache hits and misses, model load times and per-stage timings "
+        "(and let third-party libraries talk)",
+    )
     run.set_defaults(func=cmd_run)
 
     prm = sub.add_parser("params", help="list every pipeline parameter: type, default, meaning")
@@ -433,9 +446,12 @@ def _one_line(exc: Exception) -> str:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    logging.basicConfig(
-        level=logging.DEBUG if args.verbose else logging.WARNING, format="%(levelname)s %(message)s"
-    )
+    from .cli_output import configure_output, stderr_console
+
+    if args.verbose or getattr(args, "run_verbose", False):
+        configure_output(stderr_console(), "verbose")
+    else:
+        configure_output(stderr_console(), "quiet" if getattr(args, "quiet", False) else "normal")
     try:
         return int(args.func(args) or 0)
     except InputError as exc:

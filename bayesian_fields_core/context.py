@@ -10,16 +10,22 @@ import hashlib
 import json
 import logging
 import tempfile
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from .artifacts import PERCEPTION_CACHE_DIR, VISIBILITY_CACHE_DIR
 from .errors import CancelledError, InputError
 from .params import PipelineParams
 from .scene.types import Frame, Scene
 from .store import LocalStore, Store
+
+if TYPE_CHECKING:
+    from .perception.encoder import Encoder
+    from .perception.registry import ModelProfile
+    from .perception.segmenter import Segmenter
 
 log = logging.getLogger(__name__)
 
@@ -40,10 +46,12 @@ class Models:
 
     `fingerprint` identifies segmenter + encoder + their parameters without loading anything; it
     keys the perception cache so a cached embedding is only reused with the exact models that
-    produced it. Loading is lazy so a CPU worker running only `cluster` never loads CLIP.
+    produced it. Loading is lazy so a CPU worker running only `cluster` never loads CLIP. Loading
+    is logged (INFO "loading models: ...", which the CLI prints; DEBUG the seconds each took), and
+    `load_seconds` keeps those seconds by role.
     """
 
-    def __init__(self, profile: Any, *, device: str | None = None) -> None:
+    def __init__(self, profile: ModelProfile, *, device: str | None = None) -> None:
         from .perception import registry
 
         self._registry = registry
@@ -51,22 +59,44 @@ class Models:
         self.device = device
         self.fingerprint: str = registry.profile_fingerprint(profile)
         self.profile_name: str = profile.name
-        self._segmenter: Any = None
-        self._encoder: Any = None
+        self._built: dict[str, Any] = {}
+        self.load_seconds: dict[str, float] = {}
         self._calibration: Any = None
         self._calibration_loaded = False
 
-    @property
-    def segmenter(self) -> Any:
-        if self._segmenter is None:
-            self._segmenter = self._registry.build_segmenter(self.profile.segmenter, device=self.device)
-        return self._segmenter
+    def describe(self, role: str) -> str:
+        """One model in words for the log: ``encoder hf_clip (tiny-clip, cpu)``."""
+        cfg = self.profile.segmenter if role == "segmenter" else self.profile.encoder
+        where = cfg.describe()
+        device = self.device or getattr(cfg, "device", None)
+        return f"{role} {cfg.kind}" + (
+            f" ({', '.join(x for x in (where, device) if x)})" if where or device else ""
+        )
+
+    def load(self, *roles: str) -> None:
+        """Build the named models ("segmenter", "encoder") not built yet, saying so in one line."""
+        todo = [r for r in roles if r not in self._built]
+        if not todo:
+            return
+        log.info("loading models: %s", ", ".join(self.describe(r) for r in todo))
+        for role in todo:
+            start = time.perf_counter()
+            if role == "segmenter":
+                self._built[role] = self._registry.build_segmenter(self.profile.segmenter, device=self.device)
+            else:
+                self._built[role] = self._registry.build_encoder(self.profile.encoder, device=self.device)
+            self.load_seconds[role] = time.perf_counter() - start
+            log.debug("%s loaded in %.2f s", self.describe(role), self.load_seconds[role])
 
     @property
-    def encoder(self) -> Any:
-        if self._encoder is None:
-            self._encoder = self._registry.build_encoder(self.profile.encoder, device=self.device)
-        return self._encoder
+    def segmenter(self) -> Segmenter:
+        self.load("segmenter")
+        return self._built["segmenter"]
+
+    @property
+    def encoder(self) -> Encoder:
+        self.load("encoder")
+        return self._built["encoder"]
 
     @property
     def render_device(self) -> str:

@@ -4,11 +4,14 @@ pair sweeps whose output size is unknown up front)."""
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import TypeVar
+from typing import Any, TypeVar
 
 from numba import njit
 
 _F = TypeVar("_F", bound=Callable[..., object])
+
+#: Every function `compiled` has wrapped (numba dispatchers), for `is_cached`.
+KERNELS: list[Any] = []
 
 
 def compiled(fn: _F) -> _F:
@@ -16,8 +19,25 @@ def compiled(fn: _F) -> _F:
     without it where no cache location is writable (a read-only image with no NUMBA_CACHE_DIR):
     numba refuses to import a cached function there, and compiling per process still works."""
     try:
-        return njit(cache=True)(fn)
+        kernel = njit(cache=True)(fn)
     except RuntimeError as err:
         if "cannot cache" not in str(err):
             raise
-        return njit(fn)
+        kernel = njit(fn)
+    KERNELS.append(kernel)
+    return kernel
+
+
+def is_cached(kernel: Any) -> bool | None:
+    """Whether calling `kernel` will not compile it: True when this process compiled it already
+    or numba's on-disk cache holds a current build of it (an index whose source stamp matches);
+    False when it must compile; None when it cannot tell (numba's cache internals moved)."""
+    if kernel.signatures:
+        return True
+    cache = getattr(kernel, "_cache", None)
+    if cache is None or not getattr(cache, "_enabled", True):
+        return False  # no disk cache: every process compiles
+    try:
+        return bool(cache._cache_file._load_index())  # {} when absent or stale
+    except (AttributeError, OSError, EOFError, ValueError):
+        return None

@@ -1,15 +1,20 @@
 """Compile every numba kernel of the cluster stage once, so later processes load them from the
 cache: `python -m bayesian_fields_core.objects.compile_kernels` (the worker images run it at
-build time; on a developer machine the first cluster stage does the same implicitly)."""
+build time; on a developer machine the first cluster stage does it through `prepare_kernels`,
+saying so, since it takes seconds)."""
 
 from __future__ import annotations
 
+import logging
 import time
 
 import numpy as np
 
+from bayesian_fields_core.jit import KERNELS, is_cached
 from bayesian_fields_core.objects.aib import aib
 from bayesian_fields_core.objects.edges import merge_identical, overlap_edges
+
+log = logging.getLogger(__name__)
 
 
 def compile_kernels() -> float:
@@ -24,5 +29,27 @@ def compile_kernels() -> float:
     return time.perf_counter() - start
 
 
+def kernels_cached() -> bool | None:
+    """Whether every numba kernel loads without compiling (None: numba cannot tell us)."""
+    states = [is_cached(k) for k in KERNELS]
+    if False in states:
+        return False
+    return None if None in states else True
+
+
+def prepare_kernels() -> float:
+    """Compile the kernels now when they are not cached, announcing it (it takes seconds and
+    happens once per machine); logs the cache hit otherwise. Returns the seconds spent."""
+    cached = kernels_cached()
+    if cached is not False:
+        log.debug("numba kernels: %s", "cache hit" if cached else "cache state unknown")
+        return 0.0
+    log.info("compiling kernels (first run only, ~10 s)")
+    seconds = compile_kernels()
+    log.debug("numba kernels: cache miss, compiled in %.1f s", seconds)
+    return seconds
+
+
 if __name__ == "__main__":
-    print(f"numba kernels ready in {compile_kernels():.1f} s")
+    logging.basicConfig(level=logging.INFO, format="%(message)s")
+    print(f"numba kernels ready in {prepare_kernels():.1f} s")

@@ -81,6 +81,11 @@ class KindParams(BaseModel):
             if not _has_role(cls, k, RUNTIME)
         }
 
+    def model_files(self) -> list[str]:
+        """The set ``ModelFile`` values (paths of model files)."""
+        cls = type(self)
+        return [v for k, v in self.kwargs().items() if _has_role(cls, k, MODEL_FILE) and isinstance(v, str)]
+
     def resolved(self, base: Path) -> Self:
         """A copy with its ``ModelFile`` fields resolved against ``base``."""
         cls = type(self)
@@ -106,6 +111,10 @@ class SegmenterConfig(BaseModel, abc.ABC):
     @abc.abstractmethod
     def build(self, *, device: str | None = None) -> Segmenter:
         """The segmenter (``device``, when given, overrides a device in ``params``)."""
+
+    def describe(self) -> str:
+        """Its model files by name, for a log line ("" when it has none)."""
+        return ", ".join(Path(f).name for f in self.params.model_files())
 
     def identity(self) -> dict[str, Any]:
         """What of this section changes the masks (for the perception fingerprint)."""
@@ -134,6 +143,10 @@ class EncoderConfig(BaseModel, abc.ABC):
     def model_id(self) -> str:
         """The encoder's ``model_id`` computed from its files, without loading the model: the key
         calibration files and caches are tied to."""
+
+    def describe(self) -> str:
+        """Its model by file or folder name, for a log line."""
+        return Path(self.path).name
 
     def identity(self) -> dict[str, Any]:
         """What of this section changes the embeddings (for the perception fingerprint)."""

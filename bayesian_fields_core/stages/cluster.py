@@ -16,6 +16,7 @@ import numpy as np
 from ..artifacts import ACCEPTED_KEY, FUSION_KEY, RESULT_PREFIX
 from ..context import JobContext
 from ..objects.clustering import ObjectMap, objects_from_primitives, primitive_scores
+from ..objects.compile_kernels import prepare_kernels
 from ..objects.primitives import PrimitiveBuilder
 from ..objects.timing import StepTimer
 from ..results.format import Result, SelectedObject
@@ -53,6 +54,8 @@ def run(ctx: JobContext) -> dict[str, Any]:
     ctx.progress("cluster", 0.3)
     with timer("probabilities"):
         scores = primitive_scores(primitive_ids, fused["probabilities"], fused["logodds"], ctx.params)
+    with timer("kernels"):  # seconds once per machine (numba compiles), said when it happens
+        prepare_kernels()
     object_map = objects_from_primitives(
         ctx.scene().gaussians.means, primitive_ids, scores.pyx, ctx.params, scores.relevance, scores.evidence
     )

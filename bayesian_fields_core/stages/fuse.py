@@ -12,6 +12,7 @@ the primitive rule needs (a mask rejected by OR-phi forms no primitive).
 
 from __future__ import annotations
 
+import logging
 import time
 from typing import Any
 
@@ -28,6 +29,8 @@ from ..fusion.visibility import mask_associations
 from ..scene.images import load_depth
 from ..store import get_arrays, put_arrays
 from .markers import write_marker
+
+log = logging.getLogger(__name__)
 
 
 def likelihood_params(ctx: JobContext) -> LikelihoodParams:
@@ -215,6 +218,12 @@ def run(ctx: JobContext) -> dict[str, Any]:
         mask_counts[n] = len(phi)
         ctx.progress("fuse", (n + 1) / len(frames))
 
+    log.debug(
+        "visibility cache: %d hit(s), %d miss(es) in %s",
+        len(frames) - rendered,
+        rendered,
+        ctx.visibility_prefix,
+    )
     if on_torch:
         logodds = logodds_t.cpu().numpy()  # the only host copy of the state: after the last frame
     if use_bayes:

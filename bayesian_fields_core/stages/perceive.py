@@ -10,6 +10,7 @@ with its cameras fails the job here, with a one-line reason, before any frame is
 
 from __future__ import annotations
 
+import logging
 import time
 from typing import Any
 
@@ -23,6 +24,8 @@ from ..perception.prefetch import pipelined
 from ..scene.images import load_image
 from ..store import put_arrays
 from .markers import write_marker
+
+log = logging.getLogger(__name__)
 
 
 def smallest_label_dtype(n_masks: int) -> np.dtype:
@@ -50,6 +53,7 @@ def run(ctx: JobContext) -> dict[str, Any]:
     batches of `crop_batch_size` (`CropBatcher`); each frame is written once its last crop is
     encoded, so a crash still resumes frame by frame.
     """
+    t0 = time.perf_counter()
     store = ctx.scene_store
     assert store is not None
     # Refuse a splat that does not line up with its cameras before any frame is segmented.
@@ -62,13 +66,14 @@ def run(ctx: JobContext) -> dict[str, Any]:
     todo = [(n, index, frame) for n, (index, frame) in enumerate(frames)]
     todo = [t for t in todo if not store.exists(keys[t[1]])]
     done_frames = len(frames) - len(todo)
+    log.debug("perception cache: %d hit(s), %d miss(es) in %s", done_frames, len(todo), ctx.perception_prefix)
     masks_total = 0
     timings = {"decode": 0.0, "segment": 0.0, "crop": 0.0, "embed": 0.0}
-    t0 = time.perf_counter()
     batcher = None
     if todo:
         # Built on first need only, in this thread: a fully cached scene loads no model, and each
         # model is then used from one thread only (the segmenter in its step, the encoder here).
+        ctx.models.load("segmenter", "encoder")
         segmenter, encoder = ctx.models.segmenter, ctx.models.encoder
         batcher = CropBatcher(encoder, ctx.params.crop_batch_size)
 

@@ -15,6 +15,16 @@ still name a merged-away node, which a union-find (`parent`) resolves when a lis
 so a merge costs time in the merged node's degree only. Exactly one current entry exists per live
 edge, so the merge order is the lexicographic `(cost, lo, hi)` order: ties break by the lower node
 pair, deterministically.
+
+Edges that can never merge are not pushed. The loop only merges edges whose cost is at most
+`limit = delta * I(X;Y)`, and Pinsker's inequality gives a lower bound on every cost that needs no
+logarithm: with `m = pi_a a + pi_b b`, `KL(a || m) >= |a - m|_1^2 / 2` and `a - m = pi_b (a - b)`,
+so `d_ab = (p_a + p_b) JS >= p_a p_b / (p_a + p_b) |a - b|_1^2 / 2`. An edge whose bound exceeds
+the limit (with a margin far above float rounding) costs more than any merge still possible, so
+leaving it out changes neither the merges nor their order; at the scale bench it spares ~65 % of
+the cost evaluations (27 logarithms each) and heap entries. The refused merge's loss that is
+reported (`stopped_at`) is then the minimum over the live edges, found in one final pass in which
+the same bound again skips most exact evaluations.
 """
 
 from __future__ import annotations
@@ -49,6 +59,15 @@ def _pair_cost(mass: np.ndarray, cond: np.ndarray, ent: np.ndarray, a: int, b: i
             h -= v * np.log(v)
     cost = total * h - m_a * ent[a] - m_b * ent[b]
     return cost if cost > 0.0 else 0.0
+
+
+@compiled
+def _cost_bound(mass: np.ndarray, cond: np.ndarray, a: int, b: int) -> float:
+    """Pinsker lower bound of `_pair_cost(a, b)`: `p_a p_b / (p_a + p_b) |c_a - c_b|_1^2 / 2`."""
+    l1 = 0.0
+    for y in range(cond.shape[1]):
+        l1 += abs(cond[a, y] - cond[b, y])
+    return 0.5 * (mass[a] * mass[b] / (mass[a] + mass[b])) * l1 * l1
 
 
 @compiled
@@ -93,27 +112,29 @@ def greedy_merges(
     for k in range(num):
         neighbours.append(indices[indptr[k] : indptr[k + 1]].copy())
 
+    # Costs above `limit` are never merged; a bound above `skip_above` proves a cost is. The
+    # margin (1e-6 relative, 1e-12 absolute; masses sum to 1, so rounding in a cost is ~1e-14)
+    # keeps float error in the bound or the cost from ever dropping a mergeable edge.
+    limit = delta * information if information > tiny else tiny
+    skip_above = limit * (1.0 + 1e-6) + 1e-12
     heap = [(0.0, 0, 0, 0, 0)]
     heap.pop()
     for e in range(edges.shape[0]):
         lo, hi = edges[e, 0], edges[e, 1]
-        heap.append((_pair_cost(mass, cond, ent, lo, hi), lo, hi, 0, 0))
+        if _cost_bound(mass, cond, lo, hi) <= skip_above:
+            heap.append((_pair_cost(mass, cond, ent, lo, hi), lo, hi, 0, 0))
     heapq.heapify(heap)
 
     merges = np.empty((max(num - 1, 0), 2), dtype=np.int64)
     costs = np.empty(max(num - 1, 0))
     done = 0
-    stopped_at = np.inf
+    refused = np.inf  # cost of the cheapest live edge not merged, once the loop ends
     while len(heap) > 0:
         cost, i, j, v_i, v_j = heapq.heappop(heap)
         if version[i] != v_i or version[j] != v_j:
             continue  # an endpoint merged since this entry was pushed
-        if information > tiny:
-            relative = cost / information
-        else:
-            relative = 0.0 if cost <= tiny else np.inf
-        if relative > delta:
-            stopped_at = relative
+        if _relative(cost, information, tiny) > delta:
+            refused = cost
             break
         merges[done, 0], merges[done, 1] = i, j
         costs[done] = cost
@@ -145,5 +166,38 @@ def greedy_merges(
         neighbours[j] = np.empty(0, dtype=np.int64)
         for m in neighbours[i]:
             lo, hi = (i, m) if i < m else (m, i)
-            heapq.heappush(heap, (_pair_cost(mass, cond, ent, lo, hi), lo, hi, version[lo], version[hi]))
+            if _cost_bound(mass, cond, lo, hi) <= skip_above:
+                heapq.heappush(heap, (_pair_cost(mass, cond, ent, lo, hi), lo, hi, version[lo], version[hi]))
+    refused = _cheapest_live_edge(mass, cond, ent, parent, neighbours, refused)
+    stopped_at = np.inf if refused == np.inf else _relative(refused, information, tiny)
     return merges[:done], costs[:done], stopped_at
+
+
+@compiled
+def _relative(cost: float, information: float, tiny: float) -> float:
+    """A merge's loss relative to `I(X;Y)` (0 or inf when the information itself is ~0)."""
+    if information > tiny:
+        return cost / information
+    return 0.0 if cost <= tiny else np.inf
+
+
+@compiled
+def _cheapest_live_edge(
+    mass: np.ndarray, cond: np.ndarray, ent: np.ndarray, parent: np.ndarray, neighbours, best: float
+) -> float:
+    """min(best, the cost of every edge between surviving nodes): the loss of the merge the
+    loop refused, including edges left out of the heap. The bound skips exact evaluations that
+    cannot win (margin as for `skip_above`)."""
+    for i in range(mass.shape[0]):
+        if parent[i] != i:
+            continue
+        for x in neighbours[i]:
+            m = _find(parent, x)
+            if m <= i:
+                continue  # each pair once, from its lower node
+            if _cost_bound(mass, cond, i, m) > best * (1.0 + 1e-6) + 1e-12:
+                continue
+            cost = _pair_cost(mass, cond, ent, i, m)
+            if cost < best:
+                best = cost
+    return best

@@ -43,6 +43,7 @@ class ObjectMap:
     boxes: list[OrientedBox | None]
     counts: dict[str, int] = field(default_factory=dict)
     timings: dict[str, float] = field(default_factory=dict)
+    cpu_timings: dict[str, float] = field(default_factory=dict)
 
     @property
     def task_scores(self) -> np.ndarray:
@@ -173,8 +174,11 @@ def object_geometry(
     of each selected one (None for the others)."""
     inside = object_ids >= 0
     sizes = np.bincount(object_ids[inside], minlength=num_objects)
-    centroids = np.zeros((num_objects, 3))
-    np.add.at(centroids, object_ids[inside], means[inside])
+    # bincount sums each axis in Gaussian order, as np.add.at did, ~10x faster
+    centroids = np.stack(
+        [np.bincount(object_ids[inside], weights=means[inside, k], minlength=num_objects) for k in range(3)],
+        axis=1,
+    ).reshape(num_objects, 3)
     centroids /= np.maximum(sizes, 1)[:, None]
     members = members_by_object(object_ids, num_objects)
     boxes: list[OrientedBox | None] = [None] * num_objects
@@ -237,6 +241,7 @@ def objects_from_primitives(
             removed,
         ),
         timings=timer.seconds,
+        cpu_timings=timer.cpu_seconds,
     )
 
 

@@ -57,6 +57,7 @@ def run(ctx: JobContext) -> dict[str, Any]:
         ctx.scene().gaussians.means, primitive_ids, scores.pyx, ctx.params, scores.relevance, scores.evidence
     )
     timer.seconds.update(object_map.timings)
+    timer.cpu_seconds.update(object_map.cpu_timings)
     ctx.progress("cluster", 0.8)
     with timer("write"):
         stage_timings = _stage_timings(ctx)
@@ -72,7 +73,12 @@ def run(ctx: JobContext) -> dict[str, Any]:
             scene=_scene_record(ctx),
         )
     ctx.progress("cluster", 1.0)
-    report = {"seconds": time.perf_counter() - t0, "timings": timer.seconds, "counts": object_map.counts}
+    report = {
+        "seconds": time.perf_counter() - t0,
+        "timings": timer.seconds,
+        "cpu_timings": timer.cpu_seconds,
+        "counts": object_map.counts,
+    }
     return write_marker(ctx, "cluster", {**report, "result_bytes": sizes})
 
 

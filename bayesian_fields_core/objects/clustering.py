@@ -18,7 +18,7 @@ from .aib import aib
 from .edges import MergedGraph, merge_identical, overlap_edges
 from .knn_filter import statistical_outlier_mask
 from .obb import OrientedBox, minimum_obb
-from .probabilities import primitive_probabilities, primitive_relevance
+from .probabilities import conditionals, primitive_means
 from .select import prune_mask, top_k
 from .timing import StepTimer
 
@@ -79,13 +79,12 @@ def primitive_scores(
 ) -> PrimitiveScores:
     """Step 7: p(y|x) of every primitive from its Gaussians' (N, T) fused `probabilities`, plus
     the relevance or evidence that `params.selection_score` ranks by (`logodds` (N, T))."""
-    pyx = primitive_probabilities(primitive_ids, probabilities, null_mode=params.null_mode)
-    relevance = evidence = None
-    if params.selection_score != "conditional":
-        relevance, _ = primitive_relevance(primitive_ids, probabilities, pyx.shape[0])
-    if params.selection_score == "evidence":
-        evidence, _ = primitive_relevance(primitive_ids, logodds, pyx.shape[0])
-    return PrimitiveScores(pyx, relevance, evidence)
+    with_evidence = params.selection_score == "evidence"
+    means, _ = primitive_means(primitive_ids, [probabilities, logodds] if with_evidence else [probabilities])
+    relevance = None if params.selection_score == "conditional" else means[0]
+    return PrimitiveScores(
+        conditionals(means[0], params.null_mode), relevance, means[1] if with_evidence else None
+    )
 
 
 def primitive_graph(

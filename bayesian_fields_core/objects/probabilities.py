@@ -46,6 +46,31 @@ def membership_matrix(labels: np.ndarray, num_groups: int) -> sp.csr_matrix:
     )
 
 
+def primitive_means(
+    primitive_ids: np.ndarray, arrays: list[np.ndarray], num_primitives: int | None = None
+) -> tuple[list[np.ndarray], np.ndarray]:
+    """([(P, T_k) float64 mean of each (N, T_k) array per primitive], (P,) Gaussian counts).
+
+    One membership matrix serves every array (the cluster stage averages probabilities and
+    log-odds of the same primitives).
+    """
+    primitive_ids = np.asarray(primitive_ids)
+    for values in arrays:
+        if values.ndim != 2 or values.shape[0] != primitive_ids.shape[0]:
+            raise InputError(
+                f"expected ({primitive_ids.shape[0]}, T), got {values.shape}", source="objects.gaussian_probs"
+            )
+    if num_primitives is None:
+        num_primitives = int(primitive_ids.max(initial=-1)) + 1
+    members = membership_matrix(primitive_ids, num_primitives)
+    counts = np.asarray(members.sum(axis=1)).reshape(-1)
+    means = [
+        np.asarray(members @ values.astype(np.float64, copy=False)) / np.maximum(counts, 1)[:, None]
+        for values in arrays
+    ]
+    return means, counts
+
+
 def primitive_relevance(
     primitive_ids: np.ndarray, gaussian_probs: np.ndarray, num_primitives: int | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -54,20 +79,14 @@ def primitive_relevance(
     The unnormalised `p(y = 1 | x)`: each task's own relevance, before the null is appended and
     the row normalised for the AIB.
     """
-    primitive_ids = np.asarray(primitive_ids)
-    if gaussian_probs.ndim != 2 or gaussian_probs.shape[0] != primitive_ids.shape[0]:
-        raise InputError(
-            f"expected ({primitive_ids.shape[0]}, T), got {gaussian_probs.shape}",
-            source="objects.gaussian_probs",
-        )
-    if num_primitives is None:
-        num_primitives = int(primitive_ids.max(initial=-1)) + 1
-    members = membership_matrix(primitive_ids, num_primitives)
-    counts = np.asarray(members.sum(axis=1)).reshape(-1)
-    task = (
-        np.asarray(members @ gaussian_probs.astype(np.float64, copy=False)) / np.maximum(counts, 1)[:, None]
-    )
+    (task,), counts = primitive_means(primitive_ids, [gaussian_probs], num_primitives)
     return task, counts
+
+
+def conditionals(task: np.ndarray, null_mode: NullMode = default("null_mode")) -> np.ndarray:
+    """(P, T+1) rows `p(y|x)` from (P, T) mean task probabilities: null appended, normalised."""
+    rows = np.concatenate([task, null_probability(task, null_mode)[:, None]], axis=1)
+    return rows / rows.sum(axis=1, keepdims=True)
 
 
 def primitive_probabilities(
@@ -84,5 +103,4 @@ def primitive_probabilities(
     zero task mass, hence all its mass on the null task.
     """
     task, _ = primitive_relevance(primitive_ids, gaussian_probs, num_primitives)
-    rows = np.concatenate([task, null_probability(task, null_mode)[:, None]], axis=1)
-    return rows / rows.sum(axis=1, keepdims=True)
+    return conditionals(task, null_mode)

@@ -19,6 +19,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.jit import compiled
 from bayesian_fields_core.params import default
 
 NullMode = Literal["product", "one_minus_max"]
@@ -62,13 +63,27 @@ def primitive_means(
             )
     if num_primitives is None:
         num_primitives = int(primitive_ids.max(initial=-1)) + 1
-    members = membership_matrix(primitive_ids, num_primitives)
-    counts = np.asarray(members.sum(axis=1)).reshape(-1)
+    ids = np.ascontiguousarray(primitive_ids, dtype=np.int64)
+    counts = np.bincount(ids[ids >= 0], minlength=num_primitives)[:num_primitives].astype(np.float64)
     means = [
-        np.asarray(members @ values.astype(np.float64, copy=False)) / np.maximum(counts, 1)[:, None]
+        _group_sums(ids, np.ascontiguousarray(values), num_primitives) / np.maximum(counts, 1)[:, None]
         for values in arrays
     ]
     return means, counts
+
+
+@compiled
+def _group_sums(ids: np.ndarray, values: np.ndarray, num_groups: int) -> np.ndarray:
+    """(num_groups, T) float64 sums of the rows of `values` (N, T) per id (N,), -1 = none, each
+    group summed in row order: the same floats as the sparse membership product it replaces,
+    without its float64 copy of `values` (83 MB at the scale bench)."""
+    out = np.zeros((num_groups, values.shape[1]))
+    for n in range(ids.shape[0]):
+        g = ids[n]
+        if 0 <= g < num_groups:
+            for t in range(values.shape[1]):
+                out[g, t] += np.float64(values[n, t])
+    return out
 
 
 def primitive_relevance(

@@ -70,16 +70,18 @@ def run(ctx: JobContext) -> dict[str, Any]:
     with timer("write"):
         stage_timings = _stage_timings(ctx)
         stage_timings["cluster"] = time.perf_counter() - t0
-        sizes = write_result(
-            ctx.store,
-            ctx.job_key(RESULT_PREFIX),
-            build_result(ctx, object_map, stage_timings),
-            gaussians=ctx.scene().splat_frame_gaussians() if ctx.params.export_ply else None,
-            export_ply=ctx.params.export_ply,
-            frames=ctx.scene().frames,
-            preview_max_side=ctx.params.preview_max_side if ctx.params.previews else None,
-            scene=_scene_record(ctx),
-        )
+        result = build_result(ctx, object_map, stage_timings)
+    sizes = write_result(  # times its steps "write" (arrays, summary), "exports", "previews"
+        ctx.store,
+        ctx.job_key(RESULT_PREFIX),
+        result,
+        gaussians=ctx.scene().splat_frame_gaussians() if ctx.params.export_ply else None,
+        export_ply=ctx.params.export_ply,
+        frames=ctx.scene().frames,
+        preview_max_side=ctx.params.preview_max_side if ctx.params.previews else None,
+        scene=_scene_record(ctx),
+        timer=timer,
+    )
     ctx.progress("cluster", 1.0)
     report = {
         "seconds": time.perf_counter() - t0,

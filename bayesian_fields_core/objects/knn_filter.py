@@ -23,8 +23,7 @@ def mean_neighbour_distance(points: np.ndarray, k: int = default("knn_k")) -> np
     k_eff = min(k, n - 1)
     if k_eff < 1:
         return np.zeros(n)
-    # workers=-1: the queries of one object split across the cores (same distances, less wall time)
-    distances, _ = cKDTree(points).query(points, k=k_eff + 1, workers=-1)
+    distances, _ = cKDTree(points).query(points, k=k_eff + 1)
     return distances[:, 1:].mean(axis=1)
 
 

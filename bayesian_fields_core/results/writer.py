@@ -7,7 +7,9 @@ nothing a reader would accept.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
@@ -115,27 +117,28 @@ def _write_arrays(
     store.delete(prefix + SUMMARY_KEY)  # first: a half-rewritten result is never readable
     store.delete_prefix(prefix + "exports/")
     store.delete_prefix(prefix + PREVIEW_DIR)
-    arrays: dict[str, Any] = {}
-    stored_ids, sentinel = encode_ids(result.object_ids)
-    arrays["object_ids"], data = encode_array(stored_ids, file=OBJECT_IDS_KEY, sentinel=sentinel)
-    put(OBJECT_IDS_KEY, data)
+    # (name, file, array, sentinel) of every array stored; encoded concurrently (zlib and lzma
+    # release the GIL, and the two per-Gaussian id arrays dominate the writing time)
+    jobs: list[tuple[str, str, np.ndarray, int | None]] = [
+        ("object_ids", OBJECT_IDS_KEY, *encode_ids(result.object_ids))
+    ]
     if result.primitive_ids is not None:
-        stored_prims, prim_sentinel = encode_ids(result.primitive_ids)
-        arrays["primitive_ids"], data = encode_array(
-            stored_prims, file=PRIMITIVE_IDS_KEY, sentinel=prim_sentinel
-        )
-        put(PRIMITIVE_IDS_KEY, data)
+        jobs.append(("primitive_ids", PRIMITIVE_IDS_KEY, *encode_ids(result.primitive_ids)))
     else:
         store.delete(prefix + PRIMITIVE_IDS_KEY)
-    probs = np.asarray(result.probabilities, dtype=np.float32)
-    arrays["probabilities"], data = encode_array(probs, file=PROBABILITIES_KEY)
-    put(PROBABILITIES_KEY, data)
+    jobs.append(
+        ("probabilities", PROBABILITIES_KEY, np.asarray(result.probabilities, dtype=np.float32), None)
+    )
     if result.relevance is not None:
-        rel = np.asarray(result.relevance, dtype=np.float32)
-        arrays["relevance"], data = encode_array(rel, file=RELEVANCE_KEY)
-        put(RELEVANCE_KEY, data)
+        jobs.append(("relevance", RELEVANCE_KEY, np.asarray(result.relevance, dtype=np.float32), None))
     else:
         store.delete(prefix + RELEVANCE_KEY)
+    with ThreadPoolExecutor(max_workers=min(len(jobs), os.cpu_count() or 1)) as pool:
+        encoded = list(pool.map(lambda job: encode_array(job[2], file=job[1], sentinel=job[3]), jobs))
+    arrays: dict[str, Any] = {}
+    for (name, file, _, _), (desc, data) in zip(jobs, encoded, strict=True):
+        arrays[name] = desc
+        put(file, data)
     return arrays
 
 

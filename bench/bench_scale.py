@@ -21,9 +21,14 @@ What is real and what is synthetic:
   `depth_source='input'`, so fuse's cost without rendering shows separately.
 
 Setup runs in a child process so the peak RSS printed is that of loading the scene + fuse +
-cluster only. Usage:
+cluster only. The cluster stage runs with the pipeline's default outputs (`--outputs full`: result
+arrays, .ply exports and previews) or without exports and previews (`--outputs arrays`); its
+per-step wall and process-CPU seconds are printed. `--cluster-only --repeats N` reruns just the
+cluster stage N times on the fused state a `--keep` run left and prints per-step medians.
+Usage:
   python bench/bench_scale.py [--gaussians 400000] [--frames 300] [--depth synthetic|render]
                               [--masks 100] [--tasks 26] [--workdir DIR] [--keep]
+                              [--outputs full|arrays] [--cluster-only --repeats 3]
 Times are wall seconds on the machine as it is (other work shares the cores): process-CPU
 seconds are printed too.
 """

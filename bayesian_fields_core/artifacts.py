@@ -14,6 +14,10 @@ FUSION_KEY = "fusion/gaussian_probabilities.npz"
 ACCEPTED_KEY = "fusion/accepted_masks.npz"
 """`fuse` output: per-frame mask counts and OR-phi acceptance flags, read by `cluster`."""
 
+PRIMITIVES_KEY = "fusion/primitive_ids.npz"
+"""`fuse` output: (N,) primitive of every Gaussian (METHOD step 6), built frame by frame while the
+associations are in memory, so `cluster` need not read every frame's associations again."""
+
 RESULT_PREFIX = "result/"
 """`cluster` output: the result folder (`results/format.py` names the files inside it)."""
 

@@ -17,13 +17,15 @@ KERNELS: list[Any] = []
 def compiled(fn: _F) -> _F:
     """`njit` with numba's on-disk cache (compiling takes seconds, loading milliseconds), or
     without it where no cache location is writable (a read-only image with no NUMBA_CACHE_DIR):
-    numba refuses to import a cached function there, and compiling per process still works."""
+    numba refuses to import a cached function there, and compiling per process still works.
+    Kernels release the GIL (`nogil`), so threads can run them side by side (the per-object box
+    search of the cluster stage does)."""
     try:
-        kernel = njit(cache=True)(fn)
+        kernel = njit(cache=True, nogil=True)(fn)
     except RuntimeError as err:
         if "cannot cache" not in str(err):
             raise
-        kernel = njit(fn)
+        kernel = njit(nogil=True)(fn)
     KERNELS.append(kernel)
     return kernel
 

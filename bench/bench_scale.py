@@ -21,9 +21,14 @@ What is real and what is synthetic:
   `depth_source='input'`, so fuse's cost without rendering shows separately.
 
 Setup runs in a child process so the peak RSS printed is that of loading the scene + fuse +
-cluster only. Usage:
+cluster only. The cluster stage runs with the pipeline's default outputs (`--outputs full`: result
+arrays, .ply exports and previews) or without exports and previews (`--outputs arrays`); its
+per-step wall and process-CPU seconds are printed. `--cluster-only --repeats N` reruns just the
+cluster stage N times on the fused state a `--keep` run left and prints per-step medians.
+Usage:
   python bench/bench_scale.py [--gaussians 400000] [--frames 300] [--depth synthetic|render]
                               [--masks 100] [--tasks 26] [--workdir DIR] [--keep]
+                              [--outputs full|arrays] [--cluster-only --repeats 3]
 Times are wall seconds on the machine as it is (other work shares the cores): process-CPU
 seconds are printed too.
 """
@@ -31,6 +36,7 @@ seconds are printed too.
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import resource
 import shutil
@@ -286,6 +292,7 @@ class BenchModels:
     fingerprint = FINGERPRINT
     profile_name = "bench"
     calibration = None
+    render_device = "cpu"
 
     def __init__(self, encoder: FixedTextEncoder) -> None:
         self.encoder = encoder
@@ -323,24 +330,34 @@ def timed(fn: Any) -> tuple[Any, float, float]:
     return out, time.perf_counter() - wall, cpu_seconds() - cpu
 
 
-def measure(args: argparse.Namespace, work: Path) -> None:
+def output_params(args: argparse.Namespace) -> PipelineParams:
+    """The pipeline's defaults, with depth from the synthetic files when asked; `--outputs arrays`
+    turns the .ply exports and previews off (the result's arrays and summary only)."""
+    extra = {"export_ply": False, "previews": False} if args.outputs == "arrays" else {}
+    return PipelineParams(depth_source="input" if args.depth == "synthetic" else "median", **extra)
+
+
+def bench_context(args: argparse.Namespace, work: Path) -> JobContext:
     tasks = task_texts(args.tasks)
     encoder = FixedTextEncoder(tasks, np.load(work / "texts.npy", allow_pickle=False))
-    params = PipelineParams(depth_source="input" if args.depth == "synthetic" else "median", export_ply=False)
-    job = work / "job"
-    shutil.rmtree(job, ignore_errors=True)
-    for stale in list((work / "cache").rglob("visibility")):  # fuse computes visibility afresh
-        shutil.rmtree(stale)
-    ctx = JobContext(
-        store=LocalStore(job),
+    return JobContext(
+        store=LocalStore(work / "job"),
         job_prefix="",
         tasks=tasks,
-        params=params,
+        params=output_params(args),
         models=BenchModels(encoder),  # type: ignore[arg-type]
         scene_store=LocalStore(work / "cache"),
         scene_prefix=SCENE_PREFIX,
         scene_dir=work / "scene",
     )
+
+
+def measure(args: argparse.Namespace, work: Path) -> None:
+    shutil.rmtree(work / "job", ignore_errors=True)
+    for stale in list((work / "cache").rglob("visibility")):  # fuse computes visibility afresh
+        shutil.rmtree(stale)
+    ctx = bench_context(args, work)
+    tasks = ctx.tasks
     ticks: list[float] = []  # fuse reports progress once per frame: per-frame times for medians
     ctx.progress = lambda stage, fraction: ticks.append(time.perf_counter()) if stage == "fuse" else None
     rss0 = peak_rss_mb()
@@ -377,10 +394,10 @@ def measure(args: argparse.Namespace, work: Path) -> None:
     )
     timings = cluster["timings"]
     print(
-        f"  cluster         {cluster_s:8.2f} s  (CPU {cluster_cpu:.2f} s; aim < 10; "
-        f"without writing the result {cluster_s - timings['write']:.2f} s)"
+        f"  cluster         {cluster_s:8.2f} s  (CPU {cluster_cpu:.2f} s; aim < 2; outputs={args.outputs}; "
+        f"without writing the result {cluster_s - sum(timings.get(k, 0.0) for k in WRITE_STEPS):.2f} s)"
     )
-    print("    " + ", ".join(f"{k} {v:.2f}" for k, v in timings.items()))
+    print_steps([cluster])
     print(
         f"    AIB {timings['aib']:.3f} s on {counts['nodes_after_identical_merge']:,} nodes "
         f"({counts['primitives']:,} primitives; aim < 1 s on ~2,000)"
@@ -398,6 +415,64 @@ def measure(args: argparse.Namespace, work: Path) -> None:
     )
 
 
+WRITE_STEPS = ("write", "exports", "previews")  # the cluster stage's steps that write the result
+
+
+def print_steps(reports: list[dict[str, Any]]) -> None:
+    """Per-step wall (and, where the report has them, process-CPU) seconds of cluster reports: the
+    median over the runs, then each run's figure."""
+    names = list(reports[0]["timings"])
+    print(f"    {'step':<14}{'wall s':>8}{'CPU s':>8}   per run (wall)")
+    for name in [*names, "total"]:
+        if name == "total":
+            walls = [r["seconds"] for r in reports]
+            cpus = [sum(r.get("cpu_timings", {}).values()) for r in reports]
+        else:
+            walls = [r["timings"].get(name, 0.0) for r in reports]
+            cpus = [r.get("cpu_timings", {}).get(name, float("nan")) for r in reports]
+        runs = " ".join(f"{w:.2f}" for w in walls)
+        print(f"    {name:<14}{np.median(walls):8.2f}{np.median(cpus):8.2f}   {runs}")
+    optional = [sum(r["timings"].get(k, 0.0) for k in ("exports", "previews")) for r in reports]
+    if max(optional) > 0:
+        walls = [r["seconds"] - o for r, o in zip(reports, optional, strict=True)]
+        cpus = [
+            sum(v for k, v in r.get("cpu_timings", {}).items() if k not in ("exports", "previews"))
+            for r in reports
+        ]
+        runs = " ".join(f"{w:.2f}" for w in walls)
+        print(
+            f"    {'w/o exports':<14}{np.median(walls):8.2f}{np.median(cpus):8.2f}   {runs}  (total - exports - previews)"
+        )
+
+
+def measure_cluster(args: argparse.Namespace, work: Path) -> None:
+    """`--cluster-only`: rerun the cluster stage `--repeats` times on the fused state a previous
+    `--keep` run left in the work folder; per-step medians."""
+    ctx = bench_context(args, work)
+    if not (work / "job").is_dir():
+        raise SystemExit(f"{work}/job has no fused state: run once without --cluster-only, with --keep")
+    ctx.scene()  # loading the scene is not the cluster stage's cost (it is cached per process)
+    reports, walls, cpus = [], [], []
+    for _ in range(args.repeats):
+        report, wall, cpu = timed(lambda: run_stage("cluster", ctx, force=True))
+        reports.append(report)
+        walls.append(wall)
+        cpus.append(cpu)
+    counts = reports[-1]["counts"]
+    print(
+        f"cluster stage alone, {args.repeats} runs, outputs={args.outputs}: median wall {np.median(walls):.2f} s "
+        f"(runs {' '.join(f'{w:.2f}' for w in walls)}), median process CPU {np.median(cpus):.2f} s"
+    )
+    print_steps(reports)
+    print("    counts: " + ", ".join(f"{k} {v:,}" for k, v in counts.items()))
+    ids = read_result(ctx.store, "result/")
+    digest = hashlib.sha256(np.ascontiguousarray(ids.object_ids, dtype=np.int64).tobytes()).hexdigest()[:16]
+    chosen = [[o.object_id for o in ids.selections[t]] for t in ctx.tasks]
+    print(
+        f"    partition digest {digest}; selections digest {hashlib.sha256(repr(chosen).encode()).hexdigest()[:16]}"
+    )
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--gaussians", type=int, default=400_000)
@@ -412,13 +487,26 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--workdir", help="where the scene and caches go (default: a temp folder)")
     parser.add_argument("--keep", action="store_true", help="keep the work folder (reused when it matches)")
+    parser.add_argument(
+        "--outputs",
+        choices=("full", "arrays"),
+        default="full",
+        help="full: the default result (arrays, .ply exports, previews); arrays: without exports/previews",
+    )
+    parser.add_argument(
+        "--cluster-only",
+        action="store_true",
+        help="rerun only the cluster stage on a kept, fused work folder",
+    )
+    parser.add_argument("--repeats", type=int, default=3, help="cluster runs with --cluster-only (median)")
     parser.add_argument("--setup-only", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     work = Path(args.workdir or tempfile.mkdtemp(prefix="bfields-scale-"))
     if args.setup_only:
         setup(args, work)
         return
-    wanted = {k: v for k, v in vars(args).items() if k not in ("workdir", "keep", "setup_only")}
+    local = ("workdir", "keep", "setup_only", "outputs", "cluster_only", "repeats")
+    wanted = {k: v for k, v in vars(args).items() if k not in local}
     done = work / "setup.json"
     if not done.is_file() or {k: json.loads(done.read_text()).get(k) for k in wanted} != wanted:
         shutil.rmtree(work, ignore_errors=True)
@@ -427,7 +515,7 @@ def main(argv: list[str] | None = None) -> None:
         child += [f"--{k}={v}" for k, v in wanted.items()]
         subprocess.run(child, check=True)
     try:
-        measure(args, work)
+        (measure_cluster if args.cluster_only else measure)(args, work)
     finally:
         if not args.keep:
             shutil.rmtree(work, ignore_errors=True)

@@ -6,8 +6,8 @@ nodes, hundreds of thousands of edges, "background" clusters with thousands of n
 per-merge Python and numpy-call overhead dominated: 5-6 s for 8,500 nodes. The same algorithm as a
 compiled loop takes a fraction of a second (`bench/bench_scale.py`).
 
-Algorithm (`O(E log E)`): one binary heap holds an entry `(cost, lo, hi, version_lo, version_hi)`
-per edge; an entry is current while both endpoints keep the versions it was pushed with. Merging
+Algorithm (`O(E log E)`): one binary heap (rows of a float64 array, sifted by hand: 3-4x faster
+than `heapq` on numba tuples) holds an entry `(cost, lo, hi, version_lo, version_hi)` per edge; an entry is current while both endpoints keep the versions it was pushed with. Merging
 the cheapest current edge folds `hi` into `lo` (the lower id survives and names the union), bumps
 `lo`'s version (invalidating all its old entries), gives `lo` the union of both neighbourhoods and
 pushes one fresh entry per neighbour. Neighbour lists of other nodes are not rewritten: they may
@@ -15,11 +15,19 @@ still name a merged-away node, which a union-find (`parent`) resolves when a lis
 so a merge costs time in the merged node's degree only. Exactly one current entry exists per live
 edge, so the merge order is the lexicographic `(cost, lo, hi)` order: ties break by the lower node
 pair, deterministically.
+
+Edges that can never merge are not pushed. The loop only merges edges whose cost is at most
+`limit = delta * I(X;Y)`, and Pinsker's inequality gives a lower bound on every cost that needs no
+logarithm: with `m = pi_a a + pi_b b`, `KL(a || m) >= |a - m|_1^2 / 2` and `a - m = pi_b (a - b)`,
+so `d_ab = (p_a + p_b) JS >= p_a p_b / (p_a + p_b) |a - b|_1^2 / 2`. An edge whose bound exceeds
+the limit (with a margin far above float rounding) costs more than any merge still possible, so
+leaving it out changes neither the merges nor their order; at the scale bench it spares ~65 % of
+the cost evaluations (27 logarithms each) and heap entries. The refused merge's loss that is
+reported (`stopped_at`) is then the minimum over the live edges, found in one final pass in which
+the same bound again skips most exact evaluations.
 """
 
 from __future__ import annotations
-
-import heapq
 
 import numpy as np
 from numba.typed import List
@@ -49,6 +57,61 @@ def _pair_cost(mass: np.ndarray, cond: np.ndarray, ent: np.ndarray, a: int, b: i
             h -= v * np.log(v)
     cost = total * h - m_a * ent[a] - m_b * ent[b]
     return cost if cost > 0.0 else 0.0
+
+
+@compiled
+def _cost_bound(mass: np.ndarray, cond: np.ndarray, a: int, b: int) -> float:
+    """Pinsker lower bound of `_pair_cost(a, b)`: `p_a p_b / (p_a + p_b) |c_a - c_b|_1^2 / 2`."""
+    l1 = 0.0
+    for y in range(cond.shape[1]):
+        l1 += abs(cond[a, y] - cond[b, y])
+    return 0.5 * (mass[a] * mass[b] / (mass[a] + mass[b])) * l1 * l1
+
+
+@compiled
+def _sift_down(heap: np.ndarray, size: int, pos: int) -> None:
+    """Move the entry at `pos` down to its place (a hole sifted towards the leaves)."""
+    cost, key, v_lo, v_hi = heap[pos, 0], heap[pos, 1], heap[pos, 2], heap[pos, 3]
+    while True:
+        child = 2 * pos + 1
+        if child >= size:
+            break
+        right = child + 1
+        if right < size and (
+            heap[right, 0] < heap[child, 0]
+            or (heap[right, 0] == heap[child, 0] and heap[right, 1] < heap[child, 1])
+        ):
+            child = right
+        if heap[child, 0] < cost or (heap[child, 0] == cost and heap[child, 1] < key):
+            heap[pos, 0], heap[pos, 1], heap[pos, 2], heap[pos, 3] = (
+                heap[child, 0],
+                heap[child, 1],
+                heap[child, 2],
+                heap[child, 3],
+            )
+            pos = child
+        else:
+            break
+    heap[pos, 0], heap[pos, 1], heap[pos, 2], heap[pos, 3] = cost, key, v_lo, v_hi
+
+
+@compiled
+def _sift_up(heap: np.ndarray, pos: int) -> None:
+    """Move the entry at `pos` up to its place."""
+    cost, key, v_lo, v_hi = heap[pos, 0], heap[pos, 1], heap[pos, 2], heap[pos, 3]
+    while pos > 0:
+        parent = (pos - 1) >> 1
+        if cost < heap[parent, 0] or (cost == heap[parent, 0] and key < heap[parent, 1]):
+            heap[pos, 0], heap[pos, 1], heap[pos, 2], heap[pos, 3] = (
+                heap[parent, 0],
+                heap[parent, 1],
+                heap[parent, 2],
+                heap[parent, 3],
+            )
+            pos = parent
+        else:
+            break
+    heap[pos, 0], heap[pos, 1], heap[pos, 2], heap[pos, 3] = cost, key, v_lo, v_hi
 
 
 @compiled
@@ -93,27 +156,44 @@ def greedy_merges(
     for k in range(num):
         neighbours.append(indices[indptr[k] : indptr[k + 1]].copy())
 
-    heap = [(0.0, 0, 0, 0, 0)]
-    heap.pop()
+    # Costs above `limit` are never merged; a bound above `skip_above` proves a cost is. The
+    # margin (1e-6 relative, 1e-12 absolute; masses sum to 1, so rounding in a cost is ~1e-14)
+    # keeps float error in the bound or the cost from ever dropping a mergeable edge.
+    limit = delta * information if information > tiny else tiny
+    skip_above = limit * (1.0 + 1e-6) + 1e-12
+    # The heap: rows (cost, lo * num + hi, version of lo, version of hi), ordered by the first
+    # two, i.e. by (cost, lo, hi); ids and versions stay far below 2**53, so float64 holds them.
+    heap = np.empty((max(2 * edges.shape[0], 16), 4))
+    size = 0
     for e in range(edges.shape[0]):
         lo, hi = edges[e, 0], edges[e, 1]
-        heap.append((_pair_cost(mass, cond, ent, lo, hi), lo, hi, 0, 0))
-    heapq.heapify(heap)
+        if _cost_bound(mass, cond, lo, hi) <= skip_above:
+            heap[size, 0], heap[size, 1] = _pair_cost(mass, cond, ent, lo, hi), lo * num + hi
+            heap[size, 2], heap[size, 3] = 0.0, 0.0
+            size += 1
+    for pos in range(size // 2 - 1, -1, -1):
+        _sift_down(heap, size, pos)
 
     merges = np.empty((max(num - 1, 0), 2), dtype=np.int64)
     costs = np.empty(max(num - 1, 0))
     done = 0
-    stopped_at = np.inf
-    while len(heap) > 0:
-        cost, i, j, v_i, v_j = heapq.heappop(heap)
+    refused = np.inf  # cost of the cheapest live edge not merged, once the loop ends
+    while size > 0:
+        cost, key, v_i, v_j = heap[0, 0], int(heap[0, 1]), int(heap[0, 2]), int(heap[0, 3])
+        size -= 1
+        if size > 0:
+            heap[0, 0], heap[0, 1], heap[0, 2], heap[0, 3] = (
+                heap[size, 0],
+                heap[size, 1],
+                heap[size, 2],
+                heap[size, 3],
+            )
+            _sift_down(heap, size, 0)
+        i, j = key // num, key % num
         if version[i] != v_i or version[j] != v_j:
             continue  # an endpoint merged since this entry was pushed
-        if information > tiny:
-            relative = cost / information
-        else:
-            relative = 0.0 if cost <= tiny else np.inf
-        if relative > delta:
-            stopped_at = relative
+        if _relative(cost, information, tiny) > delta:
+            refused = cost
             break
         merges[done, 0], merges[done, 1] = i, j
         costs[done] = cost
@@ -145,5 +225,45 @@ def greedy_merges(
         neighbours[j] = np.empty(0, dtype=np.int64)
         for m in neighbours[i]:
             lo, hi = (i, m) if i < m else (m, i)
-            heapq.heappush(heap, (_pair_cost(mass, cond, ent, lo, hi), lo, hi, version[lo], version[hi]))
+            if _cost_bound(mass, cond, lo, hi) <= skip_above:
+                if size == heap.shape[0]:
+                    grown = np.empty((2 * size, 4))
+                    grown[:size] = heap[:size]
+                    heap = grown
+                heap[size, 0], heap[size, 1] = _pair_cost(mass, cond, ent, lo, hi), lo * num + hi
+                heap[size, 2], heap[size, 3] = version[lo], version[hi]
+                _sift_up(heap, size)
+                size += 1
+    refused = _cheapest_live_edge(mass, cond, ent, parent, neighbours, refused)
+    stopped_at = np.inf if refused == np.inf else _relative(refused, information, tiny)
     return merges[:done], costs[:done], stopped_at
+
+
+@compiled
+def _relative(cost: float, information: float, tiny: float) -> float:
+    """A merge's loss relative to `I(X;Y)` (0 or inf when the information itself is ~0)."""
+    if information > tiny:
+        return cost / information
+    return 0.0 if cost <= tiny else np.inf
+
+
+@compiled
+def _cheapest_live_edge(
+    mass: np.ndarray, cond: np.ndarray, ent: np.ndarray, parent: np.ndarray, neighbours, best: float
+) -> float:
+    """min(best, the cost of every edge between surviving nodes): the loss of the merge the
+    loop refused, including edges left out of the heap. The bound skips exact evaluations that
+    cannot win (margin as for `skip_above`)."""
+    for i in range(mass.shape[0]):
+        if parent[i] != i:
+            continue
+        for x in neighbours[i]:
+            m = _find(parent, x)
+            if m <= i:
+                continue  # each pair once, from its lower node
+            if _cost_bound(mass, cond, i, m) > best * (1.0 + 1e-6) + 1e-12:
+                continue
+            cost = _pair_cost(mass, cond, ent, i, m)
+            if cost < best:
+                best = cost
+    return best

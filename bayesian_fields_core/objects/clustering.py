@@ -7,7 +7,11 @@ baselines both call it, so the method and the baselines share every step after t
 
 from __future__ import annotations
 
+import os
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from typing import TypeVar
 
 import numpy as np
 import scipy.sparse as sp
@@ -18,9 +22,11 @@ from .aib import aib
 from .edges import MergedGraph, merge_identical, overlap_edges
 from .knn_filter import statistical_outlier_mask
 from .obb import OrientedBox, minimum_obb
-from .probabilities import primitive_probabilities, primitive_relevance
+from .probabilities import conditionals, primitive_means
 from .select import prune_mask, top_k
 from .timing import StepTimer
+
+_T = TypeVar("_T")
 
 
 @dataclass
@@ -43,6 +49,7 @@ class ObjectMap:
     boxes: list[OrientedBox | None]
     counts: dict[str, int] = field(default_factory=dict)
     timings: dict[str, float] = field(default_factory=dict)
+    cpu_timings: dict[str, float] = field(default_factory=dict)
 
     @property
     def task_scores(self) -> np.ndarray:
@@ -78,13 +85,12 @@ def primitive_scores(
 ) -> PrimitiveScores:
     """Step 7: p(y|x) of every primitive from its Gaussians' (N, T) fused `probabilities`, plus
     the relevance or evidence that `params.selection_score` ranks by (`logodds` (N, T))."""
-    pyx = primitive_probabilities(primitive_ids, probabilities, null_mode=params.null_mode)
-    relevance = evidence = None
-    if params.selection_score != "conditional":
-        relevance, _ = primitive_relevance(primitive_ids, probabilities, pyx.shape[0])
-    if params.selection_score == "evidence":
-        evidence, _ = primitive_relevance(primitive_ids, logodds, pyx.shape[0])
-    return PrimitiveScores(pyx, relevance, evidence)
+    with_evidence = params.selection_score == "evidence"
+    means, _ = primitive_means(primitive_ids, [probabilities, logodds] if with_evidence else [probabilities])
+    relevance = None if params.selection_score == "conditional" else means[0]
+    return PrimitiveScores(
+        conditionals(means[0], params.null_mode), relevance, means[1] if with_evidence else None
+    )
 
 
 def primitive_graph(
@@ -148,6 +154,16 @@ def members_by_object(object_ids: np.ndarray, num_objects: int) -> list[np.ndarr
     return [order[bounds[o] : bounds[o + 1]] for o in range(num_objects)]
 
 
+def _per_object(fn: Callable[[np.ndarray], _T], members: list[np.ndarray]) -> list[_T]:
+    """`fn` of each object's member indices, objects spread over the cores: the kNN queries,
+    hull and compiled box search release the GIL, and objects are independent."""
+    workers = min(len(members), os.cpu_count() or 1)
+    if workers <= 1:
+        return [fn(m) for m in members]
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        return list(pool.map(fn, members))
+
+
 def remove_floaters(
     means: np.ndarray, object_ids: np.ndarray, selected: np.ndarray, num_objects: int, params: PipelineParams
 ) -> int:
@@ -156,13 +172,14 @@ def remove_floaters(
     if not params.knn_filter:
         return 0
     members = members_by_object(object_ids, num_objects)
+    filtered = [members[obj] for obj in selected if len(members[obj]) > 1]  # at most tasks x k
+    keeps = _per_object(
+        lambda m: statistical_outlier_mask(means[m], k=params.knn_k, std_ratio=params.knn_std_ratio), filtered
+    )
     removed = 0
-    for obj in selected:  # a loop over selected objects (at most tasks x k), not Gaussians
-        m = members[obj]
-        if len(m) > 1:
-            keep = statistical_outlier_mask(means[m], k=params.knn_k, std_ratio=params.knn_std_ratio)
-            object_ids[m[~keep]] = -1
-            removed += int((~keep).sum())
+    for m, keep in zip(filtered, keeps, strict=True):
+        object_ids[m[~keep]] = -1
+        removed += int((~keep).sum())
     return removed
 
 
@@ -173,14 +190,18 @@ def object_geometry(
     of each selected one (None for the others)."""
     inside = object_ids >= 0
     sizes = np.bincount(object_ids[inside], minlength=num_objects)
-    centroids = np.zeros((num_objects, 3))
-    np.add.at(centroids, object_ids[inside], means[inside])
+    # bincount sums each axis in Gaussian order, as np.add.at did, ~10x faster
+    centroids = np.stack(
+        [np.bincount(object_ids[inside], weights=means[inside, k], minlength=num_objects) for k in range(3)],
+        axis=1,
+    ).reshape(num_objects, 3)
     centroids /= np.maximum(sizes, 1)[:, None]
     members = members_by_object(object_ids, num_objects)
     boxes: list[OrientedBox | None] = [None] * num_objects
-    for obj in selected:
-        if len(members[obj]):
-            boxes[obj] = minimum_obb(means[members[obj]].astype(np.float64))
+    boxed = [obj for obj in selected if len(members[obj])]
+    found = _per_object(lambda m: minimum_obb(means[m].astype(np.float64)), [members[obj] for obj in boxed])
+    for obj, box in zip(boxed, found, strict=True):
+        boxes[obj] = box
     return sizes, centroids, boxes
 
 
@@ -237,6 +258,7 @@ def objects_from_primitives(
             removed,
         ),
         timings=timer.seconds,
+        cpu_timings=timer.cpu_seconds,
     )
 
 

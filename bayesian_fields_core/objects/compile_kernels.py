@@ -13,6 +13,9 @@ import numpy as np
 from bayesian_fields_core.jit import KERNELS, is_cached
 from bayesian_fields_core.objects.aib import aib
 from bayesian_fields_core.objects.edges import merge_identical, overlap_edges
+from bayesian_fields_core.objects.obb import minimum_obb
+from bayesian_fields_core.objects.primitives import PrimitiveBuilder
+from bayesian_fields_core.objects.probabilities import primitive_means
 
 log = logging.getLogger(__name__)
 
@@ -26,6 +29,11 @@ def compile_kernels() -> float:
     pyx = np.array([[0.2, 0.8], [0.6, 0.4]])
     graph = merge_identical(pyx, edges)  # the identical-row test
     aib(graph.pyx, graph.edges, delta=1.0, weights=graph.weights)  # the greedy merge loop
+    minimum_obb(np.random.default_rng(0).normal(size=(80, 3)))  # the box search
+    primitive_means(np.array([0, 0, 1]), [np.zeros((3, 2), np.float32)])  # the fused state is float32
+    builder = PrimitiveBuilder(4)  # the primitive rule, for the id types fuse and the caches use
+    for gaussian_type, mask_type in ((np.int64, np.int64), (np.uint32, np.int32), (np.int64, np.int32)):
+        builder.add_frame(np.arange(2, dtype=gaussian_type), np.zeros(2, dtype=mask_type), np.ones(1, bool))
     return time.perf_counter() - start
 
 

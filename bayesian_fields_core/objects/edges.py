@@ -90,7 +90,8 @@ def box_overlap_edges(
             best = (candidates, axis, order, end)
     _, axis, order, end = best
     pairs = _sweep(lo, hi, order.astype(np.int64), end.astype(np.int64), axis)
-    return pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
+    keys = np.sort(pairs[:, 0] * n + pairs[:, 1])  # each pair is found once: no duplicates
+    return np.stack([keys // n, keys % n], axis=1)
 
 
 def overlap_edges(
@@ -147,12 +148,25 @@ def merge_identical(
     return MergedGraph(labels=labels, pyx=node_pyx, weights=node_w, edges=unique_pairs(labels[edges], count))
 
 
+def sorted_unique(values: np.ndarray) -> np.ndarray:
+    """Distinct values of a 1-D array, ascending: `np.unique` by one sort and a neighbour test.
+
+    numpy >= 2.3 answers `np.unique` of wide-range int64 with a hash table that is ~50x slower
+    than sorting here (1 s against 20 ms for 774 k keys), so hot paths use this instead.
+    """
+    ordered = np.sort(np.asarray(values).reshape(-1))
+    if ordered.size < 2:
+        return ordered
+    return ordered[np.concatenate([[True], ordered[1:] != ordered[:-1]])]
+
+
 def unique_pairs(pairs: np.ndarray, num: int) -> np.ndarray:
     """(E', 2) int64 distinct undirected pairs `i < j` of nodes `0..num-1`, self-pairs dropped,
     sorted. One int64 key per pair: a 1-D unique is several times faster than `unique(axis=0)`."""
-    pairs = np.sort(np.asarray(pairs, dtype=np.int64).reshape(-1, 2), axis=1)
-    pairs = pairs[pairs[:, 0] != pairs[:, 1]]
-    keys = np.unique(pairs[:, 0] * max(num, 1) + pairs[:, 1])
+    pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+    lo, hi = np.minimum(pairs[:, 0], pairs[:, 1]), np.maximum(pairs[:, 0], pairs[:, 1])
+    distinct = lo != hi
+    keys = sorted_unique(lo[distinct] * max(num, 1) + hi[distinct])
     return np.stack([keys // max(num, 1), keys % max(num, 1)], axis=1)
 
 

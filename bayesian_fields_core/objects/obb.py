@@ -14,7 +14,7 @@ Algorithm (`minimum_obb`)
    measured on it rank orientations almost exactly as the full set would. Extreme points are hull
    vertices, so the full hull (slow when every point is on it) is never built.
 2. Convex hull of the kernel (scipy `ConvexHull`): its face normals and edge directions.
-3. Candidate orientations, all evaluated at once as one batched matrix product:
+3. Candidate orientations, all evaluated in one compiled loop over the pairs:
    every hull face normal `n` paired with every hull edge direction `d` projected onto the plane
    orthogonal to `n` (frame `n`, `u = normalise(d - (d.n)n)`, `n x u`). In 2D the minimum-area
    rectangle has a side collinear with a hull edge (Freeman & Shapira, rotating calipers), and the
@@ -45,6 +45,7 @@ import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
 from ..errors import InputError
+from ..jit import compiled
 
 DEFAULT_MIN_THICKNESS = 1e-3
 """Smallest extent (scene units, metres for metric captures) of a returned box."""
@@ -52,8 +53,7 @@ DEFAULT_MIN_THICKNESS = 1e-3
 DEFAULT_KERNEL_DIRECTIONS = 64
 """Directions of the ε-kernel: more is tighter and slower (candidates grow ~ cubically)."""
 
-_CANDIDATE_BLOCK = 1_000_000
-_FLAT = 1e-9  # thinnest PCA span, relative to the widest, still treated as a 3D set  # floats per (faces x edges x vertices) block of the batched search
+_FLAT = 1e-9  # thinnest PCA span, relative to the widest, still treated as a 3D set
 
 
 @dataclass(frozen=True)
@@ -181,9 +181,9 @@ def _best_rotation(
     points: np.ndarray, normals: np.ndarray, edges: np.ndarray, floor: float
 ) -> np.ndarray | None:
     """Minimum-volume frame among (n, normalise(d - (d.n)n), n x d') for every normal/edge pair,
-    evaluated in blocks of faces as batched products over the points. Every side is measured as
-    at least `floor`, as the returned box will be (so flat sets are ranked by area). None if no
-    pair is valid."""
+    each side measured as at least `floor`, as the returned box will be (so flat sets are ranked
+    by area). None if no pair is valid. The projections are products here; the search over the
+    pairs is a compiled loop (`_min_volume_pair`) that keeps no (V, F, E) temporaries."""
     proj_n = points @ normals.T  # (V, F)
     range_n = np.maximum(np.ptp(proj_n, axis=0), floor)
     proj_d = points @ edges.T  # (V, E)
@@ -191,29 +191,63 @@ def _best_rotation(
     sines = np.sqrt(np.maximum(0.0, 1.0 - dots**2))
     valid = sines > 1e-6
     cross = np.cross(normals[:, None, :], edges[None, :, :])  # (F, E, 3), length = sine
-    best = (np.inf, -1, -1)
-    block = max(1, _CANDIDATE_BLOCK // max(1, edges.shape[0] * points.shape[0]))
-    for f0 in range(0, normals.shape[0], block):
-        f1 = min(f0 + block, normals.shape[0])
-        s = np.where(valid[f0:f1], sines[f0:f1], 1.0)
-        # u.x = (d.x - (d.n)(n.x)) / sine ; w.x = ((n x d).x) / sine   -> shape (V, f, E)
-        pu = (proj_d[:, None, :] - dots[f0:f1][None] * proj_n[:, f0:f1, None]) / s[None]
-        pw = np.einsum("vk,fek->vfe", points, cross[f0:f1]) / s[None]
-        vol = (
-            range_n[f0:f1, None]
-            * np.maximum(np.ptp(pu, axis=0), floor)
-            * np.maximum(np.ptp(pw, axis=0), floor)
-        )
-        vol = np.where(valid[f0:f1], vol, np.inf)
-        fi, ei = np.unravel_index(np.argmin(vol), vol.shape)
-        if vol[fi, ei] < best[0]:
-            best = (float(vol[fi, ei]), f0 + int(fi), int(ei))
-    if not np.isfinite(best[0]):
+    fi, ei = _min_volume_pair(
+        np.ascontiguousarray(points.T),
+        np.ascontiguousarray(proj_n.T),
+        range_n,
+        np.ascontiguousarray(proj_d.T),
+        dots,
+        np.where(valid, sines, 1.0),
+        valid,
+        np.ascontiguousarray(cross),
+        float(floor),
+    )
+    if fi < 0:
         return None
-    n, d = normals[best[1]], edges[best[2]]
+    n, d = normals[fi], edges[ei]
     u = d - (d @ n) * n
     u /= np.linalg.norm(u)
     return np.stack([n, u, np.cross(n, u)], axis=1)
+
+
+@compiled
+def _min_volume_pair(
+    points_t: np.ndarray,
+    proj_n_t: np.ndarray,
+    range_n: np.ndarray,
+    proj_d_t: np.ndarray,
+    dots: np.ndarray,
+    sines: np.ndarray,
+    valid: np.ndarray,
+    cross: np.ndarray,
+    floor: float,
+) -> tuple[int, int]:
+    """(face, edge) of the smallest box volume, the first in row-major order among equals, or
+    (-1, -1). points_t (3, V), proj_n_t (F, V), proj_d_t (E, V): points and their projections on
+    the normals and edge directions. With `u = d - (d.n)n` and `w = n x d`, both over the sine,
+    a side is `ptp(u.x) / sine`; dividing the extremes instead of every projection gives the same
+    floats (division by a positive number is monotonic under rounding)."""
+    n_faces, n_edges, n_points = dots.shape[0], dots.shape[1], points_t.shape[1]
+    best, best_f, best_e = np.inf, -1, -1
+    for f in range(n_faces):
+        for e in range(n_edges):
+            if not valid[f, e]:
+                continue
+            d_n = dots[f, e]
+            c0, c1, c2 = cross[f, e, 0], cross[f, e, 1], cross[f, e, 2]
+            u_lo, u_hi, w_lo, w_hi = np.inf, -np.inf, np.inf, -np.inf
+            for v in range(n_points):
+                u = proj_d_t[e, v] - d_n * proj_n_t[f, v]
+                w = points_t[0, v] * c0 + points_t[1, v] * c1 + points_t[2, v] * c2
+                u_lo, u_hi = min(u_lo, u), max(u_hi, u)
+                w_lo, w_hi = min(w_lo, w), max(w_hi, w)
+            s = sines[f, e]
+            side_u = max(u_hi / s - u_lo / s, floor)
+            side_w = max(w_hi / s - w_lo / s, floor)
+            volume = range_n[f] * side_u * side_w
+            if volume < best:
+                best, best_f, best_e = volume, f, e
+    return best_f, best_e
 
 
 def _kernel(points: np.ndarray, pca: np.ndarray, directions: int) -> np.ndarray:

@@ -236,9 +236,20 @@ def decode_ids(stored: np.ndarray, sentinel: int) -> np.ndarray:
     return out
 
 
+ZLIB_LEVEL = 6
+LZMA_PRESET = 0
+"""Compression effort of stored arrays. The per-Gaussian id arrays dominate a result's bytes and
+its writing time: at 400 k Gaussians, lzma preset 6 and zlib 9 took 1.4 s for 4-8 % fewer bytes
+than preset 0 and level 6 (0.5 s). The reader accepts any level (the codec name is what it reads)."""
+
+
 def compress(raw: bytes) -> tuple[str, bytes]:
-    """The smallest of raw, zlib (level 9) and lzma (xz, preset 6) encodings: (codec, bytes)."""
-    options = [("raw", raw), ("zlib", zlib.compress(raw, 9)), ("lzma", lzma.compress(raw, preset=6))]
+    """The smallest of raw, zlib (`ZLIB_LEVEL`) and lzma (xz, `LZMA_PRESET`) encodings: (codec, bytes)."""
+    options = [
+        ("raw", raw),
+        ("zlib", zlib.compress(raw, ZLIB_LEVEL)),
+        ("lzma", lzma.compress(raw, preset=LZMA_PRESET)),
+    ]
     return min(options, key=lambda item: len(item[1]))
 
 

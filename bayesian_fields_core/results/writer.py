@@ -7,15 +7,19 @@ nothing a reader would accept.
 
 from __future__ import annotations
 
+import os
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
 
 from ..errors import InputError
+from ..objects.timing import StepTimer
 from ..params import default
 from ..scene.types import Frame, Gaussians
 from ..store import Store, put_json
-from .export import put_ply, recolour, task_recolour
+from .export import put_ply, put_task_plys, recolour
 from .format import (
     FORMAT_NAME,
     FORMAT_VERSION,
@@ -59,6 +63,7 @@ def write_result(
     frames: list[Frame] | None = None,
     preview_max_side: int | None = None,
     scene: dict[str, Any] | None = None,
+    timer: StepTimer | None = None,
 ) -> dict[str, int]:
     """Write `result` under `prefix`; with `gaussians` (the scene's splat) and `export_ply`, also the
     per-object, per-task and recoloured-scene `.ply` exports; with `gaussians`, `frames` and
@@ -67,10 +72,44 @@ def write_result(
     Returns {key relative to prefix: bytes written}.
 
     Stale files of an earlier result under the same prefix are removed first, so the directory
-    always holds exactly what the summary describes.
+    always holds exactly what the summary describes. `timer` gets the seconds of the steps
+    "write" (arrays and summary), "exports" and "previews", which differ by orders of magnitude.
     """
-    result.validate()
+    timer = timer or StepTimer()
     prefix = normalise_prefix(prefix)
+    sizes: dict[str, int] = {}
+
+    def put(name: str, data: bytes) -> None:
+        store.put_bytes(prefix + name, data)
+        sizes[name] = len(data)
+
+    with timer("write"):
+        arrays = _write_arrays(store, prefix, result, gaussians, put)
+    exports: dict[str, Any] = {"objects": {}, "scene": None, "tasks": {}}
+    with timer("exports"):
+        if gaussians is not None and export_ply:
+            _write_exports(store, prefix, result, gaussians, exports, sizes)
+    previews: dict[str, Any] = {"tasks": [], "contact_sheet": None}
+    with timer("previews"):
+        if gaussians is not None and frames and preview_max_side:
+            rendered = render_previews(result, gaussians, frames, max_side=preview_max_side)
+            for preview in rendered:
+                put(preview.key, preview.png)
+                previews["tasks"].append(preview.entry())
+            if rendered:
+                put(CONTACT_SHEET_KEY, contact_sheet(rendered))
+                previews["contact_sheet"] = CONTACT_SHEET_KEY
+    with timer("write"):
+        put_json(store, prefix + SUMMARY_KEY, _summary(result, arrays, exports, previews, scene))
+        sizes[SUMMARY_KEY] = store.size(prefix + SUMMARY_KEY)
+    return sizes
+
+
+def _write_arrays(
+    store: Store, prefix: str, result: Result, gaussians: Gaussians | None, put: Callable[[str, bytes], None]
+) -> dict[str, Any]:
+    """Remove what an earlier result left, then write the arrays; returns their descriptions."""
+    result.validate()
     if gaussians is not None and len(gaussians) != result.num_gaussians:
         raise InputError(
             f"write_result: the splat has {len(gaussians)} Gaussians but object_ids has {result.num_gaussians}"
@@ -78,60 +117,65 @@ def write_result(
     store.delete(prefix + SUMMARY_KEY)  # first: a half-rewritten result is never readable
     store.delete_prefix(prefix + "exports/")
     store.delete_prefix(prefix + PREVIEW_DIR)
-    sizes: dict[str, int] = {}
-
-    def put(name: str, data: bytes) -> None:
-        store.put_bytes(prefix + name, data)
-        sizes[name] = len(data)
-
-    arrays: dict[str, Any] = {}
-    stored_ids, sentinel = encode_ids(result.object_ids)
-    arrays["object_ids"], data = encode_array(stored_ids, file=OBJECT_IDS_KEY, sentinel=sentinel)
-    put(OBJECT_IDS_KEY, data)
+    # (name, file, array, sentinel) of every array stored; encoded concurrently (zlib and lzma
+    # release the GIL, and the two per-Gaussian id arrays dominate the writing time)
+    jobs: list[tuple[str, str, np.ndarray, int | None]] = [
+        ("object_ids", OBJECT_IDS_KEY, *encode_ids(result.object_ids))
+    ]
     if result.primitive_ids is not None:
-        stored_prims, prim_sentinel = encode_ids(result.primitive_ids)
-        arrays["primitive_ids"], data = encode_array(
-            stored_prims, file=PRIMITIVE_IDS_KEY, sentinel=prim_sentinel
-        )
-        put(PRIMITIVE_IDS_KEY, data)
+        jobs.append(("primitive_ids", PRIMITIVE_IDS_KEY, *encode_ids(result.primitive_ids)))
     else:
         store.delete(prefix + PRIMITIVE_IDS_KEY)
-    probs = np.asarray(result.probabilities, dtype=np.float32)
-    arrays["probabilities"], data = encode_array(probs, file=PROBABILITIES_KEY)
-    put(PROBABILITIES_KEY, data)
+    jobs.append(
+        ("probabilities", PROBABILITIES_KEY, np.asarray(result.probabilities, dtype=np.float32), None)
+    )
     if result.relevance is not None:
-        rel = np.asarray(result.relevance, dtype=np.float32)
-        arrays["relevance"], data = encode_array(rel, file=RELEVANCE_KEY)
-        put(RELEVANCE_KEY, data)
+        jobs.append(("relevance", RELEVANCE_KEY, np.asarray(result.relevance, dtype=np.float32), None))
     else:
         store.delete(prefix + RELEVANCE_KEY)
+    with ThreadPoolExecutor(max_workers=min(len(jobs), os.cpu_count() or 1)) as pool:
+        encoded = list(pool.map(lambda job: encode_array(job[2], file=job[1], sentinel=job[3]), jobs))
+    arrays: dict[str, Any] = {}
+    for (name, file, _, _), (desc, data) in zip(jobs, encoded, strict=True):
+        arrays[name] = desc
+        put(file, data)
+    return arrays
 
-    exports: dict[str, Any] = {"objects": {}, "scene": None, "tasks": {}}
-    if gaussians is not None and export_ply:
-        ids = np.asarray(result.object_ids)
-        for object_id in sorted({o.object_id for objs in result.selections.values() for o in objs}):
-            key = object_export_key(object_id)
-            sizes[key] = put_ply(store, prefix + key, gaussians.subset(ids == object_id))
-            exports["objects"][str(object_id)] = key
-        sizes[SCENE_EXPORT_KEY] = put_ply(
-            store, prefix + SCENE_EXPORT_KEY, recolour(gaussians, ids, result.num_objects)
-        )
-        exports["scene"] = SCENE_EXPORT_KEY
-        for t, task in enumerate(result.tasks):
-            key = task_export_key(t)
-            chosen = [o.object_id for o in result.selections.get(task, [])]
-            sizes[key] = put_ply(store, prefix + key, task_recolour(gaussians, ids, chosen))
-            exports["tasks"][task] = key
 
-    previews: dict[str, Any] = {"tasks": [], "contact_sheet": None}
-    if gaussians is not None and frames and preview_max_side:
-        rendered = render_previews(result, gaussians, frames, max_side=preview_max_side)
-        for preview in rendered:
-            put(preview.key, preview.png)
-            previews["tasks"].append(preview.entry())
-        if rendered:
-            put(CONTACT_SHEET_KEY, contact_sheet(rendered))
-            previews["contact_sheet"] = CONTACT_SHEET_KEY
+def _write_exports(
+    store: Store,
+    prefix: str,
+    result: Result,
+    gaussians: Gaussians,
+    exports: dict[str, Any],
+    sizes: dict[str, int],
+) -> None:
+    """The .ply exports: each selected object, the recoloured scene, one file per task."""
+    ids = np.asarray(result.object_ids)
+    for object_id in sorted({o.object_id for objs in result.selections.values() for o in objs}):
+        key = object_export_key(object_id)
+        sizes[key] = put_ply(store, prefix + key, gaussians.subset(ids == object_id))
+        exports["objects"][str(object_id)] = key
+    sizes[SCENE_EXPORT_KEY] = put_ply(
+        store, prefix + SCENE_EXPORT_KEY, recolour(gaussians, ids, result.num_objects)
+    )
+    exports["scene"] = SCENE_EXPORT_KEY
+    keys = [task_export_key(t) for t in range(len(result.tasks))]
+    chosen = [[o.object_id for o in result.selections.get(task, [])] for task in result.tasks]
+    written = put_task_plys(store, [prefix + k for k in keys], gaussians, ids, chosen)
+    for task, key, size in zip(result.tasks, keys, written, strict=True):
+        sizes[key] = size
+        exports["tasks"][task] = key
+
+
+def _summary(
+    result: Result,
+    arrays: dict[str, Any],
+    exports: dict[str, Any],
+    previews: dict[str, Any],
+    scene: dict[str, Any] | None,
+) -> dict[str, Any]:
+    """summary.json: names every file with its checksum (written last; see the module doc)."""
 
     def describe(obj: SelectedObject) -> dict[str, Any]:
         return {**obj.to_dict(), "export": exports["objects"].get(str(obj.object_id))}
@@ -161,6 +205,4 @@ def write_result(
             if result.splat_to_capture is None
             else np.asarray(result.splat_to_capture, dtype=np.float64).tolist(),
         }
-    put_json(store, prefix + SUMMARY_KEY, summary)
-    sizes[SUMMARY_KEY] = store.size(prefix + SUMMARY_KEY)
-    return sizes
+    return summary

@@ -410,13 +410,10 @@ def _output_layout(g: Gaussians) -> list[tuple[str, np.dtype, np.ndarray]]:
     return cols
 
 
-def write_ply(path: str | Path, gaussians: Gaussians, *, ascii: bool = False) -> None:
-    """Write a splat in the INRIA layout (binary little-endian, or ASCII for inspection).
-
-    Extra properties are appended after rot_3 with their own dtypes, so a read/write round trip
-    keeps every property and value bit for bit.
-    """
-    path = Path(path)
+def ply_rows(gaussians: Gaussians, *, ascii: bool = False) -> tuple[bytes, np.ndarray]:
+    """(header, (N,) structured little-endian rows) of a splat in the INRIA layout: the binary
+    file is the header followed by the rows' bytes. Writers of several files of one layout (the
+    per-task exports) fill one row array and change only the columns that differ."""
     cols = _output_layout(gaussians)
     fmt = "ascii" if ascii else "binary_little_endian"
     lines = ["ply", f"format {fmt} 1.0", f"element vertex {len(gaussians)}"]
@@ -425,11 +422,26 @@ def write_ply(path: str | Path, gaussians: Gaussians, *, ascii: bool = False) ->
     rows = np.empty(len(gaussians), dtype=np.dtype([(name, dt) for name, dt, _ in cols]))
     for name, _, values in cols:
         rows[name] = values
-    with open(path, "wb") as f:
-        f.write("\n".join(lines).encode("ascii"))
+    return "\n".join(lines).encode("ascii"), rows
+
+
+def write_ply(path: str | Path, gaussians: Gaussians, *, ascii: bool = False) -> None:
+    """Write a splat in the INRIA layout (binary little-endian, or ASCII for inspection).
+
+    Extra properties are appended after rot_3 with their own dtypes, so a read/write round trip
+    keeps every property and value bit for bit.
+    """
+    header, rows = ply_rows(gaussians, ascii=ascii)
+    with open(Path(path), "wb") as f:
+        f.write(header)
         if not ascii:
             rows.tofile(f)
             return
         # %.9g round-trips float32 exactly and %.17g float64; integers stay integers.
         fmts = {"f4": "%.9g", "f8": "%.17g"}
-        np.savetxt(f, rows, fmt=[fmts.get(dt.str[1:], "%d") for _, dt, _ in cols], delimiter=" ")
+        np.savetxt(
+            f,
+            rows,
+            fmt=[fmts.get(rows.dtype[name].str[1:], "%d") for name in rows.dtype.names],
+            delimiter=" ",
+        )

@@ -19,13 +19,14 @@ from typing import Any
 import numpy as np
 from scipy.special import logit
 
-from ..artifacts import ACCEPTED_KEY, FUSION_KEY
+from ..artifacts import ACCEPTED_KEY, FUSION_KEY, PRIMITIVES_KEY
 from ..context import JobContext
 from ..errors import InputError
 from ..fusion.averaging import CosineAverager
 from ..fusion.bayes import accepted_masks, bayes_update, init_logodds, probabilities
 from ..fusion.likelihood import LikelihoodParams, log_likelihood_ratio, resolve_likelihood
 from ..fusion.visibility import mask_associations
+from ..objects.primitives import PrimitiveBuilder
 from ..scene.images import load_depth
 from ..store import get_arrays, put_arrays
 from .markers import write_marker
@@ -177,6 +178,7 @@ def run(ctx: JobContext) -> dict[str, Any]:
 
     accepted_chunks: list[np.ndarray] = []
     mask_counts = np.zeros(len(frames), dtype=np.int64)
+    primitives = PrimitiveBuilder(len(gaussians))  # step 6, while each frame's pairs are in memory
     rendered = 0
     for n, (index, frame) in enumerate(frames):
         ctx.check_cancel()
@@ -202,6 +204,7 @@ def run(ctx: JobContext) -> dict[str, Any]:
             )
             rendered += int(was_rendered)
             accepted_chunks.append(accepted)
+            primitives.add_frame(gaussian_ids.cpu().numpy(), mask_ids.cpu().numpy(), accepted)
             mask_counts[n] = len(phi)
             ctx.progress("fuse", (n + 1) / len(frames))
             continue
@@ -215,6 +218,7 @@ def run(ctx: JobContext) -> dict[str, Any]:
             accepted = accepted_masks(llr, ctx.params.outlier_rejection)
             averaging.add_frame(gaussian_ids, mask_ids, phi, accepted)
         accepted_chunks.append(np.asarray(accepted, dtype=bool))
+        primitives.add_frame(gaussian_ids, mask_ids, accepted_chunks[-1])
         mask_counts[n] = len(phi)
         ctx.progress("fuse", (n + 1) / len(frames))
 
@@ -232,9 +236,10 @@ def run(ctx: JobContext) -> dict[str, Any]:
         probs = averaging.probabilities(lik, unobserved=ctx.params.prior)
         logodds = logit(np.clip(probs.astype(np.float64), 1e-12, 1 - 1e-12)).astype(np.float32)
     observed = None if averaging is None else averaging.counts > 0
-    put_arrays(
-        ctx.store,
+    put_arrays(  # uncompressed: float32 state barely compresses (83 -> 50 MB at the scale bench) and
+        ctx.store,  # zlib cost seconds here and ~0.4 s in `cluster`, which reads it back
         ctx.job_key(FUSION_KEY),
+        compress=False,
         probabilities=probs.astype(np.float32),
         # Probabilities saturate at 1.0 in float32 after a few dozen agreeing views; the log-odds
         # keep the evidence that ranks saturated objects (selection_score='evidence').
@@ -249,6 +254,7 @@ def run(ctx: JobContext) -> dict[str, Any]:
         mask_counts=mask_counts,
         frame_indices=np.array([i for i, _ in frames], dtype=np.int64),
     )
+    put_arrays(ctx.store, ctx.job_key(PRIMITIVES_KEY), primitive_ids=primitives.primitive_ids)
     return write_marker(
         ctx,
         "fuse",

@@ -180,6 +180,16 @@ class PipelineParams(BaseModel):
             "uses relevance, or the conditional with 'conditional'."
         ),
     )
+    not_found_threshold: float | None = Field(
+        0.5,
+        ge=0,
+        le=1,
+        description=(
+            "A task whose best object's p(y=1|object) is below this gets no object: an empty "
+            'selection with the reason ("not found", format 1.3). None = always answer. Chosen on the '
+            "synthetic suite's present and absent tasks (README: Not found answers)."
+        ),
+    )
     knn_filter: bool = Field(True, description="Statistical outlier removal on each selected object.")
     knn_k: int = Field(20, ge=1, le=1000, description="Neighbours for the kNN filter (Open3D default 20).")
     knn_std_ratio: float = Field(

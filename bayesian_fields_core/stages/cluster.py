@@ -16,9 +16,10 @@ import numpy as np
 from ..artifacts import ACCEPTED_KEY, FUSION_KEY, RESULT_PREFIX
 from ..context import JobContext
 from ..objects.clustering import ObjectMap, objects_from_primitives, primitive_scores
+from ..objects.not_found import RULE, not_found_reason
 from ..objects.primitives import PrimitiveBuilder
 from ..objects.timing import StepTimer
-from ..results.format import Result, SelectedObject
+from ..results.format import NotFound, Result, SelectedObject
 from ..store import get_arrays
 from .markers import write_marker
 
@@ -90,7 +91,8 @@ def _scene_record(ctx: JobContext) -> dict[str, Any]:
 def build_result(ctx: JobContext, object_map: ObjectMap, timings: dict[str, float]) -> Result:
     """The serialisable result: id maps, probability table, per-task selections, provenance.
 
-    The map is computed in the cameras' frame (where the loader put the Gaussians); boxes and
+    A task whose best object scores below `not_found_threshold` gets an empty selection and a
+    `NotFound` reason (`objects.not_found`). The map is computed in the cameras' frame (where the loader put the Gaussians); boxes and
     centroids are reported in the splat file's frame and, when the loader applied a transform,
     also in the capture frame (`SelectedObject.capture_*`).
     """
@@ -98,6 +100,7 @@ def build_result(ctx: JobContext, object_map: ObjectMap, timings: dict[str, floa
     to_capture = scene.splat_to_capture
     to_splat = None if to_capture is None else to_capture.inverse()
     selections: dict[str, list[SelectedObject]] = {}
+    not_found: dict[str, NotFound] = {}
     scores = object_map.task_scores
     for t, task in enumerate(ctx.tasks):
         chosen = []
@@ -117,6 +120,15 @@ def build_result(ctx: JobContext, object_map: ObjectMap, timings: dict[str, floa
                     capture_box=None if to_splat is None else box,
                 )
             )
+        best = chosen[0] if chosen else None
+        missing = not_found_reason(
+            None if best is None else best.object_id,
+            None if best is None else best.probability,
+            ctx.params.not_found_threshold,
+            RULE if object_map.relevance is not None else "conditional",
+        )
+        if missing is not None:
+            not_found[task], chosen = missing, []
         selections[task] = chosen
     return Result(
         tasks=list(ctx.tasks),
@@ -131,6 +143,7 @@ def build_result(ctx: JobContext, object_map: ObjectMap, timings: dict[str, floa
         num_primitives=int(object_map.counts.get("primitives", 0)),
         splat_to_capture=None if to_capture is None else to_capture.matrix,
         layout=scene.layout,
+        not_found=not_found,
     )
 
 

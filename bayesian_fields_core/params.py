@@ -181,13 +181,15 @@ class PipelineParams(BaseModel):
         ),
     )
     not_found_threshold: float | None = Field(
-        0.5,
-        ge=0,
-        le=1,
+        0.83,
+        ge=-10,
+        le=10,
         description=(
-            "A task whose best object's p(y=1|object) is below this gets no object: an empty "
-            'selection with the reason ("not found", format 1.3). None = always answer. Chosen on the '
-            "synthetic suite's present and absent tasks (README: Not found answers)."
+            "A task whose best object's best single view scores below this margin gets no object "
+            "(an empty selection with the reason: 'not found', format 1.3). The margin is "
+            "(phi - mu0) / (mu1 - mu0): 0 at the irrelevant mean, 1 at the relevant one. None = "
+            "always answer. Chosen on the synthetic suite's present and absent tasks (README: "
+            "Not found answers)."
         ),
     )
     knn_filter: bool = Field(True, description="Statistical outlier removal on each selected object.")

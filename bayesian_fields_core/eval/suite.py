@@ -203,7 +203,7 @@ def evaluate_scene(
         }
         estimates = estimates_from_selection(case.tasks, selection)
         rows[row] = clio_metrics(estimates, case.ground_truth, num_objects=result.num_objects, time_s=seconds)
-        best = {task: objs[0].probability if objs else None for task, objs in result.selections.items()}
+        best = {task: objs[0].peak if objs else None for task, objs in result.selections.items()}
         not_found[row] = task_outcomes(case.tasks, rows[row], best)
         if views is not None:
             lerf[row] = score_map(views, case.tasks, result.object_ids, result.task_scores)
@@ -228,7 +228,7 @@ def evaluate_scene(
         )
         if views is not None:
             lerf[row] = score_map(views, case.tasks, object_map.object_ids, object_map.task_scores)
-        not_found[row] = []  # no p(y=1|object): the rule does not apply
+        not_found[row] = []  # no per-view peak: the rule does not apply
         log(_row_line(case.name, row, rows[row], lerf.get(row)))
     return SceneEvaluation(clio=rows, lerf=lerf, not_found=not_found)
 

@@ -4,8 +4,11 @@ Selection (Eq. 7) always returns the top-k objects, so a task that names somethi
 does not hold ("pick up the red lamp") still gets a confident-looking answer, which a robot would
 act on. The rule: a task is answered only when its best candidate's score reaches
 `not_found_threshold`; otherwise its selection is empty and the result says why (`NotFound`,
-format 1.3). The score is RULE_SCORE (see `docs/results-format.md` and the README's "Not found"
-section for how the threshold was chosen from the synthetic suite's present and absent tasks).
+format 1.3). The score is the best object's *peak*: the strongest single view any accepted mask
+gave it for the task, as a margin `(phi - mu0) / (mu1 - mu0)` of the calibrated likelihoods
+(`fusion.peak` says why the fused probability cannot serve: it saturates on look-alikes). The
+README's "Not found answers" section shows how the threshold was chosen from the synthetic
+suite's present and absent tasks.
 """
 
 from __future__ import annotations
@@ -15,8 +18,9 @@ import numpy as np
 from ..params import default
 from ..results.format import NotFound
 
-RULE = "relevance"
-"""The score the rule thresholds: p(y = 1 | object), the object's mean fused probability."""
+RULE = "peak"
+"""The score the rule thresholds: the best object's best single view for the task, as a margin
+between the calibrated likelihood means (`fusion.peak`, `SelectedObject.peak`)."""
 
 
 def is_not_found(score: float | None, threshold: float | None = default("not_found_threshold")) -> bool:
@@ -34,11 +38,12 @@ def not_found_reason(
     threshold: float | None = default("not_found_threshold"),
     rule: str = RULE,
 ) -> NotFound | None:
-    """Why a task whose best candidate is `object_id` with rule score `score` (both None: no
-    candidate at all) gets no answer, or None when it is answered."""
-    if object_id is None or score is None:
+    """Why a task whose best candidate is `object_id` with rule score `score` gets no answer, or
+    None when it is answered. No candidate at all (`object_id` None) is always "not found"; a
+    candidate without a score (an older fusion artifact) is answered."""
+    if object_id is None:
         return NotFound(reason="no object qualifies", rule=rule, threshold=threshold)
-    if not is_not_found(score, threshold):
+    if score is None or not is_not_found(score, threshold):
         return None
     return NotFound(
         reason=f"best object {object_id} has {rule} {score:.3f} < {threshold:g}",

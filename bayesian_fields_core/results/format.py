@@ -49,7 +49,10 @@ class SelectedObject:
     gave; `export` is the key of its `.ply` (relative to the result prefix) when one was written.
     `capture_centroid` / `capture_box` (format 1.2): the same in the cameras' (capture) frame, set
     only when the loader mapped the splat into that frame (nerfstudio, gsplat, a scene.yaml
-    transform); None when both frames are one."""
+    transform); None when both frames are one. `peak` (format 1.3): the object's best single view
+    for the task, as a margin between the calibrated likelihood means (0 = the irrelevant mean,
+    1 = the relevant mean; `fusion.peak`), the score the "not found" rule thresholds; None when
+    the run did not record it."""
 
     object_id: int
     probability: float
@@ -59,6 +62,7 @@ class SelectedObject:
     export: str | None = None
     capture_centroid: np.ndarray | None = None
     capture_box: OrientedBox | None = None
+    peak: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {
@@ -69,6 +73,8 @@ class SelectedObject:
             "box": self.box.to_dict(),
             "export": self.export,
         }
+        if self.peak is not None:
+            out["peak"] = float(self.peak)
         if self.capture_centroid is not None and self.capture_box is not None:
             out["capture_frame"] = {
                 "centroid": np.asarray(self.capture_centroid, dtype=np.float64).tolist(),
@@ -98,6 +104,7 @@ class SelectedObject:
                 export=data.get("export"),
                 capture_centroid=capture_centroid,
                 capture_box=capture_box,
+                peak=None if data.get("peak") is None else float(data["peak"]),
             )
         except KeyError as exc:
             raise InputError(f"result summary: selected object missing field {exc.args[0]!r}") from None

@@ -15,8 +15,9 @@ import numpy as np
 
 from ..artifacts import ACCEPTED_KEY, FUSION_KEY, RESULT_PREFIX
 from ..context import JobContext
+from ..fusion.peak import object_peak
 from ..objects.clustering import ObjectMap, objects_from_primitives, primitive_scores
-from ..objects.not_found import RULE, not_found_reason
+from ..objects.not_found import not_found_reason
 from ..objects.primitives import PrimitiveBuilder
 from ..objects.timing import StepTimer
 from ..results.format import NotFound, Result, SelectedObject
@@ -65,7 +66,7 @@ def run(ctx: JobContext) -> dict[str, Any]:
         sizes = write_result(
             ctx.store,
             ctx.job_key(RESULT_PREFIX),
-            build_result(ctx, object_map, stage_timings),
+            build_result(ctx, object_map, stage_timings, fused.get("peak_margin")),
             gaussians=ctx.scene().splat_frame_gaussians() if ctx.params.export_ply else None,
             export_ply=ctx.params.export_ply,
             frames=ctx.scene().frames,
@@ -88,11 +89,14 @@ def _scene_record(ctx: JobContext) -> dict[str, Any]:
     }
 
 
-def build_result(ctx: JobContext, object_map: ObjectMap, timings: dict[str, float]) -> Result:
+def build_result(
+    ctx: JobContext, object_map: ObjectMap, timings: dict[str, float], peak: np.ndarray | None = None
+) -> Result:
     """The serialisable result: id maps, probability table, per-task selections, provenance.
 
-    A task whose best object scores below `not_found_threshold` gets an empty selection and a
-    `NotFound` reason (`objects.not_found`). The map is computed in the cameras' frame (where the loader put the Gaussians); boxes and
+    `peak` (N, T) is each Gaussian's best-view margin (`fusion.peak`); a task whose best object's
+    peak is below `not_found_threshold` gets an empty selection and a `NotFound` reason
+    (`objects.not_found`). The map is computed in the cameras' frame (where the loader put the Gaussians); boxes and
     centroids are reported in the splat file's frame and, when the loader applied a transform,
     also in the capture frame (`SelectedObject.capture_*`).
     """
@@ -102,6 +106,7 @@ def build_result(ctx: JobContext, object_map: ObjectMap, timings: dict[str, floa
     selections: dict[str, list[SelectedObject]] = {}
     not_found: dict[str, NotFound] = {}
     scores = object_map.task_scores
+    members: dict[int, np.ndarray] = {}
     for t, task in enumerate(ctx.tasks):
         chosen = []
         for obj in object_map.selection[t]:
@@ -118,14 +123,18 @@ def build_result(ctx: JobContext, object_map: ObjectMap, timings: dict[str, floa
                     box=box if to_splat is None else to_splat.box(box),
                     capture_centroid=None if to_splat is None else centroid,
                     capture_box=None if to_splat is None else box,
+                    peak=None
+                    if peak is None
+                    else object_peak(
+                        peak, members.setdefault(obj, np.flatnonzero(object_map.object_ids == obj)), t
+                    ),
                 )
             )
         best = chosen[0] if chosen else None
         missing = not_found_reason(
             None if best is None else best.object_id,
-            None if best is None else best.probability,
-            ctx.params.not_found_threshold,
-            RULE if object_map.relevance is not None else "conditional",
+            None if best is None else best.peak,
+            ctx.params.not_found_threshold if peak is not None else None,
         )
         if missing is not None:
             not_found[task], chosen = missing, []

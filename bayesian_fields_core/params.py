@@ -180,7 +180,7 @@ class PipelineParams(BaseModel):
             "uses relevance, or the conditional with 'conditional'."
         ),
     )
-    not_found_threshold: float | None = Field(
+    answer_min_peak: float | None = Field(
         0.83,
         ge=-10,
         le=10,

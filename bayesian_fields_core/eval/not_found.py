@@ -8,7 +8,7 @@ is applied afterwards with the same function the pipeline uses (`objects.not_fou
 - **recall lost**: the share of the present tasks' correct detections (Relaxed-osR matches) that
   the rule throws away by leaving their task unanswered; `strict lost` the same for Strict-osR.
 Sweeping the threshold gives the trade-off curve (`tradeoff_curve`, `bfields eval
---not-found-curve`) that the default `not_found_threshold` is chosen on.
+--not-found-curve`) that the default `answer_min_peak` is chosen on.
 """
 
 from __future__ import annotations
@@ -83,7 +83,7 @@ def task_outcomes(
 
 
 def not_found_stats(
-    outcomes: Iterable[TaskOutcome], threshold: float | None = default("not_found_threshold")
+    outcomes: Iterable[TaskOutcome], threshold: float | None = default("answer_min_peak")
 ) -> NotFoundStats:
     """Apply the rule at `threshold` to every outcome and count what it does."""
     counts = dict.fromkeys(
@@ -152,7 +152,7 @@ _HEADER = ["Absent: not found", "Present: not found", "Recall lost", "Strict los
 def format_not_found_table(
     rows: Mapping[str, Sequence[TaskOutcome]],
     *,
-    threshold: float | None = default("not_found_threshold"),
+    threshold: float | None = default("answer_min_peak"),
     markdown: bool = False,
 ) -> str:
     """Per Table 1 row, what the rule at `threshold` does: absent tasks answered "not found",
@@ -164,7 +164,7 @@ def format_not_found_table(
             continue
         body.append([name.strip(), *_cells(not_found_stats(outcomes, threshold))])
     shown = "None (rule off)" if threshold is None else f"{threshold:g}"
-    title = f'"Not found" answers at not_found_threshold = {shown} (rows without the rule\'s score: n/a)'
+    title = f'"Not found" answers at answer_min_peak = {shown} (rows without the rule\'s score: n/a)'
     return title + "\n" + render_table(["Method", *_HEADER], body, markdown=markdown)
 
 

@@ -173,7 +173,7 @@ def evaluate_scene(
         # apply the rule afterwards to each task's best candidate (eval/not_found.py).
         params = PipelineParams.model_validate(
             {"previews": False, **(base_params or {}), "top_k": top_k, **overrides, **checked}
-            | {"not_found_threshold": None}
+            | {"answer_min_peak": None}
         )
         store = LocalStore(out_dir / case.name / _slug(row))
         ctx = JobContext(
@@ -302,14 +302,14 @@ def print_not_found(
 ) -> None:
     """The "not found" columns per row at the run's threshold and, with `curve`, the full
     method's threshold trade-off curve and its best point (<= 5% recall lost)."""
-    threshold = PipelineParams.model_validate(base_params or {}).not_found_threshold
+    threshold = PipelineParams.model_validate(base_params or {}).answer_min_peak
     print()
     print(format_not_found_table(outcomes, threshold=threshold, markdown=markdown))
     if not curve or not outcomes.get(FULL):
         return
     points = tradeoff_curve(outcomes[FULL])
     print()
-    print(f"Trade-off of the full method's not_found_threshold ({len(outcomes[FULL])} tasks):")
+    print(f"Trade-off of the full method's answer_min_peak ({len(outcomes[FULL])} tasks):")
     print(format_curve(points, markdown=markdown))
     best = best_threshold(points)
     if best is not None:

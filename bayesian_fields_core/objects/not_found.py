@@ -3,7 +3,7 @@
 Selection (Eq. 7) always returns the top-k objects, so a task that names something the scene
 does not hold ("pick up the red lamp") still gets a confident-looking answer, which a robot would
 act on. The rule: a task is answered only when its best candidate's score reaches
-`not_found_threshold`; otherwise its selection is empty and the result says why (`NotFound`,
+`answer_min_peak`; otherwise its selection is empty and the result says why (`NotFound`,
 format 1.3). The score is the best object's *peak*: the strongest single view any accepted mask
 gave it for the task, as a margin `(phi - mu0) / (mu1 - mu0)` of the calibrated likelihoods
 (`fusion.peak` says why the fused probability cannot serve: it saturates on look-alikes). The
@@ -23,7 +23,7 @@ RULE = "peak"
 between the calibrated likelihood means (`fusion.peak`, `SelectedObject.peak`)."""
 
 
-def is_not_found(score: float | None, threshold: float | None = default("not_found_threshold")) -> bool:
+def is_not_found(score: float | None, threshold: float | None = default("answer_min_peak")) -> bool:
     """True when a task whose best candidate scores `score` (None: no candidate) gets no answer.
 
     `threshold` None switches the rule off (only a task without any candidate is "not found")."""
@@ -35,7 +35,7 @@ def is_not_found(score: float | None, threshold: float | None = default("not_fou
 def not_found_reason(
     object_id: int | None,
     score: float | None,
-    threshold: float | None = default("not_found_threshold"),
+    threshold: float | None = default("answer_min_peak"),
     rule: str = RULE,
 ) -> NotFound | None:
     """Why a task whose best candidate is `object_id` with rule score `score` gets no answer, or

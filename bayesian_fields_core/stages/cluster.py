@@ -95,7 +95,7 @@ def build_result(
     """The serialisable result: id maps, probability table, per-task selections, provenance.
 
     `peak` (N, T) is each Gaussian's best-view margin (`fusion.peak`); a task whose best object's
-    peak is below `not_found_threshold` gets an empty selection and a `NotFound` reason
+    peak is below `answer_min_peak` gets an empty selection and a `NotFound` reason
     (`objects.not_found`). The map is computed in the cameras' frame (where the loader put the Gaussians); boxes and
     centroids are reported in the splat file's frame and, when the loader applied a transform,
     also in the capture frame (`SelectedObject.capture_*`).
@@ -134,7 +134,7 @@ def build_result(
         missing = not_found_reason(
             None if best is None else best.object_id,
             None if best is None else best.peak,
-            ctx.params.not_found_threshold if peak is not None else None,
+            ctx.params.answer_min_peak if peak is not None else None,
         )
         if missing is not None:
             not_found[task], chosen = missing, []

@@ -166,7 +166,7 @@ def test_not_found_answers_come_from_the_pipeline_and_match_the_eval_rule(
     values = sorted(peaks.values())
     threshold = (values[len(values) // 2 - 1] + values[len(values) // 2]) / 2
     params = PipelineParams.model_validate(
-        {"previews": True, "preview_max_side": 64, "export_ply": True, "not_found_threshold": threshold}
+        {"previews": True, "preview_max_side": 64, "export_ply": True, "answer_min_peak": threshold}
     )
     ctx = JobContext(
         store=store,

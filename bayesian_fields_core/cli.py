@@ -216,6 +216,10 @@ def cmd_generate(args: argparse.Namespace) -> int:
 def cmd_eval(args: argparse.Namespace) -> int:
     from .eval.suite import run_suite
 
+    if args.scene is not None or args.gt is not None:
+        return _eval_clio_scene(args)
+    if args.transform is not None or args.transform_key is not None:
+        raise InputError("--transform and --transform-key go with --scene DIR --gt FILE", source="eval")
     run_suite(
         suite_dir=Path(args.suite_dir),
         out_dir=Path(args.out),
@@ -224,6 +228,28 @@ def cmd_eval(args: argparse.Namespace) -> int:
         markdown=args.markdown,
         lerf_views=args.lerf_views,
         seeds=args.seeds,
+        not_found_curve=args.not_found_curve,
+    )
+    return 0
+
+
+def _eval_clio_scene(args: argparse.Namespace) -> int:
+    """`bfields eval --scene DIR --gt FILE [--transform FILE]`: Table 1 on one scene (Clio's format)."""
+    from .eval.clio_scene import run_clio_scene
+
+    if args.scene is None or args.gt is None:
+        raise InputError("--scene DIR and --gt FILE go together", source="eval")
+    if args.seeds is not None:
+        raise InputError("--seeds selects suite scenes; it does not go with --scene", source="eval")
+    run_clio_scene(
+        scene_dir=Path(args.scene),
+        gt_file=Path(args.gt),
+        out_dir=Path(args.out),
+        transform_file=Path(args.transform) if args.transform else None,
+        transform_key=args.transform_key,
+        profile=args.profile,
+        markdown=args.markdown,
+        not_found_curve=args.not_found_curve,
     )
     return 0
 
@@ -400,6 +426,27 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="S1,S2,...",
         help="held-out scenes: re-seed the first N suite scenes with these seeds (N = their count; "
         "replaces --scenes)",
+    )
+    ev.add_argument(
+        "--not-found-curve",
+        action="store_true",
+        help="also print the 'not found' trade-off curve: threshold vs absent tasks answered "
+        "'not found' and recall lost on present ones",
+    )
+    clio = ev.add_argument_group(
+        "one scene with Clio-format ground truth (README: Table 1 on the Clio datasets)"
+    )
+    clio.add_argument("--scene", metavar="DIR", help="scene folder to evaluate instead of the suite")
+    clio.add_argument(
+        "--gt", metavar="FILE", help="Clio task YAML: task -> boxes {center, extents, rotation (w,x,y,z)}"
+    )
+    clio.add_argument(
+        "--transform",
+        metavar="FILE",
+        help="COLMAP -> GT transform: {T: 4x4, scale} or Clio's scene_transforms.yaml (keyed by scene)",
+    )
+    clio.add_argument(
+        "--transform-key", metavar="NAME", help="scene key in --transform (default: the scene folder's name)"
     )
     ev.set_defaults(func=cmd_eval)
 

@@ -180,6 +180,18 @@ class PipelineParams(BaseModel):
             "uses relevance, or the conditional with 'conditional'."
         ),
     )
+    answer_min_peak: float | None = Field(
+        0.83,
+        ge=-10,
+        le=10,
+        description=(
+            "A task whose best object's best single view scores below this margin gets no object "
+            "(an empty selection with the reason: 'not found', format 1.3). The margin is "
+            "(phi - mu0) / (mu1 - mu0): 0 at the irrelevant mean, 1 at the relevant one. None = "
+            "always answer. Chosen on the synthetic suite's present and absent tasks (README: "
+            "Not found answers)."
+        ),
+    )
     knn_filter: bool = Field(True, description="Statistical outlier removal on each selected object.")
     knn_k: int = Field(20, ge=1, le=1000, description="Neighbours for the kNN filter (Open3D default 20).")
     knn_std_ratio: float = Field(

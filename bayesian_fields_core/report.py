@@ -56,6 +56,7 @@ def result_summary(result: Result, reports: dict[str, dict[str, Any]], out: Path
             ]
             for task, objects in result.selections.items()
         },
+        "not_found": {task: nf.to_dict() for task, nf in result.not_found.items()},
         "previews": files.get("previews", {}),
         "contact_sheet": files.get("contact_sheet"),
         "task_exports": files.get("task_exports", {}),
@@ -90,7 +91,10 @@ def print_result(
         table.add_column(column, justify=justify)
     for task, objects in result.selections.items():
         if not objects:
-            table.add_row(task, "-", "-", "-", "-", "no object")
+            missing = result.not_found.get(task)
+            table.add_row(
+                task, "-", "-", "-", "-", f"not found: {missing.reason}" if missing else "no object"
+            )
         for rank, obj in enumerate(objects, start=1):
             table.add_row(
                 task if rank == 1 else "",

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -32,6 +32,14 @@ from .bootstrap import paired_differences
 from .clio import ClioScores, EstimatedObject, GTObject, TaskScores, clio_metrics, format_table
 from .lerf import LerfScores, format_lerf_table
 from .lerf_views import DEFAULT_VIEWS, LerfViews, prepare_views, score_map
+from .not_found import (
+    TaskOutcome,
+    best_threshold,
+    format_curve,
+    format_not_found_table,
+    task_outcomes,
+    tradeoff_curve,
+)
 
 FULL = "Bayesian Fields (ours)"
 METHOD_ROWS: dict[str, dict[str, Any]] = {
@@ -46,10 +54,12 @@ CLIO = "Clio-style (AIB on raw cosine)"
 
 @dataclass
 class SceneEvaluation:
-    """Every row's scores on one scene: Clio metrics, and LeRF ones when views were rendered."""
+    """Every row's scores on one scene: Clio metrics, and LeRF ones when views were rendered;
+    `not_found`: each row's task outcomes for the "not found" rule (empty for rows without its score)."""
 
     clio: dict[str, ClioScores]
     lerf: dict[str, LerfScores]
+    not_found: dict[str, list[TaskOutcome]] = field(default_factory=dict)
 
 
 @dataclass
@@ -150,6 +160,7 @@ def evaluate_scene(
     scene_prefix = f"scenes/{case.name}/"
     rows: dict[str, ClioScores] = {}
     lerf: dict[str, LerfScores] = {}
+    not_found: dict[str, list[TaskOutcome]] = {}
     views: LerfViews | None = None
     perceive_s = 0.0
     visibility_s = 0.0
@@ -158,8 +169,11 @@ def evaluate_scene(
         # The first row checks the scene's alignment; the other rows run on the very same scene.
         # Previews off: the tables never look at them, and rendering them would add to every row.
         checked = {} if full_ctx is None else {"alignment_check": False}
+        # Every task answered (the rule off), as the paper scores Table 1; the "not found" columns
+        # apply the rule afterwards to each task's best candidate (eval/not_found.py).
         params = PipelineParams.model_validate(
             {"previews": False, **(base_params or {}), "top_k": top_k, **overrides, **checked}
+            | {"answer_min_peak": None}
         )
         store = LocalStore(out_dir / case.name / _slug(row))
         ctx = JobContext(
@@ -182,9 +196,15 @@ def evaluate_scene(
                 views = prepare_views(case.folder, scene.gaussians, scene.frames, lerf_views)
         seconds = perceive_s + float(reports["fuse"]["seconds"]) + float(reports["cluster"]["seconds"])
         result = read_result(store, RESULT_PREFIX)
-        selection = {task: [(o.object_id, o.box) for o in objs] for task, objs in result.selections.items()}
+        # Boxes in the cameras' frame (where the GT lives; the splat file's frame may differ).
+        selection = {
+            task: [(o.object_id, o.capture_box or o.box) for o in objs]
+            for task, objs in result.selections.items()
+        }
         estimates = estimates_from_selection(case.tasks, selection)
         rows[row] = clio_metrics(estimates, case.ground_truth, num_objects=result.num_objects, time_s=seconds)
+        best = {task: objs[0].peak if objs else None for task, objs in result.selections.items()}
+        not_found[row] = task_outcomes(case.tasks, rows[row], best)
         if views is not None:
             lerf[row] = score_map(views, case.tasks, result.object_ids, result.task_scores)
         log(_row_line(case.name, row, rows[row], lerf.get(row)))
@@ -208,8 +228,9 @@ def evaluate_scene(
         )
         if views is not None:
             lerf[row] = score_map(views, case.tasks, object_map.object_ids, object_map.task_scores)
+        not_found[row] = []  # no per-view peak: the rule does not apply
         log(_row_line(case.name, row, rows[row], lerf.get(row)))
-    return SceneEvaluation(clio=rows, lerf=lerf)
+    return SceneEvaluation(clio=rows, lerf=lerf, not_found=not_found)
 
 
 def _row_line(scene: str, row: str, scores: ClioScores, lerf: LerfScores | None) -> str:
@@ -227,13 +248,16 @@ def run_suite(
     base_params: dict[str, Any] | None = None,
     lerf_views: int = DEFAULT_VIEWS,
     seeds: Sequence[int] | None = None,
+    not_found_curve: bool = False,
 ) -> dict[str, ClioScores]:
-    """Generate the suite, evaluate every row on every scene, print the pooled Table 1 and,
-    unless `lerf_views=0`, the LeRF table. `seeds` evaluates on held-out re-seeded scenes."""
+    """Generate the suite, evaluate every row on every scene, print the pooled Table 1, the
+    "not found" columns and, unless `lerf_views=0`, the LeRF table. `seeds` evaluates on held-out
+    re-seeded scenes; `not_found_curve` adds the rule's threshold trade-off curve."""
     models = load_models(profile)
     cases = prepare_scenes(suite_dir, n_scenes, seeds)
     per_row: dict[str, list[ClioScores]] = {}
     lerf_rows: dict[str, dict[str, LerfScores]] = {}
+    outcomes: dict[str, list[TaskOutcome]] = {}
     for case in cases:
         print(f"scene {case.name}: {len(case.tasks)} tasks, {len(case.ground_truth)} GT objects")
         scene_eval = evaluate_scene(case, models, out_dir, base_params=base_params, lerf_views=lerf_views)
@@ -241,6 +265,8 @@ def run_suite(
             per_row.setdefault(row, []).append(scores)
         for row, lerf in scene_eval.lerf.items():
             lerf_rows.setdefault(row, {})[case.name] = lerf
+        for row, task_list in scene_eval.not_found.items():
+            outcomes.setdefault(row, []).extend(task_list)
     pooled = {row: pool_scores(scores) for row, scores in per_row.items()}
     print()
     print(f"Synthetic suite: {len(cases)} scenes, {pooled[FULL].num_gt} (task, GT object) pairs")
@@ -254,6 +280,7 @@ def run_suite(
         marks = "".join("*" if d.significant else " " for d in diff.values())
         print(f"  {row.strip():<56} strict {diff['strict_osr']}  IoU {diff['iou']}  {marks}")
     print("  (* = the interval excludes 0)")
+    print_not_found(outcomes, base_params, markdown=markdown, curve=not_found_curve)
     if lerf_rows:
         queries = sum(s.num_queries for s in lerf_rows[FULL].values())
         print()
@@ -264,6 +291,32 @@ def run_suite(
             )
         )
     return pooled
+
+
+def print_not_found(
+    outcomes: dict[str, list[TaskOutcome]],
+    base_params: dict[str, Any] | None,
+    *,
+    markdown: bool = False,
+    curve: bool = False,
+) -> None:
+    """The "not found" columns per row at the run's threshold and, with `curve`, the full
+    method's threshold trade-off curve and its best point (<= 5% recall lost)."""
+    threshold = PipelineParams.model_validate(base_params or {}).answer_min_peak
+    print()
+    print(format_not_found_table(outcomes, threshold=threshold, markdown=markdown))
+    if not curve or not outcomes.get(FULL):
+        return
+    points = tradeoff_curve(outcomes[FULL])
+    print()
+    print(f"Trade-off of the full method's answer_min_peak ({len(outcomes[FULL])} tasks):")
+    print(format_curve(points, markdown=markdown))
+    best = best_threshold(points)
+    if best is not None:
+        print(
+            f"  most absent tasks 'not found' with <= 5% recall lost: threshold {best.threshold:.4g} "
+            f"({100 * best.absent_share:.0f}% absent, {100 * best.recall_lost:.1f}% recall lost)"
+        )
 
 
 def _slug(name: str) -> str:

@@ -1,12 +1,13 @@
 """The result format: per-Gaussian object ids, the object probability table, the summary with each
 task's top-k objects, and optional splat exports. See `docs/results-format.md`."""
 
-from .format import FORMAT_VERSION, Result, SelectedObject
+from .format import FORMAT_VERSION, NotFound, Result, SelectedObject
 from .reader import object_gaussians, read_result, read_summary, result_sizes
 from .writer import write_result
 
 __all__ = [
     "FORMAT_VERSION",
+    "NotFound",
     "Result",
     "SelectedObject",
     "object_gaussians",

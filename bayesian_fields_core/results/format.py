@@ -23,7 +23,7 @@ from ..errors import InputError
 from ..objects.obb import OrientedBox
 
 FORMAT_NAME = "bayesian-fields-result"
-FORMAT_VERSION = "1.2"
+FORMAT_VERSION = "1.3"
 """MAJOR.MINOR. A reader accepts any MINOR of its MAJOR (minors only add optional fields and files);
 a new MAJOR (a changed meaning, dtype rule or layout) is refused with a clear error."""
 
@@ -49,7 +49,10 @@ class SelectedObject:
     gave; `export` is the key of its `.ply` (relative to the result prefix) when one was written.
     `capture_centroid` / `capture_box` (format 1.2): the same in the cameras' (capture) frame, set
     only when the loader mapped the splat into that frame (nerfstudio, gsplat, a scene.yaml
-    transform); None when both frames are one."""
+    transform); None when both frames are one. `peak` (format 1.3): the object's best single view
+    for the task, as a margin between the calibrated likelihood means (0 = the irrelevant mean,
+    1 = the relevant mean; `fusion.peak`), the score the "not found" rule thresholds; None when
+    the run did not record it."""
 
     object_id: int
     probability: float
@@ -59,6 +62,7 @@ class SelectedObject:
     export: str | None = None
     capture_centroid: np.ndarray | None = None
     capture_box: OrientedBox | None = None
+    peak: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {
@@ -69,6 +73,8 @@ class SelectedObject:
             "box": self.box.to_dict(),
             "export": self.export,
         }
+        if self.peak is not None:
+            out["peak"] = float(self.peak)
         if self.capture_centroid is not None and self.capture_box is not None:
             out["capture_frame"] = {
                 "centroid": np.asarray(self.capture_centroid, dtype=np.float64).tolist(),
@@ -98,9 +104,52 @@ class SelectedObject:
                 export=data.get("export"),
                 capture_centroid=capture_centroid,
                 capture_box=capture_box,
+                peak=None if data.get("peak") is None else float(data["peak"]),
             )
         except KeyError as exc:
             raise InputError(f"result summary: selected object missing field {exc.args[0]!r}") from None
+
+
+@dataclass
+class NotFound:
+    """Why a task has no answer (format 1.3): its best candidate did not carry enough evidence.
+
+    `rule` names the score the rule thresholds, `score` is the best candidate's value of it (None
+    when no object qualified at all), `threshold` the least value that answers (None: rule off),
+    `object_id` the rejected candidate (None when there was none), `reason` one readable line."""
+
+    reason: str
+    rule: str
+    threshold: float | None
+    score: float | None = None
+    object_id: int | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "reason": self.reason,
+            "rule": self.rule,
+            "threshold": None if self.threshold is None else float(self.threshold),
+            "score": None if self.score is None else float(self.score),
+            "object_id": None if self.object_id is None else int(self.object_id),
+        }
+
+    @classmethod
+    def from_dict(cls, data: Any) -> NotFound:
+        if not isinstance(data, dict):
+            raise InputError("result summary: not_found must be an object")
+        try:
+            score, object_id, threshold = data.get("score"), data.get("object_id"), data["threshold"]
+            return cls(
+                reason=str(data["reason"]),
+                rule=str(data["rule"]),
+                threshold=None if threshold is None else float(threshold),
+                score=None if score is None else float(score),
+                object_id=None if object_id is None else int(object_id),
+            )
+        except KeyError as exc:
+            raise InputError(f"result summary: not_found missing field {exc.args[0]!r}") from None
+        except (TypeError, ValueError) as exc:
+            raise InputError(f"result summary: malformed not_found ({exc})") from None
 
 
 def task_scores(probabilities: np.ndarray, relevance: np.ndarray | None) -> np.ndarray:
@@ -127,6 +176,8 @@ class Result:
     splat_to_capture: optional (4, 4) similarity the loader applied to the splat file's Gaussians
         to put them in the cameras' frame (format 1.2; None = one frame). Selections carry both.
     layout: the scene layout the loader recognised ('inria', 'nerfstudio', 'gsplat', ...), or ''.
+    not_found: task -> why it has no answer (format 1.3): the task's selection is empty because
+        its best object did not carry enough evidence (`objects.not_found`). Empty before 1.3.
     """
 
     tasks: list[str]
@@ -141,6 +192,7 @@ class Result:
     num_primitives: int | None = None
     splat_to_capture: np.ndarray | None = None
     layout: str = ""
+    not_found: dict[str, NotFound] = field(default_factory=dict)
     format_version: str = FORMAT_VERSION
 
     @property
@@ -194,6 +246,11 @@ class Result:
             for obj in objs:
                 if not 0 <= obj.object_id < probs.shape[0]:
                     raise InputError(f"result: task {task!r} selects unknown object {obj.object_id}")
+        for task in self.not_found:
+            if task not in self.tasks:
+                raise InputError(f"result: not_found for unknown task {task!r}")
+            if self.selections.get(task):
+                raise InputError(f"result: task {task!r} is both answered and not found")
 
     def counts(self) -> dict[str, int | None]:
         ids = np.asarray(self.object_ids)

@@ -131,8 +131,11 @@ def _outline(labels: np.ndarray) -> np.ndarray:
     return edge
 
 
-def _legend(image: Image.Image, task: str, rows: list[tuple[int, int, float]]) -> Image.Image:
-    """The image with a legend strip below: the task, then one line per (rank, object, p)."""
+def _legend(
+    image: Image.Image, task: str, rows: list[tuple[int, int, float]], empty: str = "no object selected"
+) -> Image.Image:
+    """The image with a legend strip below: the task, then one line per (rank, object, p), or
+    `empty` (why nothing is shown) when the task has no object."""
     width = max(image.width, 320)
     line = 16
     font, title_font = _font(12), _font(14)
@@ -145,7 +148,7 @@ def _legend(image: Image.Image, task: str, rows: list[tuple[int, int, float]]) -
     draw.text((8, y), task, fill=(240, 240, 240), font=title_font)
     y += 20
     if not rows:
-        draw.text((8, y), "no object selected", fill=(180, 180, 180), font=font)
+        draw.text((8, y), empty, fill=(180, 180, 180), font=font)
     for rank, object_id, p in rows:
         colour = tuple(int(c * 255) for c in rank_colour(rank))
         draw.rectangle((8, y + 2, 20, y + 13), fill=colour)
@@ -236,7 +239,13 @@ def render_previews(
             rgb[edge] = (palette[labels[edge]] * 255).astype(np.uint8)
             rgb[edge & (labels >= 0)] = np.maximum(rgb[edge & (labels >= 0)], 60)
         rows = [(r, o.object_id, o.probability) for r, o in enumerate(objects)]
-        image_out = _legend(Image.fromarray(rgb), task, rows)
+        missing = result.not_found.get(task)
+        image_out = _legend(
+            Image.fromarray(rgb),
+            task,
+            rows,
+            f"not found: {missing.reason}" if missing else "no object selected",
+        )
         previews.append(
             Preview(
                 task=task,

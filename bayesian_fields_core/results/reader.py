@@ -21,6 +21,7 @@ from .format import (
     PROBABILITIES_KEY,
     RELEVANCE_KEY,
     SUMMARY_KEY,
+    NotFound,
     Result,
     SelectedObject,
     decode_array,
@@ -131,6 +132,11 @@ def read_result(source: Store | str | Path, prefix: str | None = None) -> Result
             str(entry["task"]): [SelectedObject.from_dict(o) for o in entry["objects"]]
             for entry in summary["selections"]
         }
+        not_found = {
+            str(entry["task"]): NotFound.from_dict(entry["not_found"])
+            for entry in summary["selections"]
+            if entry.get("not_found") is not None
+        }
     except (KeyError, TypeError) as exc:
         raise InputError(f"{prefix}{SUMMARY_KEY}: malformed tasks or selections ({exc!r})") from None
     splat_to_capture, layout = _frames(summary, prefix)
@@ -147,6 +153,7 @@ def read_result(source: Store | str | Path, prefix: str | None = None) -> Result
         num_primitives=summary.get("counts", {}).get("primitives"),
         splat_to_capture=splat_to_capture,
         layout=layout,
+        not_found=not_found,
         format_version=str(summary["format_version"]),
     )
     result.validate()

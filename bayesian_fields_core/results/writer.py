@@ -53,6 +53,14 @@ def task_export_key(task_index: int) -> str:
     return f"{TASK_EXPORT_DIR}task_{task_index:02d}.ply"
 
 
+def _selection_entry(result: Result, task: str, describe: Any) -> dict[str, Any]:
+    """One task's summary entry: its ranked objects and, when it has no answer, why (1.3)."""
+    entry: dict[str, Any] = {"task": task, "objects": [describe(o) for o in result.selections.get(task, [])]}
+    if task in result.not_found:
+        entry["not_found"] = result.not_found[task].to_dict()
+    return entry
+
+
 def write_result(
     store: Store,
     prefix: str,
@@ -187,10 +195,7 @@ def _summary(
         "probability_columns": [*result.tasks, NULL_TASK],
         "counts": result.counts(),
         "arrays": arrays,
-        "selections": [
-            {"task": task, "objects": [describe(o) for o in result.selections.get(task, [])]}
-            for task in result.tasks
-        ],
+        "selections": [_selection_entry(result, task, describe) for task in result.tasks],
         "exports": exports,
         "previews": previews,
         "scene": scene,

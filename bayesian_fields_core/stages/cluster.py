@@ -15,11 +15,13 @@ import numpy as np
 
 from ..artifacts import ACCEPTED_KEY, FUSION_KEY, PRIMITIVES_KEY, RESULT_PREFIX
 from ..context import JobContext
+from ..fusion.peak import object_peak
 from ..objects.clustering import ObjectMap, objects_from_primitives, primitive_scores
 from ..objects.compile_kernels import prepare_kernels
+from ..objects.not_found import not_found_reason
 from ..objects.primitives import PrimitiveBuilder
 from ..objects.timing import StepTimer
-from ..results.format import Result, SelectedObject
+from ..results.format import NotFound, Result, SelectedObject
 from ..store import get_arrays
 from .markers import write_marker
 
@@ -73,7 +75,7 @@ def run(ctx: JobContext) -> dict[str, Any]:
     with timer("write"):
         stage_timings = _stage_timings(ctx)
         stage_timings["cluster"] = time.perf_counter() - t0
-        result = build_result(ctx, object_map, stage_timings)
+        result = build_result(ctx, object_map, stage_timings, fused.get("peak_margin"))
     sizes = write_result(  # times its steps "write" (arrays, summary), "exports", "previews"
         ctx.store,
         ctx.job_key(RESULT_PREFIX),
@@ -106,10 +108,14 @@ def _scene_record(ctx: JobContext) -> dict[str, Any]:
     }
 
 
-def build_result(ctx: JobContext, object_map: ObjectMap, timings: dict[str, float]) -> Result:
+def build_result(
+    ctx: JobContext, object_map: ObjectMap, timings: dict[str, float], peak: np.ndarray | None = None
+) -> Result:
     """The serialisable result: id maps, probability table, per-task selections, provenance.
 
-    The map is computed in the cameras' frame (where the loader put the Gaussians); boxes and
+    `peak` (N, T) is each Gaussian's best-view margin (`fusion.peak`); a task whose best object's
+    peak is below `answer_min_peak` gets an empty selection and a `NotFound` reason
+    (`objects.not_found`). The map is computed in the cameras' frame (where the loader put the Gaussians); boxes and
     centroids are reported in the splat file's frame and, when the loader applied a transform,
     also in the capture frame (`SelectedObject.capture_*`).
     """
@@ -117,7 +123,9 @@ def build_result(ctx: JobContext, object_map: ObjectMap, timings: dict[str, floa
     to_capture = scene.splat_to_capture
     to_splat = None if to_capture is None else to_capture.inverse()
     selections: dict[str, list[SelectedObject]] = {}
+    not_found: dict[str, NotFound] = {}
     scores = object_map.task_scores
+    members: dict[int, np.ndarray] = {}
     for t, task in enumerate(ctx.tasks):
         chosen = []
         for obj in object_map.selection[t]:
@@ -134,8 +142,21 @@ def build_result(ctx: JobContext, object_map: ObjectMap, timings: dict[str, floa
                     box=box if to_splat is None else to_splat.box(box),
                     capture_centroid=None if to_splat is None else centroid,
                     capture_box=None if to_splat is None else box,
+                    peak=None
+                    if peak is None
+                    else object_peak(
+                        peak, members.setdefault(obj, np.flatnonzero(object_map.object_ids == obj)), t
+                    ),
                 )
             )
+        best = chosen[0] if chosen else None
+        missing = not_found_reason(
+            None if best is None else best.object_id,
+            None if best is None else best.peak,
+            ctx.params.answer_min_peak if peak is not None else None,
+        )
+        if missing is not None:
+            not_found[task], chosen = missing, []
         selections[task] = chosen
     return Result(
         tasks=list(ctx.tasks),
@@ -150,6 +171,7 @@ def build_result(ctx: JobContext, object_map: ObjectMap, timings: dict[str, floa
         num_primitives=int(object_map.counts.get("primitives", 0)),
         splat_to_capture=None if to_capture is None else to_capture.matrix,
         layout=scene.layout,
+        not_found=not_found,
     )
 
 

@@ -25,6 +25,7 @@ from ..errors import InputError
 from ..fusion.averaging import CosineAverager
 from ..fusion.bayes import accepted_masks, bayes_update, init_logodds, probabilities
 from ..fusion.likelihood import LikelihoodParams, log_likelihood_ratio, resolve_likelihood
+from ..fusion.peak import init_peak, init_peak_torch, margin, update_peak, update_peak_torch
 from ..fusion.visibility import mask_associations
 from ..objects.primitives import PrimitiveBuilder
 from ..scene.images import load_depth
@@ -163,6 +164,12 @@ def run(ctx: JobContext) -> dict[str, Any]:
         means_t = torch.as_tensor(np.ascontiguousarray(gaussians.means, np.float32), device=device)
         logodds_t = init_logodds_torch(len(gaussians), n_tasks, means_t.device, ctx.params.prior)
     logodds = None if on_torch else init_logodds(len(gaussians), n_tasks, ctx.params.prior)
+    # Each Gaussian's best single view per task, for "not found" answers (fusion/peak.py).
+    peak = (
+        init_peak_torch(len(gaussians), n_tasks, means_t.device)
+        if on_torch
+        else init_peak(len(gaussians), n_tasks)
+    )
     averaging = None if use_bayes else CosineAverager(len(gaussians), n_tasks)
 
     ctx.record_cache_use("fuse", [ctx.visibility_key(index) for index, _ in frames])
@@ -187,6 +194,7 @@ def run(ctx: JobContext) -> dict[str, Any]:
         embeddings = perception["embeddings"].astype(np.float32)
         phi = embeddings @ text.T
         llr = log_likelihood_ratio(phi, lik)
+        margins = margin(phi, lik.mu0, lik.mu1)
         if on_torch:
             gaussian_ids, mask_ids, was_rendered = associations_on_device(
                 ctx, index, frame, labels, renderer_factory, means_t
@@ -201,6 +209,13 @@ def run(ctx: JobContext) -> dict[str, Any]:
                 )
                 .cpu()
                 .numpy()
+            )
+            update_peak_torch(
+                peak,
+                gaussian_ids,
+                mask_ids,
+                torch.as_tensor(margins, device=means_t.device),
+                torch.as_tensor(accepted, device=means_t.device),
             )
             rendered += int(was_rendered)
             accepted_chunks.append(accepted)
@@ -217,6 +232,7 @@ def run(ctx: JobContext) -> dict[str, Any]:
         else:
             accepted = accepted_masks(llr, ctx.params.outlier_rejection)
             averaging.add_frame(gaussian_ids, mask_ids, phi, accepted)
+        update_peak(peak, gaussian_ids, mask_ids, margins, accepted)
         accepted_chunks.append(np.asarray(accepted, dtype=bool))
         primitives.add_frame(gaussian_ids, mask_ids, accepted_chunks[-1])
         mask_counts[n] = len(phi)
@@ -230,6 +246,7 @@ def run(ctx: JobContext) -> dict[str, Any]:
     )
     if on_torch:
         logodds = logodds_t.cpu().numpy()  # the only host copy of the state: after the last frame
+        peak = peak.cpu().numpy()
     if use_bayes:
         probs = probabilities(logodds)
     else:
@@ -244,6 +261,7 @@ def run(ctx: JobContext) -> dict[str, Any]:
         # Probabilities saturate at 1.0 in float32 after a few dozen agreeing views; the log-odds
         # keep the evidence that ranks saturated objects (selection_score='evidence').
         logodds=logodds.astype(np.float32, copy=False),
+        peak_margin=peak,
         **({} if observed is None else {"observed": observed}),
     )
     accepted_all = np.concatenate(accepted_chunks) if accepted_chunks else np.zeros(0, bool)

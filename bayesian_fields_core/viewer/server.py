@@ -219,7 +219,9 @@ class ResultViewer:
             f" #{r + 1} object {o.object_id} p={o.probability:.3f} ({o.num_gaussians} G)</div>"
             for r, o in enumerate(objs)
         )
-        return f"<p><b>{html.escape(self.task)}</b></p>{rows or '<div>no object selected</div>'}"
+        missing = d.result.not_found.get(self.task)
+        empty = f"not found: {missing.reason}" if missing else "no object selected"
+        return f"<p><b>{html.escape(self.task)}</b></p>{rows or f'<div>{html.escape(empty)}</div>'}"
 
     def show_object(self, object_id: int) -> dict[str, Any]:
         info = self.data.object_info(object_id)

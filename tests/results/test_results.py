@@ -13,6 +13,7 @@ from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.objects.obb import minimum_obb
 from bayesian_fields_core.results import (
     FORMAT_VERSION,
+    NotFound,
     Result,
     SelectedObject,
     read_result,
@@ -211,7 +212,7 @@ def test_relevance_round_trip_and_optional(setup):
     written = write_result(store, "r", res)
     back = read_result(store, "r")
     np.testing.assert_array_equal(back.relevance, res.relevance)
-    assert back.format_version == FORMAT_VERSION == "1.2"
+    assert back.format_version == FORMAT_VERSION == "1.3"
     assert result_sizes(store, "r")["total/object_map"] == sum(
         written[k] for k in ("summary.json", "object_ids.bin", "probabilities.bin", "relevance.bin")
     )
@@ -221,4 +222,42 @@ def test_relevance_round_trip_and_optional(setup):
     assert not store.exists("r/relevance.bin")  # no stale table from the earlier write
     res.relevance = np.zeros((NUM_OBJECTS, len(TASKS) + 1), dtype=np.float32)
     with pytest.raises(InputError, match="relevance"):
+        write_result(store, "r", res)
+
+
+def test_not_found_task_round_trips_with_an_empty_selection_and_its_reason(setup):
+    """Format 1.3: a task left unanswered by the "not found" rule keeps its reason; 1.2 results
+    (no such field) read with none; a task both answered and "not found" is refused."""
+    store, g, res = setup
+    missing = NotFound(
+        reason="best object 3 has relevance 0.210 < 0.5",
+        rule="relevance",
+        threshold=0.5,
+        score=0.21,
+        object_id=3,
+    )
+    res.selections[TASKS[1]] = []
+    res.not_found = {TASKS[1]: missing}
+    write_result(store, "r", res, gaussians=g)
+    summary = json.loads(store.get_bytes("r/summary.json"))
+    entry = summary["selections"][1]
+    assert entry == {"task": TASKS[1], "objects": [], "not_found": missing.to_dict()}
+    assert "not_found" not in summary["selections"][0]
+    back = read_result(store, "r")
+    assert back.selections[TASKS[1]] == [] and back.not_found == {TASKS[1]: missing}
+    assert back.selections[TASKS[0]] and TASKS[0] not in back.not_found
+    # No export for a task without objects beyond the (grey) task splat.
+    assert set(summary["exports"]["objects"]) == {str(o.object_id) for o in res.selections[TASKS[0]]}
+    # A 1.2 summary has no not_found entries.
+    del summary["selections"][1]["not_found"]
+    summary["format_version"] = "1.2"
+    store.put_bytes("r/summary.json", json.dumps(summary).encode())
+    assert read_result(store, "r").not_found == {}
+    # Malformed or contradictory entries are refused.
+    summary["selections"][1]["not_found"] = {"rule": "relevance", "threshold": 0.5}
+    store.put_bytes("r/summary.json", json.dumps(summary).encode())
+    with pytest.raises(InputError, match="not_found missing field 'reason'"):
+        read_result(store, "r")
+    res.not_found = {TASKS[0]: missing}
+    with pytest.raises(InputError, match="both answered and not found"):
         write_result(store, "r", res)

@@ -1,0 +1,54 @@
+""" "Not found" answers: a task whose best object does not carry enough evidence gets no object.
+
+Selection (Eq. 7) always returns the top-k objects, so a task that names something the scene
+does not hold ("pick up the red lamp") still gets a confident-looking answer, which a robot would
+act on. The rule: a task is answered only when its best candidate's score reaches
+`answer_min_peak`; otherwise its selection is empty and the result says why (`NotFound`,
+format 1.3). The score is the best object's *peak*: the strongest single view any accepted mask
+gave it for the task, as a margin `(phi - mu0) / (mu1 - mu0)` of the calibrated likelihoods
+(`fusion.peak` says why the fused probability cannot serve: it saturates on look-alikes). The
+README's "Not found answers" section shows how the threshold was chosen from the synthetic
+suite's present and absent tasks.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..params import default
+from ..results.format import NotFound
+
+RULE = "peak"
+"""The score the rule thresholds: the best object's best single view for the task, as a margin
+between the calibrated likelihood means (`fusion.peak`, `SelectedObject.peak`)."""
+
+
+def is_not_found(score: float | None, threshold: float | None = default("answer_min_peak")) -> bool:
+    """True when a task whose best candidate scores `score` (None: no candidate) gets no answer.
+
+    `threshold` None switches the rule off (only a task without any candidate is "not found")."""
+    if score is None or not np.isfinite(score):
+        return True
+    return threshold is not None and score < threshold
+
+
+def not_found_reason(
+    object_id: int | None,
+    score: float | None,
+    threshold: float | None = default("answer_min_peak"),
+    rule: str = RULE,
+) -> NotFound | None:
+    """Why a task whose best candidate is `object_id` with rule score `score` gets no answer, or
+    None when it is answered. No candidate at all (`object_id` None) is always "not found"; a
+    candidate without a score (an older fusion artifact) is answered."""
+    if object_id is None:
+        return NotFound(reason="no object qualifies", rule=rule, threshold=threshold)
+    if score is None or not is_not_found(score, threshold):
+        return None
+    return NotFound(
+        reason=f"best object {object_id} has {rule} {score:.3f} < {threshold:g}",
+        rule=rule,
+        threshold=threshold,
+        score=float(score),
+        object_id=int(object_id),
+    )

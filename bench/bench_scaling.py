@@ -12,13 +12,12 @@ per Gaussian count serves both task counts (same labels; embeddings and task tex
 
 What is measured and what is extrapolated (the output says which, per row):
 - fuse is linear in frames (one projection + depth test + scatter-add per frame, nothing carried
-  but the (N, T) state): it is measured on `--fuse-frames` frames per point and multiplied out to
-  300 and 1000 frames; `--linearity N` also fuses N frames at the first size to show the per-frame
-  time does not change with the frame count;
-- cluster is measured on the state fused from `--cluster-frames` frames (default: all frames the
-  scene was set up with, capped by `--max-setup-frames` per size); a row with fewer frames than it
-  names is extrapolated (primitive replay is linear in frames, the rest depends on the primitive
-  count; see the README's scaling section);
+  but the (N, T) state): every point fuses `--fuse-frames` frames and, where the scene was set up
+  with more (`--max-setup-frames`, per size), all of them too, which shows the per-frame time does
+  not change with the frame count; 300 and 1000 frames are that per-frame median multiplied out
+  (marked "extrapolated" where fewer frames were fused);
+- cluster runs after each fuse, on that fuse's state and frames (measured as it stands; the
+  README's scaling section says how it grows with frames);
 - results preview images are off (`previews=False`, `export_ply=False`): they render the scene
   once per task and are not part of the algorithm's scaling.
 
@@ -225,9 +224,7 @@ def main(argv: list[str] | None = None) -> int:
         default="300:100000=1000,5000000=60",
         help="frames set up per size: default[:size=frames,...]; cluster runs on all of them",
     )
-    parser.add_argument(
-        "--linearity", type=int, default=0, help="also fuse this many frames at the first size"
-    )
+    parser.add_argument("--no-cluster", action="store_true", help="fuse only")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--workdir", type=Path, default=Path("/tmp/bfields-scaling"))
     parser.add_argument("--child-timeout", type=float, default=1200)
@@ -249,7 +246,6 @@ def main(argv: list[str] | None = None) -> int:
         f"scaling bench: {os.cpu_count()} cores, load {os.getloadavg()[0]:.2f} at start; fuse s/frame from "
         f"{args.fuse_frames} frames (median after the first); depth_source=input, numpy fusion, no previews"
     )
-    rows = []
 
     def record(point: dict) -> None:
         if args.json:
@@ -268,46 +264,33 @@ def main(argv: list[str] | None = None) -> int:
         )
         for n_tasks in task_counts:
             job = work / f"job-{n_tasks}"
-            fuse_short = run_child(args, work, job, "fuse", n_tasks, min(args.fuse_frames, n_setup))
-            record(fuse_short)
-            if args.linearity and size == sizes[0] and n_tasks == task_counts[0]:
-                lin = run_child(args, work, job, "fuse", n_tasks, min(args.linearity, n_setup))
-                record(lin)
-                if "error" not in lin and "error" not in fuse_short:
-                    print(
-                        f"  linearity: fuse {fuse_short['frames']} frames {fuse_short['s_per_frame_median']:.3f} s/frame "
-                        f"(total {fuse_short['wall_s']:.1f} s), {lin['frames']} frames "
-                        f"{lin['s_per_frame_median']:.3f} s/frame (total {lin['wall_s']:.1f} s)",
-                        flush=True,
-                    )
-            # cluster needs the state of all frames it replays: fuse them all (when more), then cluster
-            fuse_all = fuse_short
-            if n_setup > fuse_short.get("frames", n_setup):
-                fuse_all = run_child(args, work, job, "fuse", n_tasks, n_setup)
-                record(fuse_all)
-            cluster = (
-                run_child(args, work, job, "cluster", n_tasks, n_setup)
-                if "error" not in fuse_all
-                else {"error": "no fused state"}
-            )
-            record(cluster)
-            rows.append((size, n_tasks, n_setup, fuse_short, fuse_all, cluster))
-            print_point(size, n_tasks, n_setup, fuse_short, fuse_all, cluster, table_frames)
+            # fuse then cluster at the short frame count and, when the scene has more, at all of them
+            for n_frames in sorted({min(args.fuse_frames, n_setup), n_setup}):
+                fuse = run_child(args, work, job, "fuse", n_tasks, n_frames)
+                record(fuse)
+                if "error" in fuse:
+                    cluster = {"error": "no fused state"}
+                elif args.no_cluster:
+                    cluster = {"error": "not run (--no-cluster)"}
+                else:
+                    cluster = run_child(args, work, job, "cluster", n_tasks, n_frames)
+                record(cluster)
+                print_point(size, n_tasks, fuse, cluster, table_frames)
     print(f"load {os.getloadavg()[0]:.2f} at end")
     return 0
 
 
-def print_point(size, n_tasks, n_setup, fuse_short, fuse_all, cluster, table_frames) -> None:
-    if "error" in fuse_short:
-        print(f"  {size:,} x {n_tasks} tasks: fuse {fuse_short['error']}", flush=True)
+def print_point(size: int, n_tasks: int, fuse: dict, cluster: dict, table_frames: list[int]) -> None:
+    if "error" in fuse:
+        print(f"  {size:,} x {n_tasks} tasks: fuse {fuse['error']}", flush=True)
         return
-    spf = fuse_short["s_per_frame_median"]
+    spf, n = fuse["s_per_frame_median"], fuse["frames"]
     print(
-        f"  {size:,} x {n_tasks} tasks: fuse {spf:.3f} s/frame (measured on {fuse_short['frames']} frames, "
-        f"CPU {fuse_short['cpu_s'] / fuse_short['frames']:.3f} s/frame, {fuse_short['masks_per_frame']:.0f} masks/frame), "
-        f"state {fuse_short['state_bytes'] / 2**20:.0f} MiB, artifact {fuse_short['artifact_bytes'] / 2**20:.0f} MiB, "
-        f"fuse peak RSS {fmt_mib(fuse_all.get('rss_peak_mib', float('nan')))} "
-        f"(scene loaded {fmt_mib(fuse_all.get('rss_load_mib', float('nan')))})",
+        f"  {size:,} x {n_tasks} tasks, {n} frames: fuse {fuse['wall_s']:.1f} s (CPU {fuse['cpu_s']:.1f} s), "
+        f"{spf:.3f} s/frame median (CPU {fuse['cpu_s'] / n:.3f} s/frame incl. the final write), "
+        f"{fuse['masks_per_frame']:.0f} masks/frame; state {fuse['state_bytes'] / 2**20:.0f} MiB, "
+        f"artifact {fuse['artifact_bytes'] / 2**20:.0f} MiB; peak RSS {fmt_mib(fuse['rss_peak_mib'])} "
+        f"(scene loaded {fmt_mib(fuse['rss_load_mib'])})",
         flush=True,
     )
     if "error" in cluster:
@@ -315,14 +298,16 @@ def print_point(size, n_tasks, n_setup, fuse_short, fuse_all, cluster, table_fra
     else:
         timings = ", ".join(f"{k} {v:.2f}" for k, v in cluster["timings"].items())
         print(
-            f"    cluster on {n_setup} frames: {cluster['wall_s']:.2f} s (CPU {cluster['cpu_s']:.2f} s; {timings}); "
+            f"    cluster: {cluster['wall_s']:.2f} s (CPU {cluster['cpu_s']:.2f} s; {timings}); "
             f"{cluster['primitives']:,} primitives, {cluster['aib_nodes']:,} AIB nodes; "
             f"peak RSS {fmt_mib(cluster['rss_peak_mib'])}",
             flush=True,
         )
     for frames in table_frames:
-        kind = "measured" if frames <= fuse_short["frames"] else f"extrapolated from {fuse_short['frames']}"
-        print(f"    {frames} frames: fuse {spf * frames:.0f} s ({kind})", flush=True)
+        # the stage's fixed part (texts, final write) once, plus the per-frame median for the rest
+        total = fuse["wall_s"] + spf * (frames - n)
+        kind = "measured" if frames == n else f"extrapolated from {n} frames"
+        print(f"    {frames} frames: fuse {total:.0f} s ({kind})", flush=True)
 
 
 if __name__ == "__main__":

@@ -22,11 +22,11 @@ from ..artifacts import ACCEPTED_KEY, FUSION_KEY
 from ..context import JobContext
 from ..errors import InputError
 from ..fusion.averaging import CosineAverager
-from ..fusion.bayes import accepted_masks, bayes_update, init_logodds, probabilities
+from ..fusion.bayes import accepted_masks, bayes_update, init_logodds, probability_blocks
 from ..fusion.likelihood import LikelihoodParams, log_likelihood_ratio, resolve_likelihood
 from ..fusion.visibility import mask_associations
 from ..scene.images import load_depth
-from ..store import get_arrays, put_arrays
+from ..store import ArrayBlocks, get_arrays, put_array_blocks, put_arrays
 from .markers import write_marker
 
 
@@ -217,16 +217,18 @@ def run(ctx: JobContext) -> dict[str, Any]:
 
     if on_torch:
         logodds = logodds_t.cpu().numpy()  # the only host copy of the state: after the last frame
+        del logodds_t
     if use_bayes:
-        probs = probabilities(logodds)
+        # Written a block at a time: the (N, T) probabilities are never held beside the log-odds.
+        probs: Any = ArrayBlocks(logodds.shape, np.dtype(np.float32), probability_blocks(logodds))
     else:
         probs = averaging.probabilities(lik, unobserved=ctx.params.prior)
         logodds = logit(np.clip(probs.astype(np.float64), 1e-12, 1 - 1e-12)).astype(np.float32)
     observed = None if averaging is None else averaging.counts > 0
-    put_arrays(
+    put_array_blocks(
         ctx.store,
         ctx.job_key(FUSION_KEY),
-        probabilities=probs.astype(np.float32),
+        probabilities=probs,
         # Probabilities saturate at 1.0 in float32 after a few dozen agreeing views; the log-odds
         # keep the evidence that ranks saturated objects (selection_score='evidence').
         logodds=logodds.astype(np.float32, copy=False),

@@ -160,6 +160,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--cluster-s", type=float, default=6.35, help="cluster stage s at the scale bench (README: 6.35 s)"
     )
+    parser.add_argument("--only", help="comma-separated profile names to run (default: all three)")
     args = parser.parse_args(argv)
     import torch
 
@@ -184,6 +185,8 @@ def main(argv: list[str] | None = None) -> int:
     seg_results: dict[str, dict] = {}
     enc_results: dict[str, dict] = {}
     for name, (seg_label, enc_label) in PROFILES.items():
+        if args.only and name.removesuffix(".yaml") not in args.only.split(","):
+            continue
         path = args.models / "profiles" / name
         if not path.is_file():
             print(f"  {name}: missing, skipped")

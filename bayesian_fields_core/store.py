@@ -14,13 +14,15 @@ import json
 import os
 import shutil
 import tempfile
-from collections.abc import Iterator
+import zipfile
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from .errors import InputError
+from .errors import InputError, InvariantError
 
 
 class ArtifactNotFound(KeyError):
@@ -77,6 +79,11 @@ class LocalStore:
 
     def _path(self, key: str) -> Path:
         return self.root / validate_key(key)
+
+    def local_path(self, key: str) -> Path:
+        """The file that holds `key` (it may not exist): readers that stream a large artifact
+        open it in place instead of reading its bytes into memory."""
+        return self._path(key)
 
     def put_bytes(self, key: str, data: bytes) -> None:
         path = self._path(key)
@@ -217,9 +224,106 @@ def put_arrays(store: Store, key: str, compress: bool = True, **arrays: np.ndarr
     store.put_bytes(key, buf.getvalue())
 
 
+@dataclass(frozen=True)
+class ArrayBlocks:
+    """An array that `put_array_blocks` writes block by block and never holds whole.
+
+    `shape` (rows first) and `dtype` of the whole array; `blocks`: arrays of shape
+    `(rows_i, *shape[1:])` whose rows, in order, make it up (e.g. probabilities computed from the
+    log-odds a few thousand rows at a time).
+    """
+
+    shape: tuple[int, ...]
+    dtype: np.dtype
+    blocks: Iterable[np.ndarray]
+
+
+def _write_blocks(member: Any, name: str, array: ArrayBlocks) -> None:
+    """An .npy member (format 1.0 header, C order) from `array.blocks`."""
+    dtype = np.dtype(array.dtype)
+    header = {"descr": np.lib.format.dtype_to_descr(dtype), "fortran_order": False, "shape": array.shape}
+    np.lib.format.write_array_header_1_0(member, header)
+    rows = 0
+    for block in array.blocks:
+        block = np.ascontiguousarray(block, dtype=dtype)
+        if block.ndim != len(array.shape) or block.shape[1:] != tuple(array.shape[1:]):
+            raise InvariantError(
+                f"block of shape {block.shape} in an array of shape {array.shape}", source=name
+            )
+        rows += block.shape[0]
+        member.write(block.reshape(-1).view(np.uint8))  # the block's own buffer, no bytes copy
+    if rows != array.shape[0]:
+        raise InvariantError(f"blocks hold {rows} rows, the shape says {array.shape[0]}", source=name)
+
+
+def _row_blocks(array: np.ndarray, block_bytes: int = 16 * 2**20) -> ArrayBlocks | np.ndarray:
+    """A C-ordered array as blocks of rows (views, no copy); others as they are.
+
+    numpy's own `write_array` copies a contiguous array whole (`tobytes`) when the target is not a
+    plain file, which a zip member is.
+    """
+    if array.ndim == 0 or array.dtype.hasobject or not array.flags.c_contiguous:
+        return array
+    rows = max(1, block_bytes // max(1, array[:1].nbytes))
+    blocks = (array[i : i + rows] for i in range(0, array.shape[0], rows))
+    return ArrayBlocks(array.shape, array.dtype, blocks)
+
+
+def put_array_blocks(
+    store: Store,
+    key: str,
+    compress: bool = True,
+    block_bytes: int = 16 * 2**20,
+    **arrays: np.ndarray | ArrayBlocks,
+) -> None:
+    """`put_arrays` for large artifacts: the .npz goes straight to a file, one block at a time.
+
+    `put_arrays` holds the whole archive in memory twice (the BytesIO and its `getvalue()` copy)
+    beside the arrays themselves; for the fusion state of millions of Gaussians x 100 tasks that
+    is gigabytes. Here memory holds only what the caller holds plus one block: the file is written
+    beside the destination and renamed into place (LocalStore, atomic), or written to a temp file
+    and uploaded with `put_file` (other stores). Plain arrays are written `block_bytes` of rows at
+    a time. Read back with `get_arrays` like any .npz.
+    """
+    mode = zipfile.ZIP_DEFLATED if compress else zipfile.ZIP_STORED
+    if isinstance(store, LocalStore):
+        dest = store.local_path(key)
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=dest.parent, prefix=".tmp-")
+    else:
+        dest = None
+        fd, tmp = tempfile.mkstemp(prefix="bfields-npz-", suffix=".npz")
+    try:
+        with os.fdopen(fd, "wb") as fh, zipfile.ZipFile(fh, "w", compression=mode, allowZip64=True) as zf:
+            for name, array in arrays.items():
+                with zf.open(f"{name}.npy", "w", force_zip64=True) as member:
+                    if not isinstance(array, ArrayBlocks):
+                        array = _row_blocks(np.asarray(array), block_bytes)
+                    if isinstance(array, ArrayBlocks):
+                        _write_blocks(member, name, array)
+                    else:
+                        np.lib.format.write_array(member, array, allow_pickle=False)
+        if dest is not None:
+            os.replace(tmp, dest)
+        else:
+            store.put_file(key, Path(tmp))
+    finally:
+        Path(tmp).unlink(missing_ok=True)
+
+
 def get_arrays(store: Store, key: str) -> dict[str, np.ndarray]:
-    """Read an .npz written by `put_arrays`; object arrays are refused (allow_pickle=False)."""
-    with np.load(io.BytesIO(store.get_bytes(key)), allow_pickle=False) as data:
+    """Read an .npz written by `put_arrays`; object arrays are refused (allow_pickle=False).
+
+    A LocalStore file is decompressed in place (memory holds the arrays, not also the archive's
+    bytes, which matters for the fusion state of a large scene); other stores go through bytes.
+    """
+    if isinstance(store, LocalStore):
+        source: Any = store.local_path(key)
+        if not source.is_file():
+            raise ArtifactNotFound(key)
+    else:
+        source = io.BytesIO(store.get_bytes(key))
+    with np.load(source, allow_pickle=False) as data:
         return {name: data[name] for name in data.files}
 
 

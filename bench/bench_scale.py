@@ -292,7 +292,7 @@ class BenchModels:
     fingerprint = FINGERPRINT
     profile_name = "bench"
     calibration = None
-    render_device = "cpu"
+    render_device = "cpu"  # where fuse renders depth when the job names no device
 
     def __init__(self, encoder: FixedTextEncoder) -> None:
         self.encoder = encoder

@@ -23,13 +23,13 @@ from ..artifacts import ACCEPTED_KEY, FUSION_KEY, PRIMITIVES_KEY
 from ..context import JobContext
 from ..errors import InputError
 from ..fusion.averaging import CosineAverager
-from ..fusion.bayes import accepted_masks, bayes_update, init_logodds, probabilities
+from ..fusion.bayes import accepted_masks, bayes_update, init_logodds, probability_blocks
 from ..fusion.likelihood import LikelihoodParams, log_likelihood_ratio, resolve_likelihood
 from ..fusion.peak import init_peak, init_peak_torch, margin, update_peak, update_peak_torch
 from ..fusion.visibility import mask_associations
 from ..objects.primitives import PrimitiveBuilder
 from ..scene.images import load_depth
-from ..store import get_arrays, put_arrays
+from ..store import ArrayBlocks, get_arrays, put_array_blocks, put_arrays
 from .markers import write_marker
 
 log = logging.getLogger(__name__)
@@ -247,17 +247,19 @@ def run(ctx: JobContext) -> dict[str, Any]:
     if on_torch:
         logodds = logodds_t.cpu().numpy()  # the only host copy of the state: after the last frame
         peak = peak.cpu().numpy()
+        del logodds_t
     if use_bayes:
-        probs = probabilities(logodds)
+        # Written a block at a time: the (N, T) probabilities are never held beside the log-odds.
+        probs: Any = ArrayBlocks(logodds.shape, np.dtype(np.float32), probability_blocks(logodds))
     else:
         probs = averaging.probabilities(lik, unobserved=ctx.params.prior)
         logodds = logit(np.clip(probs.astype(np.float64), 1e-12, 1 - 1e-12)).astype(np.float32)
     observed = None if averaging is None else averaging.counts > 0
-    put_arrays(  # uncompressed: float32 state barely compresses (83 -> 50 MB at the scale bench) and
-        ctx.store,  # zlib cost seconds here and ~0.4 s in `cluster`, which reads it back
+    put_array_blocks(  # uncompressed: float32 state barely compresses (83 -> 50 MB at the scale
+        ctx.store,  # bench) and zlib cost seconds here and ~0.4 s in `cluster`, which reads it back
         ctx.job_key(FUSION_KEY),
         compress=False,
-        probabilities=probs.astype(np.float32),
+        probabilities=probs if isinstance(probs, ArrayBlocks) else probs.astype(np.float32),
         # Probabilities saturate at 1.0 in float32 after a few dozen agreeing views; the log-odds
         # keep the evidence that ranks saturated objects (selection_score='evidence').
         logodds=logodds.astype(np.float32, copy=False),

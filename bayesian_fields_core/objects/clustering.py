@@ -194,7 +194,7 @@ def object_geometry(
     centroids = np.stack(
         [np.bincount(object_ids[inside], weights=means[inside, k], minlength=num_objects) for k in range(3)],
         axis=1,
-    ).reshape(num_objects, 3)
+    ).reshape(num_objects, 3).astype(np.float64)  # an empty bincount is int64, even with weights
     centroids /= np.maximum(sizes, 1)[:, None]
     members = members_by_object(object_ids, num_objects)
     boxes: list[OrientedBox | None] = [None] * num_objects

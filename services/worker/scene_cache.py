@@ -31,6 +31,7 @@ import logging
 import os
 import secrets
 import shutil
+import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -97,6 +98,14 @@ def _tree_bytes(folder: Path) -> int:
             with contextlib.suppress(OSError):
                 total += os.lstat(os.path.join(dirpath, name)).st_size
     return total
+
+
+def _stamp(path: Path) -> None:
+    """Set the file's mtime to now at full clock resolution: ``utime(path, None)`` takes the
+    kernel's coarse clock (a tick of several ms), so two leases in quick succession could tie and
+    the LRU order would fall to the entry names."""
+    now = time.time_ns()
+    os.utime(path, ns=(now, now))
 
 
 class _FileLock:
@@ -172,7 +181,7 @@ class SceneCache:
                     self._download(store, prefix, listing, entry)
                     self.evict(keep=name)  # make room now, not after the stage
                 # downgrade and re-check: an evictor may slip in between the two flock calls
-            os.utime(entry / _USED, None)
+            _stamp(entry / _USED)
             yield entry / "input"
         finally:
             lock.close()

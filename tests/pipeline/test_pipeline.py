@@ -7,7 +7,6 @@ crash; cancellation between frames; the ablation switches; determinism.
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 from typing import Any
 
@@ -36,15 +35,12 @@ def baseline(scene_dir: Path, profile: dict[str, Any], tmp_path_factory: pytest.
     root = tmp_path_factory.mktemp("baseline")
     models = counting_models(profile)
     ctx = make_ctx(scene_dir, root / "job", root / "cache", models)
-    start = time.perf_counter()
     reports = run_job(ctx)
-    seconds = time.perf_counter() - start
     return {
         "root": root,
         "ctx": ctx,
         "reports": reports,
         "result": _result(root / "job"),
-        "seconds": seconds,
         "counts": dict(models.counts),
     }
 
@@ -104,10 +100,9 @@ def test_new_task_list_reuses_perception_and_visibility(
 ) -> None:
     models = counting_models(profile)
     ctx = make_ctx(scene_dir, tmp_path / "job", baseline["root"] / "cache", models, tasks=OTHER_TASKS)
-    start = time.perf_counter()
     reports = run_job(ctx)
-    seconds = time.perf_counter() - start
 
+    # reuse is proven by the counts, not by wall time (which the shared machine's load decides)
     assert models.counts["segment"] == 0
     assert models.counts["encode_images"] == 0
     assert models.counts["segmenter_built"] == 0  # a cached scene loads no segmenter at all
@@ -115,7 +110,6 @@ def test_new_task_list_reuses_perception_and_visibility(
     assert reports["perceive"]["frames_cached"] == N_FRAMES
     assert reports["perceive"]["frames_computed"] == 0
     assert reports["fuse"]["frames_rendered"] == 0
-    assert seconds < baseline["seconds"], (seconds, baseline["seconds"])
     result = _result(tmp_path / "job")
     assert result.tasks == OTHER_TASKS
     assert list(result.selections) == OTHER_TASKS

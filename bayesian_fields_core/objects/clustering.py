@@ -191,10 +191,17 @@ def object_geometry(
     inside = object_ids >= 0
     sizes = np.bincount(object_ids[inside], minlength=num_objects)
     # bincount sums each axis in Gaussian order, as np.add.at did, ~10x faster
-    centroids = np.stack(
-        [np.bincount(object_ids[inside], weights=means[inside, k], minlength=num_objects) for k in range(3)],
-        axis=1,
-    ).reshape(num_objects, 3).astype(np.float64)  # an empty bincount is int64, even with weights
+    centroids = (
+        np.stack(
+            [
+                np.bincount(object_ids[inside], weights=means[inside, k], minlength=num_objects)
+                for k in range(3)
+            ],
+            axis=1,
+        )
+        .reshape(num_objects, 3)
+        .astype(np.float64)
+    )  # an empty bincount is int64, even with weights
     centroids /= np.maximum(sizes, 1)[:, None]
     members = members_by_object(object_ids, num_objects)
     boxes: list[OrientedBox | None] = [None] * num_objects

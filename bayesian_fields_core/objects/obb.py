@@ -39,6 +39,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Any
 
 import numpy as np
@@ -158,13 +159,17 @@ def _pca_frame(points: np.ndarray) -> np.ndarray:
     return rot
 
 
+@lru_cache(maxsize=8)
 def _fibonacci_sphere(n: int) -> np.ndarray:
-    """n nearly uniform unit vectors (a golden-angle spiral)."""
+    """n nearly uniform unit vectors (a golden-angle spiral), (n, 3) read-only: computed once
+    per `n`, not once per object."""
     i = np.arange(n) + 0.5
     z = 1.0 - 2.0 * i / n
     r = np.sqrt(np.maximum(0.0, 1.0 - z * z))
     phi = np.pi * (3.0 - np.sqrt(5.0)) * i
-    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+    sphere = np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+    sphere.flags.writeable = False
+    return sphere
 
 
 def _unique_directions(vectors: np.ndarray, decimals: int = 9) -> np.ndarray:

@@ -99,6 +99,15 @@ def _check(pyx: np.ndarray, edges: np.ndarray, weights: np.ndarray | None) -> np
     return w / w.sum() if w.size else w
 
 
+def _sorted_distinct(edges: np.ndarray, num: int) -> bool:
+    """Whether (E, 2) `edges` are already what `unique_pairs` returns: `lo < hi`, sorted, no
+    repeats (a vectorised check, ~10x cheaper than redoing the sort)."""
+    if not edges.size:
+        return True
+    keys = edges[:, 0] * max(num, 1) + edges[:, 1]
+    return bool(np.all(edges[:, 0] < edges[:, 1]) and np.all(keys[1:] > keys[:-1]))
+
+
 def aib(
     pyx: np.ndarray,
     edges: np.ndarray,
@@ -115,7 +124,8 @@ def aib(
     num = pyx.shape[0]
     px = _check(pyx, edges, weights)
     info = mutual_information(px, pyx, py_mode) if num else 0.0
-    edges = unique_pairs(edges, num)
+    if not _sorted_distinct(edges, num):  # merge_identical hands over sorted distinct pairs already
+        edges = unique_pairs(edges, num)
     if edges.size:
         adjacency = csr_matrix(
             (np.ones(2 * len(edges), dtype=np.int8), (edges.ravel(), edges[:, ::-1].ravel())),

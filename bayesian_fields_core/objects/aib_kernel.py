@@ -10,7 +10,9 @@ Algorithm (`O(E log E)`): one binary heap (rows of a float64 array, sifted by ha
 than `heapq` on numba tuples) holds an entry `(cost, lo, hi, version_lo, version_hi)` per edge; an entry is current while both endpoints keep the versions it was pushed with. Merging
 the cheapest current edge folds `hi` into `lo` (the lower id survives and names the union), bumps
 `lo`'s version (invalidating all its old entries), gives `lo` the union of both neighbourhoods and
-pushes one fresh entry per neighbour. Neighbour lists of other nodes are not rewritten: they may
+pushes one fresh entry per neighbour. Stale entries are not searched for; once the heap has grown
+by half since it was last cleaned, one sequential pass drops them all and re-heapifies (without
+it, popping and discarding stale entries one by one was ~60 % of the loop). Neighbour lists of other nodes are not rewritten: they may
 still name a merged-away node, which a union-find (`parent`) resolves when a list is next read,
 so a merge costs time in the merged node's degree only. Exactly one current entry exists per live
 edge, so the merge order is the lexicographic `(cost, lo, hi)` order: ties break by the lower node
@@ -33,6 +35,13 @@ import numpy as np
 from numba.typed import List
 
 from bayesian_fields_core.jit import compiled
+
+_COMPACT_GROWTH = 1.5
+"""The heap is compacted (`_compact`) once it holds this many times the entries it kept at the
+last compaction: at the scale bench 1.5 took the loop from 0.39 to 0.25 s CPU (1.2: 0.28, 3: 0.39)."""
+COMPACT_MIN = 1 << 14
+"""Smallest heap ever compacted (a parameter of `greedy_merges` so a test can force compactions
+on a small graph)."""
 
 
 @compiled
@@ -115,6 +124,28 @@ def _sift_up(heap: np.ndarray, pos: int) -> None:
 
 
 @compiled
+def _compact(heap: np.ndarray, size: int, version: np.ndarray, num: int) -> int:
+    """Drop the stale entries of `heap[:size]` (an endpoint merged since the push) and restore the
+    heap order; returns the new size. Pops of stale entries were most of the loop's time (random
+    accesses down a heap far larger than the cache); one sequential pass removes them in bulk."""
+    kept = 0
+    for a in range(size):
+        key = int(heap[a, 1])
+        i, j = key // num, key % num
+        if version[i] == int(heap[a, 2]) and version[j] == int(heap[a, 3]):
+            heap[kept, 0], heap[kept, 1], heap[kept, 2], heap[kept, 3] = (
+                heap[a, 0],
+                heap[a, 1],
+                heap[a, 2],
+                heap[a, 3],
+            )
+            kept += 1
+    for pos in range(kept // 2 - 1, -1, -1):
+        _sift_down(heap, kept, pos)
+    return kept
+
+
+@compiled
 def _find(parent: np.ndarray, x: int) -> int:
     """Surviving node that `x` was merged into (union-find with path compression)."""
     root = x
@@ -137,6 +168,7 @@ def greedy_merges(
     information: float,
     delta: float,
     tiny: float,
+    compact_min: int = COMPACT_MIN,
 ) -> tuple[np.ndarray, np.ndarray, float]:
     """Merge greedily until the next merge's relative loss exceeds `delta`.
 
@@ -173,6 +205,7 @@ def greedy_merges(
             size += 1
     for pos in range(size // 2 - 1, -1, -1):
         _sift_down(heap, size, pos)
+    compact_at = max(int(_COMPACT_GROWTH * size), compact_min)
 
     merges = np.empty((max(num - 1, 0), 2), dtype=np.int64)
     costs = np.empty(max(num - 1, 0))
@@ -234,6 +267,9 @@ def greedy_merges(
                 heap[size, 2], heap[size, 3] = version[lo], version[hi]
                 _sift_up(heap, size)
                 size += 1
+        if size > compact_at:
+            size = _compact(heap, size, version, num)
+            compact_at = max(int(_COMPACT_GROWTH * size), compact_min)
     refused = _cheapest_live_edge(mass, cond, ent, parent, neighbours, refused)
     stopped_at = np.inf if refused == np.inf else _relative(refused, information, tiny)
     return merges[:done], costs[:done], stopped_at

@@ -19,6 +19,7 @@ import scipy.sparse as sp
 from ..params import PipelineParams
 from ..results.format import task_scores
 from .aib import aib
+from .blas_threads import single_blas_thread
 from .edges import MergedGraph, merge_identical, overlap_edges
 from .knn_filter import statistical_outlier_mask
 from .obb import OrientedBox, minimum_obb
@@ -206,7 +207,10 @@ def object_geometry(
     members = members_by_object(object_ids, num_objects)
     boxes: list[OrientedBox | None] = [None] * num_objects
     boxed = [obj for obj in selected if len(members[obj])]
-    found = _per_object(lambda m: minimum_obb(means[m].astype(np.float64)), [members[obj] for obj in boxed])
+    with single_blas_thread():  # many small products: BLAS's own threads only cost CPU here
+        found = _per_object(
+            lambda m: minimum_obb(means[m].astype(np.float64)), [members[obj] for obj in boxed]
+        )
     for obj, box in zip(boxed, found, strict=True):
         boxes[obj] = box
     return sizes, centroids, boxes

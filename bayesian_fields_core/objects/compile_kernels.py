@@ -26,6 +26,7 @@ def compile_kernels() -> float:
     means = np.array([[0.0, 0.0, 0.0], [1.0, 1.0, 1.0], [0.5, 0.5, 0.5], [1.5, 1.5, 1.5]])
     primitive_ids = np.array([0, 0, 1, 1])
     edges = overlap_edges(means, primitive_ids)  # the box sweep
+    overlap_edges(means.astype(np.float32), primitive_ids)  # scene centres are float32
     pyx = np.array([[0.2, 0.8], [0.6, 0.4]])
     graph = merge_identical(pyx, edges)  # the identical-row test
     aib(graph.pyx, graph.edges, delta=1.0, weights=graph.weights)  # the greedy merge loop

@@ -8,7 +8,7 @@ each side for scenes whose primitives leave small gaps.
 Edges come from a sweep-and-prune: boxes sorted by their minimum along the axis where that leaves
 the fewest candidates, every box's candidates are the later boxes starting before its maximum, and
 a compiled loop tests the other two axes. Cost is linear in the candidate pairs, not quadratic in
-the primitives (8 M candidates, 774 k edges: about 0.1 s; the vectorised numpy version took 1 s).
+the primitives (8 M candidates, 774 k edges: about 0.05 s; the vectorised numpy version took 1 s).
 """
 
 from __future__ import annotations
@@ -33,41 +33,58 @@ def primitive_boxes(means: np.ndarray, primitive_ids: np.ndarray) -> tuple[np.nd
     primitive_ids = np.asarray(primitive_ids)
     if means.ndim != 2 or means.shape[1] != 3 or means.shape[0] != primitive_ids.shape[0]:
         raise InputError(f"expected ({primitive_ids.shape[0]}, 3), got {means.shape}", source="edges.means")
-    members = np.flatnonzero(primitive_ids >= 0)
-    if members.size == 0:
-        return np.zeros((0, 3)), np.zeros((0, 3))
-    order = members[np.argsort(primitive_ids[members], kind="stable")]
-    sorted_ids = primitive_ids[order]
-    starts = np.flatnonzero(np.r_[True, sorted_ids[1:] != sorted_ids[:-1]])
-    if sorted_ids[starts].tolist() != list(range(starts.size)):
+    num = int(primitive_ids.max(initial=-1)) + 1
+    lo, hi, counts = _group_bounds(
+        np.ascontiguousarray(primitive_ids, dtype=np.int64), np.ascontiguousarray(means), num
+    )
+    if num and counts.min() == 0:
         raise InputError("primitive ids must be compact 0..P-1", source="edges.primitive_ids")
-    pts = means[order].astype(np.float64, copy=False)
-    return np.minimum.reduceat(pts, starts, axis=0), np.maximum.reduceat(pts, starts, axis=0)
+    return lo, hi
 
 
 @compiled
-def _sweep(lo: np.ndarray, hi: np.ndarray, order: np.ndarray, end: np.ndarray, axis: int) -> np.ndarray:
-    """Pairs of boxes overlapping on all axes; `order` sorts them by `lo[:, axis]` and `end[a]` is
-    the first sorted position whose minimum lies beyond box `order[a]`'s maximum on that axis."""
+def _group_bounds(ids: np.ndarray, points: np.ndarray, num: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per-id minimum and maximum (num, 3) float64 of `points` (N, 3) and the (num,) member
+    counts, in one pass (ids < 0 skipped): the sort-and-reduceat it replaces took 50 ms at the
+    scale bench; min and max are exact, so the boxes are the same floats."""
+    lo = np.full((num, 3), np.inf)
+    hi = np.full((num, 3), -np.inf)
+    counts = np.zeros(num, dtype=np.int64)
+    for n in range(ids.shape[0]):
+        g = ids[n]
+        if g < 0:
+            continue
+        counts[g] += 1
+        for d in range(3):
+            v = np.float64(points[n, d])
+            lo[g, d] = min(lo[g, d], v)
+            hi[g, d] = max(hi[g, d], v)
+    return lo, hi, counts
+
+
+@compiled
+def _sweep(other: np.ndarray, order: np.ndarray, end: np.ndarray) -> np.ndarray:
+    """Pairs of boxes overlapping on all axes, as (min id, max id). Boxes are in sweep order:
+    `order[a]` is the id of the a-th box, `end[a]` the first position whose minimum along the
+    sweep axis lies beyond box a's maximum, and `other` (n, 4) holds `[lo, hi, lo, hi]` of the
+    two other axes in that order, so the candidates of a box are read sequentially (gathering
+    them through `order` from (n, 3) arrays took 2.5x as long at the scale bench)."""
     n = order.shape[0]
     out = np.empty((max(n, 16), 2), dtype=np.int64)
     count = 0
     for a in range(n):
+        lo_a, hi_a, lo_b, hi_b = other[a, 0], other[a, 1], other[a, 2], other[a, 3]
         p = order[a]
         for b in range(a + 1, end[a]):
+            if other[b, 0] > hi_a or lo_a > other[b, 1] or other[b, 2] > hi_b or lo_b > other[b, 3]:
+                continue
             q = order[b]
-            hit = True
-            for d in range(3):
-                if d != axis and (lo[q, d] > hi[p, d] or lo[p, d] > hi[q, d]):
-                    hit = False
-                    break
-            if hit:
-                if count == out.shape[0]:
-                    grown = np.empty((2 * count, 2), dtype=np.int64)
-                    grown[:count] = out
-                    out = grown
-                out[count, 0], out[count, 1] = min(p, q), max(p, q)
-                count += 1
+            if count == out.shape[0]:
+                grown = np.empty((2 * count, 2), dtype=np.int64)
+                grown[:count] = out
+                out = grown
+            out[count, 0], out[count, 1] = min(p, q), max(p, q)
+            count += 1
     return out[:count]
 
 
@@ -89,7 +106,9 @@ def box_overlap_edges(
         if best is None or candidates < best[0]:
             best = (candidates, axis, order, end)
     _, axis, order, end = best
-    pairs = _sweep(lo, hi, order.astype(np.int64), end.astype(np.int64), axis)
+    a, b = (d for d in range(3) if d != axis)
+    other = np.stack([lo[order, a], hi[order, a], lo[order, b], hi[order, b]], axis=1)
+    pairs = _sweep(np.ascontiguousarray(other), order.astype(np.int64), end.astype(np.int64))
     keys = np.sort(pairs[:, 0] * n + pairs[:, 1])  # each pair is found once: no duplicates
     return np.stack([keys // n, keys % n], axis=1)
 

@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+import shutil
 import sys
 import time
 from pathlib import Path
@@ -42,15 +44,22 @@ def sync(device: str) -> None:
         torch.cuda.synchronize()
 
 
-def render_frames(scene, device: str, n: int, n_images: int) -> tuple[float, str]:
+def render_frames(scene, device: str, n: int, n_images: int, image_of) -> tuple[float, str]:  # noqa: ANN001
     """Median ms/frame of a depth-only render (expected + median depth) on `device` over `n`
-    frames; the first `n_images` frames also get their colour render written as their image."""
+    frames; the first `n_images` frames also get their colour render written to `image_of(frame)`
+    (the perceive scene's copy: the fuse scene's images key its synthetic perception cache)."""
     renderer = GaussianRenderer(scene.gaussians, device=device)
     times = []
+
+    def write_image(frame) -> None:  # noqa: ANN001
+        rgb = renderer.render(frame.K, frame.world_to_camera, frame.width, frame.height).rgb
+        target = image_of(frame)
+        target.unlink(missing_ok=True)  # a hard link to the fuse scene's image: never write through it
+        Image.fromarray((np.clip(rgb, 0, 1) * 255).astype(np.uint8)).save(target)
+
     for i, frame in enumerate(scene.frames[: max(n, n_images)]):
         if i >= n:  # only an image is wanted from this frame
-            rgb = renderer.render(frame.K, frame.world_to_camera, frame.width, frame.height).rgb
-            Image.fromarray((np.clip(rgb, 0, 1) * 255).astype(np.uint8)).save(frame.image_path)
+            write_image(frame)
             continue
         images = i < n_images
         sync(device)
@@ -59,8 +68,7 @@ def render_frames(scene, device: str, n: int, n_images: int) -> tuple[float, str
         sync(device)
         times.append(time.perf_counter() - t)
         if images:  # real pictures for the perceive stage: the scene's own colour render
-            rgb = renderer.render(frame.K, frame.world_to_camera, frame.width, frame.height).rgb
-            Image.fromarray((np.clip(rgb, 0, 1) * 255).astype(np.uint8)).save(frame.image_path)
+            write_image(frame)
     skip = 1 if len(times) > 2 else 0  # the first call pays kernel compilation / warm-up
     return 1000 * float(np.median(times[skip:])), renderer.backend
 
@@ -109,15 +117,27 @@ def main(argv: list[str] | None = None) -> int:
     )
     t = time.perf_counter()
     if work.exists():
-        import shutil
-
         shutil.rmtree(work)
     bench_scale.setup(setup, work)  # scene folder + synthetic perception cache for n_f frames
     print(f"gpu_check ({'GPU ' + torch.cuda.get_device_name() if gpu else 'CPU smoke'}): {n_g:,} Gaussians, "
           f"{n_f} frames at {width}x{height}, 26 tasks; setup {time.perf_counter() - t:.1f} s")  # fmt: skip
     scene = load_scene(work / "scene")
 
-    render_ms, backend = render_frames(scene, device, min(n_f, 10 if gpu else 3), n_images=n_p)
+    # The perceive stage reads a copy of the scene (hard links) whose images are the splat's own
+    # colour render; the fuse scene keeps the images its synthetic perception cache is keyed by.
+    perceive_scene = work / "perceive-scene"
+    shutil.copytree(work / "scene", perceive_scene, copy_function=os.link)
+
+    def perceive_image(frame) -> Path:  # noqa: ANN001
+        return perceive_scene / frame.image_path.resolve().relative_to((work / "scene").resolve())
+
+    render_ms, backend = render_frames(
+        scene,
+        device,
+        min(n_f, 10 if gpu else 3),
+        n_images=n_f,  # every frame: the stage's alignment check samples frames across the scene
+        image_of=perceive_image,
+    )
     print(f"  render   {render_ms:9.1f} ms/frame  (backend {backend}, depth + median depth)")
 
     tasks = bench_scale.task_texts(26)
@@ -154,10 +174,10 @@ def main(argv: list[str] | None = None) -> int:
         models=models,
         scene_store=LocalStore(work / "pcache"),
         scene_prefix="scenes/perceive/",
-        scene_dir=work / "scene",
+        scene_dir=perceive_scene,
     )
     _ = models.segmenter, models.encoder  # load outside the timing
-    warm = np.asarray(Image.open(scene.frames[0].image_path).convert("RGB"))
+    warm = np.asarray(Image.open(perceive_image(scene.frames[0])).convert("RGB"))
     models.segmenter.segment(warm)
     t = time.perf_counter()
     perceive = run_stage("perceive", pctx, force=True)

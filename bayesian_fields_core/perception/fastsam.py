@@ -57,6 +57,16 @@ def fastsam_masks_to_labels(
     return exclusive_labels(masks, min_area)
 
 
+def _precision_args(half: bool) -> dict[str, Any]:
+    """ultralytics' keyword for fp16 inference: `half=True` until 8.4, `quantize=16` since (where
+    `half` still works but warns on every call and is to be removed); nothing for fp32."""
+    if not half:
+        return {}
+    from ultralytics.cfg import DEFAULT_CFG_DICT
+
+    return {"quantize": 16} if "quantize" in DEFAULT_CFG_DICT else {"half": True}
+
+
 class FastSAMSegmenter:
     """FastSAM via ultralytics as a ``Segmenter``.
 
@@ -95,6 +105,7 @@ class FastSAMSegmenter:
         self.retina_masks, self.device = bool(retina_masks), device
         self.min_area, self.threshold = int(min_area), float(threshold)
         self.half = bool(half)  # fp16 inference (a GPU's tensor cores); masks may differ slightly
+        self._precision = _precision_args(self.half)
 
     @property
     def params(self) -> dict[str, Any]:
@@ -121,8 +132,8 @@ class FastSAMSegmenter:
             imgsz=self.imgsz,
             conf=self.conf,
             iou=self.iou,
-            half=self.half,
             verbose=False,
+            **self._precision,
         )
         masks = results[0].masks if results else None
         if masks is None:

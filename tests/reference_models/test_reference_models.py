@@ -130,13 +130,13 @@ def test_batch_size_does_not_change_embeddings(kind: str, encoders: dict) -> Non
     assert enc.encode_images([]).shape == (0, 512)
 
 
-def _fastsam(reference_dir: Path, profile: str):
+def _fastsam(reference_dir: Path, profile: str, **overrides: object):
     from bayesian_fields_core.perception.fastsam import FastSAMSegmenter
 
     params = _profile(reference_dir, profile).segmenter.params.kwargs()
     # conf 0: random heads score near 0, so every candidate the head proposes is kept; they
     # overlap heavily, which is what exercises the exclusive assignment.
-    params.update(conf=0.0, min_area=20)
+    params.update(conf=0.0, min_area=20, **overrides)
     return FastSAMSegmenter(**params)
 
 
@@ -168,6 +168,24 @@ def test_fastsam_gives_exclusive_masks(reference_dir: Path) -> None:
     assert m >= 2  # ...the labels are one id per pixel: exclusive by construction
     areas = np.bincount(labels[labels >= 0].ravel(), minlength=m)
     assert (areas >= seg.min_area).all()  # ids 0..M-1 all present, none below min_area
+
+
+def test_fastsam_half_uses_the_installed_ultralytics_keyword(
+    reference_dir: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """fp16 (`half: true` in a profile) runs without ultralytics' deprecation warning for `half`
+    (8.4 renamed it `quantize`); on the CPU ultralytics computes in fp32, so the labels equal fp32's."""
+    from ultralytics.utils import LOGGER
+
+    fp32 = _fastsam(reference_dir, "reference-fastsam-open-clip")
+    fp16 = _fastsam(reference_dir, "reference-fastsam-open-clip", half=True)
+    LOGGER.addHandler(caplog.handler)
+    try:
+        labels = fp16.segment(_frame(2))
+    finally:
+        LOGGER.removeHandler(caplog.handler)
+    assert not [r for r in caplog.records if "deprecated" in r.getMessage()]
+    np.testing.assert_array_equal(labels, fp32.segment(_frame(2)))
 
 
 @pytest.mark.parametrize(

@@ -49,7 +49,7 @@ TINT = 0.65
 
 _MAX_VIEW_POINTS = 4000
 
-PREVIEW_RASTER = RasterSettings(tile_size=8)
+PREVIEW_RASTER = RasterSettings(tile_size=8, cull_faint_tiles=True)
 """Rasterisation constants of previews: the renderer's defaults with 8-pixel tiles.
 
 At preview resolution most Gaussians' footprints span a few pixels, so on 16-pixel tiles most of
@@ -184,7 +184,7 @@ def _composite_colours(
 
     from ..render.composite import composite
     from ..render.projection import project
-    from ..render.tiles import bin_gaussians
+    from ..render.tiles import bin_gaussians, faint_cull
 
     s = renderer.settings
     device = renderer.device
@@ -195,7 +195,7 @@ def _composite_colours(
         features = torch.as_tensor(np.ascontiguousarray(colours, dtype=np.float32), device=device)[proj.ids]
         tiles_x = (width + s.tile_size - 1) // s.tile_size
         tiles_y = (height + s.tile_size - 1) // s.tile_size
-        bins = bin_gaussians(proj.rect, proj.depth, tiles_x, tiles_x * tiles_y)
+        bins = bin_gaussians(proj.rect, proj.depth, tiles_x, tiles_x * tiles_y, faint_cull(proj, s))
         out = composite(
             proj.xy, proj.conic, proj.opacity, proj.depth, features, bins, tiles_x, tiles_y, s, median=False
         )

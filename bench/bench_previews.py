@@ -6,8 +6,9 @@ CPU and wall seconds per preview and the totals for all tasks, then the differen
 preview images (max and mean absolute difference, share of differing pixels) and of the chosen
 views against a reference path:
 
-- by default the reference is the renderer's default rasterisation constants (16-pixel tiles),
-  rendered in the same process;
+- by default the reference is the renderer's default rasterisation constants (16-pixel tiles) at
+  torch's default thread count, rendered in the same process (it skips the median-depth search,
+  as previews now do, so it is a little cheaper than the code before);
 - `--save DIR` writes each preview PNG to DIR and `--compare DIR` compares with PNGs saved by an
   earlier run, e.g. of an older checkout (PYTHONPATH=old/tree python bench/bench_previews.py
   --save DIR), which is how the figures before a change are reproduced.
@@ -90,8 +91,11 @@ def main() -> None:
     print(f"{len(g.means)} Gaussians, {len(frames)} frames, {len(tasks)} tasks, max side {args.max_side}")
     has_settings = "settings" in inspect.signature(pv.render_previews).parameters
 
-    def run(settings: object | None) -> tuple[list[pv.Preview], list[float], list[float], float, float]:
-        extra = {} if settings is None else {"settings": settings}
+    def run(
+        settings: object | None, **extra: object
+    ) -> tuple[list[pv.Preview], list[float], list[float], float, float]:
+        if settings is not None:
+            extra["settings"] = settings
         cpu, wall, out = [], [], []
         for task in tasks:
             one, c, w = _timed(pv.render_previews, replace(result, tasks=[task]), g, frames,
@@ -115,8 +119,8 @@ def main() -> None:
     if has_settings and not args.no_reference:
         from bayesian_fields_core.render.output import RasterSettings
 
-        ref, cpu, wall, c_all, w_all = run(RasterSettings())
-        report("reference (16-px tiles)", cpu, wall, c_all, w_all)
+        ref, cpu, wall, c_all, w_all = run(RasterSettings(), threads=None)
+        report("reference (16-px tiles, torch's threads)", cpu, wall, c_all, w_all)
         same = sum(a.frame == b.frame for a, b in zip(current, ref, strict=True))
         print(
             f"vs reference: same view {same}/{len(tasks)}; {_diff([p.png for p in current], [p.png for p in ref])}"

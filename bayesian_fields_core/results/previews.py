@@ -59,6 +59,14 @@ the renderer's own; the only change is that a Gaussian's tail beyond its 3-sigma
 16-pixel tile sometimes still covered, is dropped more often (under one 8-bit level on the
 scale bench's previews)."""
 
+PREVIEW_THREADS = 1
+"""torch intra-op threads while rendering previews (None: leave torch's setting alone).
+
+A preview's compositing runs a few hundred small steps; with several intra-op threads each step
+ends in a barrier where idle threads spin, so on the scale bench two threads cost about twice the
+CPU of one for a little less wall time, and on a busy machine far more (a spinning thread waits
+for one that is descheduled). The cluster stage runs on the CPU queue, where CPU is the cost."""
+
 
 def rank_colour(rank: int) -> np.ndarray:
     """(3,) RGB in [0, 1] of the object at 0-based `rank`."""
@@ -212,17 +220,37 @@ def render_previews(
     max_side: int,
     device: str = "cpu",
     settings: RasterSettings = PREVIEW_RASTER,
+    threads: int | None = PREVIEW_THREADS,
 ) -> list[Preview]:
     """One preview per task of `result` (in task order), rendered from the scene's frames.
 
     One renderer serves every task, and each task's view is composited once, with six channels:
     the tinted colours and the flat label colours (two renders per task before; at 400 k
     Gaussians each CPU render of a preview takes seconds). `settings` are the rasterisation
-    constants (`PREVIEW_RASTER` by default)."""
-    from ..render.renderer import GaussianRenderer
+    constants (`PREVIEW_RASTER` by default); torch runs with `threads` intra-op threads meanwhile
+    (its previous setting is restored)."""
+    import torch
 
     if not frames:
         return []
+    previous = torch.get_num_threads()
+    if threads is not None:
+        torch.set_num_threads(threads)
+    try:
+        return _render_previews(
+            result, gaussians, frames, max_side=max_side, device=device, settings=settings
+        )
+    finally:
+        torch.set_num_threads(previous)
+
+
+def _render_previews(
+    result: Result, gaussians: Gaussians, frames: list[Frame], *, max_side: int, device: str,
+    settings: RasterSettings,
+) -> list[Preview]:  # fmt: skip
+    """`render_previews` once torch's threads are set."""
+    from ..render.renderer import GaussianRenderer
+
     ids = np.asarray(result.object_ids)
     base = base_colours(gaussians)
     renderer = GaussianRenderer(gaussians, device=device, backend="torch", settings=settings)

@@ -79,8 +79,14 @@ def composite(
     tiles_x: int,
     tiles_y: int,
     settings: RasterSettings,
+    *,
+    median: bool = True,
 ) -> Composited:
-    """Composite the binned Gaussians; `features` (M, F) are blended with the alpha weights."""
+    """Composite the binned Gaussians; `features` (M, F) are blended with the alpha weights.
+
+    `median=False` skips the median-depth search (two ops per step) for callers that only need
+    the blended features and transmittance, such as previews; `median_depth` is then all zero.
+    Features and transmittance are the same either way."""
     device = xy.device
     tile = settings.tile_size
     n_pix = tile * tile
@@ -100,7 +106,7 @@ def composite(
     acc = torch.zeros(n_tiles, n_pix, n_feat, device=device)
     trans = torch.ones(n_tiles, n_pix, device=device)
     done = torch.zeros(n_tiles, n_pix, dtype=torch.bool, device=device)
-    median = torch.zeros(n_tiles, n_pix, device=device)
+    median_depth = torch.zeros(n_tiles, n_pix, device=device)
     progress = torch.zeros(n_tiles, dtype=torch.int64, device=device)
     # Longest lists first, so a batch holds tiles of similar length.
     active = torch.argsort(bins.count, descending=True)
@@ -125,7 +131,6 @@ def composite(
         # padding entries get a huge negative constant, i.e. alpha = 0.
         log_opacity = torch.where(valid, rows[..., 5].log(), -1e4)
         coef = _exponent_coefficients(rows[..., 0:2], rows[..., 2:5], centres[cur, None, :], log_opacity)
-        g_depth = rows[..., 6]
 
         # alpha (b, P, C) = min(max_alpha, opacity * exp(-0.5 d^T conic d)), 0 below min_alpha.
         # The exponent is floored first: far tails would otherwise become float32 denormals,
@@ -155,11 +160,12 @@ def composite(
         weight.sub_(t_after).masked_fill_(excluded, 0.0)
         acc[cur] += torch.matmul(weight, rows[..., 7:])
 
-        # Median: the first Gaussian whose inclusion drops T below the level, if in this chunk.
-        k = torch.searchsorted(neg_t, _levels(neg_t, settings.median_transmittance), right=True)[..., 0]
-        crossed = (t_start[..., 0] >= settings.median_transmittance) & (k < n_include)
-        k_depth = g_depth.gather(1, k.clamp_max(chunk - 1))
-        median[cur] += torch.where(crossed, k_depth, 0.0)
+        if median:
+            # The first Gaussian whose inclusion drops T below the level, if in this chunk.
+            k = torch.searchsorted(neg_t, _levels(neg_t, settings.median_transmittance), right=True)[..., 0]
+            crossed = (t_start[..., 0] >= settings.median_transmittance) & (k < n_include)
+            k_depth = rows[..., 6].gather(1, k.clamp_max(chunk - 1))
+            median_depth[cur] += torch.where(crossed, k_depth, 0.0)
 
         last = t_after.gather(-1, (n_include - 1).clamp_min(0)[..., None])[..., 0]
         trans[cur] = torch.where(n_include > 0, last, t_prev)
@@ -174,4 +180,6 @@ def composite(
         x = x.reshape(tiles_y, tiles_x, tile, tile, *x.shape[2:])
         return x.transpose(1, 2).reshape(tiles_y * tile, tiles_x * tile, *x.shape[4:])
 
-    return Composited(features=to_image(acc), transmittance=to_image(trans), median_depth=to_image(median))
+    return Composited(
+        features=to_image(acc), transmittance=to_image(trans), median_depth=to_image(median_depth)
+    )

@@ -51,6 +51,10 @@ class RasterSettings:
         wastes less work past early termination, larger means fewer Python-level steps.
     max_batch_elements: cap on tiles x tile-pixels x chunk evaluated at once; bounds the peak
         memory of compositing (about 13 bytes per element) independently of the scene size.
+    cull_faint_tiles: leave out of a tile's list each Gaussian whose alpha is below min_alpha at
+        every pixel of the tile (the footprint box is a square around the 3-sigma ellipse, so
+        elongated footprints touch many such tiles). Same images up to float rounding, less
+        compositing work; off by default so depth renders keep their exact historical values.
     """
 
     near_plane: float = 0.01
@@ -65,3 +69,4 @@ class RasterSettings:
     tile_size: int = 16
     chunk_size: int = 32
     max_batch_elements: int = 1 << 22
+    cull_faint_tiles: bool = False

@@ -22,7 +22,7 @@ from bayesian_fields_core.render.gsplat_backend import gsplat_available, median_
 from bayesian_fields_core.render.output import RasterSettings, RenderOutput
 from bayesian_fields_core.render.projection import covariance_3d, project
 from bayesian_fields_core.render.sh import sh_to_rgb
-from bayesian_fields_core.render.tiles import bin_gaussians
+from bayesian_fields_core.render.tiles import bin_gaussians, faint_cull
 from bayesian_fields_core.scene.types import Gaussians
 
 Backend = Literal["auto", "torch", "gsplat"]
@@ -207,7 +207,7 @@ class GaussianRenderer:
             features = torch.cat([colours, proj.depth[:, None]], dim=1)
         tiles_x = (width + s.tile_size - 1) // s.tile_size
         tiles_y = (height + s.tile_size - 1) // s.tile_size
-        bins = bin_gaussians(proj.rect, proj.depth, tiles_x, tiles_x * tiles_y)
+        bins = bin_gaussians(proj.rect, proj.depth, tiles_x, tiles_x * tiles_y, faint_cull(proj, s))
         out = composite(proj.xy, proj.conic, proj.opacity, proj.depth, features, bins, tiles_x, tiles_y, s)
         feats = out.features[:height, :width]
         alpha = 1.0 - out.transmittance[:height, :width]

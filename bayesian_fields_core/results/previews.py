@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
+from ..render.output import RasterSettings
 from ..scene.types import Frame, Gaussians
 from .export import SH_C0
 from .format import Result
@@ -47,6 +48,24 @@ TINT = 0.65
 """Weight of the rank colour when tinting a selected object's Gaussians (1 = flat colour)."""
 
 _MAX_VIEW_POINTS = 4000
+
+PREVIEW_RASTER = RasterSettings(tile_size=8, cull_faint_tiles=True)
+"""Rasterisation constants of previews: the renderer's defaults with 8-pixel tiles.
+
+At preview resolution most Gaussians' footprints span a few pixels, so on 16-pixel tiles most of
+the (tile pixel, Gaussian) pairs the compositing evaluates are zero; 8-pixel tiles halve the CPU
+time of a preview at 400 k Gaussians (bench/bench_previews.py). Per pixel the blending rules are
+the renderer's own; the only change is that a Gaussian's tail beyond its 3-sigma box, which a
+16-pixel tile sometimes still covered, is dropped more often (under one 8-bit level on the
+scale bench's previews)."""
+
+PREVIEW_THREADS = 1
+"""torch intra-op threads while rendering previews (None: leave torch's setting alone).
+
+A preview's compositing runs a few hundred small steps; with several intra-op threads each step
+ends in a barrier where idle threads spin, so on the scale bench two threads cost about twice the
+CPU of one for a little less wall time, and on a busy machine far more (a spinning thread waits
+for one that is descheduled). The cluster stage runs on the CPU queue, where CPU is the cost."""
 
 
 def rank_colour(rank: int) -> np.ndarray:
@@ -173,7 +192,7 @@ def _composite_colours(
 
     from ..render.composite import composite
     from ..render.projection import project
-    from ..render.tiles import bin_gaussians
+    from ..render.tiles import bin_gaussians, faint_cull
 
     s = renderer.settings
     device = renderer.device
@@ -184,8 +203,10 @@ def _composite_colours(
         features = torch.as_tensor(np.ascontiguousarray(colours, dtype=np.float32), device=device)[proj.ids]
         tiles_x = (width + s.tile_size - 1) // s.tile_size
         tiles_y = (height + s.tile_size - 1) // s.tile_size
-        bins = bin_gaussians(proj.rect, proj.depth, tiles_x, tiles_x * tiles_y)
-        out = composite(proj.xy, proj.conic, proj.opacity, proj.depth, features, bins, tiles_x, tiles_y, s)
+        bins = bin_gaussians(proj.rect, proj.depth, tiles_x, tiles_x * tiles_y, faint_cull(proj, s))
+        out = composite(
+            proj.xy, proj.conic, proj.opacity, proj.depth, features, bins, tiles_x, tiles_y, s, median=False
+        )
         image = out.features[:height, :width].clamp(0.0, 1.0)
         alpha = 1.0 - out.transmittance[:height, :width]
     return image.cpu().numpy(), alpha.cpu().numpy()
@@ -198,19 +219,41 @@ def render_previews(
     *,
     max_side: int,
     device: str = "cpu",
+    settings: RasterSettings = PREVIEW_RASTER,
+    threads: int | None = PREVIEW_THREADS,
 ) -> list[Preview]:
     """One preview per task of `result` (in task order), rendered from the scene's frames.
 
     One renderer serves every task, and each task's view is composited once, with six channels:
     the tinted colours and the flat label colours (two renders per task before; at 400 k
-    Gaussians each CPU render of a preview takes seconds)."""
-    from ..render.renderer import GaussianRenderer
+    Gaussians each CPU render of a preview takes seconds). `settings` are the rasterisation
+    constants (`PREVIEW_RASTER` by default); torch runs with `threads` intra-op threads meanwhile
+    (its previous setting is restored)."""
+    import torch
 
     if not frames:
         return []
+    previous = torch.get_num_threads()
+    if threads is not None:
+        torch.set_num_threads(threads)
+    try:
+        return _render_previews(
+            result, gaussians, frames, max_side=max_side, device=device, settings=settings
+        )
+    finally:
+        torch.set_num_threads(previous)
+
+
+def _render_previews(
+    result: Result, gaussians: Gaussians, frames: list[Frame], *, max_side: int, device: str,
+    settings: RasterSettings,
+) -> list[Preview]:  # fmt: skip
+    """`render_previews` once torch's threads are set."""
+    from ..render.renderer import GaussianRenderer
+
     ids = np.asarray(result.object_ids)
     base = base_colours(gaussians)
-    renderer = GaussianRenderer(gaussians, device=device, backend="torch")
+    renderer = GaussianRenderer(gaussians, device=device, backend="torch", settings=settings)
     background = np.array([0.08, 0.08, 0.1], dtype=np.float32)
     previews = []
     for t, task in enumerate(result.tasks):

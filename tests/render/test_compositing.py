@@ -125,3 +125,24 @@ def test_depth_only_matches_the_full_render() -> None:
     empty = full.alpha < 1e-6
     assert empty.any()
     np.testing.assert_allclose(full.rgb[empty], 0.5, atol=1e-5)
+
+
+def test_skipping_the_median_leaves_features_and_transmittance_unchanged() -> None:
+    import torch
+
+    from bayesian_fields_core.render.composite import composite
+    from bayesian_fields_core.render.projection import project
+    from bayesian_fields_core.render.tiles import bin_gaussians
+
+    rng = np.random.default_rng(5)
+    means = np.stack([rng.uniform(-1, 1, 300), rng.uniform(-0.7, 0.7, 300), rng.uniform(2, 5, 300)], axis=1)
+    g = make_gaussians(means, 0.05, opacities=0.8, colours=rng.uniform(0, 1, (300, 3)))
+    r = GaussianRenderer(g, device="cpu", backend="torch")
+    s = r.settings
+    proj = project(r.means, r.cov3d, r.opacities, torch.tensor(K), torch.eye(4, dtype=torch.float64), W, H, s)
+    tx, ty = (W + s.tile_size - 1) // s.tile_size, (H + s.tile_size - 1) // s.tile_size
+    bins = bin_gaussians(proj.rect, proj.depth, tx, tx * ty)
+    args = (proj.xy, proj.conic, proj.opacity, proj.depth, proj.depth[:, None], bins, tx, ty, s)
+    full, lean = composite(*args), composite(*args, median=False)
+    assert torch.equal(full.features, lean.features) and torch.equal(full.transmittance, lean.transmittance)
+    assert full.median_depth.max() > 0 and not lean.median_depth.any()

@@ -117,3 +117,25 @@ def test_no_previews_without_frames(tmp_path: Path, scene, gt_result: Result) ->
     summary = json.loads((tmp_path / "r" / "summary.json").read_text())
     assert summary["previews"] == {"tasks": [], "contact_sheet": None}
     assert not (tmp_path / "r" / "previews").exists()
+
+
+def test_preview_settings_match_the_renderer_defaults_and_restore_threads(scene, gt_result: Result) -> None:
+    """The previews' own rasterisation (8-px tiles, faint-tile cull, one thread) gives the images
+    of the renderer's defaults up to a rare grey level, picks the same views, and leaves torch's
+    thread count as it found it."""
+    import torch
+
+    from bayesian_fields_core.render.output import RasterSettings
+    from bayesian_fields_core.results.previews import render_previews
+
+    before = torch.get_num_threads()
+    fast = render_previews(gt_result, scene.gaussians, scene.frames, max_side=160)
+    assert torch.get_num_threads() == before
+    ref = render_previews(gt_result, scene.gaussians, scene.frames, max_side=160, settings=RasterSettings(),
+                          threads=None)  # fmt: skip
+    for a, b in zip(fast, ref, strict=True):
+        assert a.frame == b.frame
+        pa = np.asarray(Image.open(io.BytesIO(a.png)).convert("RGB")).astype(int)
+        pb = np.asarray(Image.open(io.BytesIO(b.png)).convert("RGB")).astype(int)
+        d = np.abs(pa - pb)
+        assert d.max() <= 2 and d.mean() < 0.01

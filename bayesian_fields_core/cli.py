@@ -229,6 +229,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
         lerf_views=args.lerf_views,
         seeds=args.seeds,
         not_found_curve=args.not_found_curve,
+        suite=args.suite,
     )
     return 0
 
@@ -406,11 +407,20 @@ def build_parser() -> argparse.ArgumentParser:
     gen.add_argument("extra", nargs=argparse.REMAINDER, help="options passed to the generator")
     gen.set_defaults(func=cmd_generate)
 
+    from .eval.synthetic.spec import SUITES
+
     ev = sub.add_parser("eval", help="evaluate the method, ablations and baselines on the synthetic suite")
     ev.add_argument(
         "--suite-dir", default="bench/_generated/suite", help="where suite scenes are generated/cached"
     )
     ev.add_argument("--out", default="bench/_generated/eval", help="where runs are written")
+    ev.add_argument(
+        "--suite",
+        choices=SUITES,
+        default="tabletop",
+        help="which synthetic suite: tabletop (orbiting cameras, whole objects) or capture "
+        "(handheld walks, close-ups, border cuts, occluders, one-sided labels, texture, clutter)",
+    )
     ev.add_argument("--scenes", type=_suite_count, default=5, help="number of suite scenes (3 to 5)")
     ev.add_argument("--profile", help="model profile YAML")
     ev.add_argument("--markdown", action="store_true", help="print the table as Markdown")

@@ -28,7 +28,7 @@ from ..results.reader import read_result
 from ..store import LocalStore
 from ..tasks import load_tasks
 from .baselines import BaselineParams, clio_style, semantic_gaussians
-from .bootstrap import paired_differences
+from .bootstrap import paired_differences, score_intervals
 from .clio import ClioScores, EstimatedObject, GTObject, TaskScores, clio_metrics, format_table
 from .lerf import LerfScores, format_lerf_table
 from .lerf_views import DEFAULT_VIEWS, LerfViews, prepare_views, score_map
@@ -40,6 +40,7 @@ from .not_found import (
     task_outcomes,
     tradeoff_curve,
 )
+from .tables import format_interval_table
 
 FULL = "Bayesian Fields (ours)"
 METHOD_ROWS: dict[str, dict[str, Any]] = {
@@ -121,13 +122,15 @@ def pool_scores(per_scene: list[ClioScores]) -> ClioScores:
     )
 
 
-def prepare_scenes(suite_dir: Path, n_scenes: int, seeds: Sequence[int] | None = None) -> list[SceneCase]:
-    """Generate (once; cached on disk) the suite's scenes and read their tasks and GT.
+def prepare_scenes(
+    suite_dir: Path, n_scenes: int, seeds: Sequence[int] | None = None, suite: str = "tabletop"
+) -> list[SceneCase]:
+    """Generate (once; cached on disk) the named suite's scenes and read their tasks and GT.
 
     With `seeds`, the re-seeded held-out variants of the first ``len(seeds)`` scenes instead."""
     from .synthetic import generate_scene, load_clio_boxes, suite_specs
 
-    specs = suite_specs(seeds) if seeds else suite_specs()[:n_scenes]
+    specs = suite_specs(seeds, suite=suite) if seeds else suite_specs(suite=suite)[:n_scenes]
     cases = []
     for spec in specs:
         folder = suite_dir / spec.name
@@ -249,12 +252,14 @@ def run_suite(
     lerf_views: int = DEFAULT_VIEWS,
     seeds: Sequence[int] | None = None,
     not_found_curve: bool = False,
+    suite: str = "tabletop",
 ) -> dict[str, ClioScores]:
     """Generate the suite, evaluate every row on every scene, print the pooled Table 1, the
     "not found" columns and, unless `lerf_views=0`, the LeRF table. `seeds` evaluates on held-out
-    re-seeded scenes; `not_found_curve` adds the rule's threshold trade-off curve."""
+    re-seeded scenes; `not_found_curve` adds the rule's threshold trade-off curve; `suite` names
+    the suite ("tabletop", or "capture": handheld-capture effects, `synthetic/capture.py`)."""
     models = load_models(profile)
-    cases = prepare_scenes(suite_dir, n_scenes, seeds)
+    cases = prepare_scenes(suite_dir, n_scenes, seeds, suite)
     per_row: dict[str, list[ClioScores]] = {}
     lerf_rows: dict[str, dict[str, LerfScores]] = {}
     outcomes: dict[str, list[TaskOutcome]] = {}
@@ -269,8 +274,17 @@ def run_suite(
             outcomes.setdefault(row, []).extend(task_list)
     pooled = {row: pool_scores(scores) for row, scores in per_row.items()}
     print()
-    print(f"Synthetic suite: {len(cases)} scenes, {pooled[FULL].num_gt} (task, GT object) pairs")
+    kind = "held-out" if seeds else "public"
+    print(
+        f"Synthetic suite {suite!r} ({kind} seeds): {len(cases)} scenes "
+        f"({', '.join(c.name for c in cases)}), {pooled[FULL].num_gt} (task, GT object) pairs"
+    )
     print(format_table(pooled, markdown=markdown))
+    print()
+    n_tasks = len(pooled[FULL].per_task)
+    print(f"The same scores with 95% intervals (bootstrap over the {n_tasks} tasks):")
+    intervals = {row.strip(): score_intervals(scores) for row, scores in pooled.items()}
+    print(format_interval_table(intervals, markdown=markdown))
     print()
     print(f"Full method minus each row, paired bootstrap over the {len(pooled[FULL].per_task)} tasks (95%):")
     for row, scores in pooled.items():

@@ -230,6 +230,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
         seeds=args.seeds,
         not_found_curve=args.not_found_curve,
         suite=args.suite,
+        breakdown=args.breakdown,
     )
     return 0
 
@@ -442,6 +443,12 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="also print the 'not found' trade-off curve: threshold vs absent tasks answered "
         "'not found' and recall lost on present ones",
+    )
+    ev.add_argument(
+        "--breakdown",
+        action="store_true",
+        help="also print why GT objects were missed (merged neighbours, split objects, wrong "
+        "instance, missed), per task for the full method and per task family for each row",
     )
     clio = ev.add_argument_group(
         "one scene with Clio-format ground truth (README: Table 1 on the Clio datasets)"

@@ -119,9 +119,9 @@ def test_border_cuts_put_an_object_on_the_image_border(capture_scene: SyntheticS
     assert on_border >= len(cut) // 2
 
 
-def test_occluders_hide_parts_of_objects(capture_scene: SyntheticScene) -> None:
-    scene = capture_scene
-    spec = scene.spec.model_copy(update={"width": 64, "height": 48})
+def test_occluders_hide_parts_of_objects() -> None:
+    scene = build_scene(suite_specs(suite="capture")[2].model_copy(update=LIGHT))
+    spec = scene.spec.model_copy(update={"width": 80, "height": 60})
     frames = capture_frames(spec, scene)
     occluders = [i.id for i in scene.instances if i.name == "occluder"]
     assert len(occluders) == spec.n_occluders

@@ -79,40 +79,31 @@ def _box_piece(
 
 
 def occluder_pieces(spec: SceneSpec, rng: np.random.Generator) -> list[_Piece]:
-    """`spec.n_occluders` posts and cabinets in the ring between the table and the cameras.
+    """`spec.n_occluders` furniture pieces standing just outside the table's edge.
 
-    They stand outside the table (so nothing on it is moved) and inside the orbit (so orbit
-    cameras never sit in one); alternately a tall thin post that hides a slice of the table from
-    the cameras behind it, and a low cabinet that hides the near objects from low views.
+    Alternately a tall post (a shelf upright or floor lamp, taller than the cameras) and a
+    chair-back-like panel facing the table, 0.1-0.3 m beyond the edge: a camera on the far side
+    of one sees the near objects partly hidden. They stay inside the orbit (orbit cameras never
+    stand in one); walk cameras that would are moved out (`_push_out_of_boxes`).
     """
     table_half = np.array(spec.table_size) / 2
     pieces = []
     for i in range(spec.n_occluders):
         post = i % 2 == 0
         half = (
-            np.array([0.05, 0.05, rng.uniform(0.6, 0.8)])
+            np.array([0.06, 0.06, rng.uniform(0.8, 0.95)])
             if post
-            else np.array([rng.uniform(0.12, 0.2), rng.uniform(0.15, 0.25), rng.uniform(0.4, 0.47)])
+            else np.array([rng.uniform(0.2, 0.28), 0.04, rng.uniform(0.5, 0.6)])
         )
-        for _ in range(200):
-            angle = rng.uniform(0.0, 2 * np.pi)
-            radius = rng.uniform(table_half[0] + 0.15, spec.orbit_radius - 0.35)
-            xy = radius * np.array([np.cos(angle), np.sin(angle)])
-            reach = np.hypot(half[0], half[1])
-            if np.any(np.abs(xy) > table_half + reach + 0.08):
-                break
+        angle = rng.uniform(0.0, 2 * np.pi)
+        ray = np.array([np.cos(angle), np.sin(angle)])
+        to_edge = float(np.min(table_half / np.maximum(np.abs(ray), 1e-9)))
+        xy = (to_edge + rng.uniform(0.1, 0.3) + half[1]) * ray
+        # A panel faces the table centre (its thin axis radial); a post is turned at random.
+        yaw = float(angle + np.pi / 2) if not post else float(rng.uniform(0, np.pi))
         colour = np.asarray(NEUTRALS["metal"] if post else NEUTRALS["wood"]) * rng.uniform(0.8, 1.2)
         pieces.append(
-            _box_piece(
-                "occluder",
-                half,
-                xy,
-                0.0,
-                float(rng.uniform(0, np.pi)),
-                np.clip(colour, 0, 1),
-                spec.table_density * 2,
-                rng,
-            )
+            _box_piece("occluder", half, xy, 0.0, yaw, np.clip(colour, 0, 1), spec.table_density * 2, rng)
         )
     return pieces
 
@@ -277,14 +268,17 @@ def _object_centres(scene: SyntheticScene) -> np.ndarray:
 
 
 def _push_out_of_boxes(eye: np.ndarray, scene: SyntheticScene, margin: float = 0.15) -> np.ndarray:
-    """Lift an eye that stands inside (or too near) an occluder above its top."""
+    """Move an eye that stands inside (or too near) an occluder sideways, out of it."""
     for inst in scene.instances:
         if inst.name != "occluder":
             continue
         local = inst.rotation.T @ (eye - inst.center)
-        if np.all(np.abs(local) <= inst.extents / 2 + margin):
-            eye = eye.copy()
-            eye[2] = inst.center[2] + inst.extents[2] / 2 + margin
+        reach = inst.extents / 2 + margin
+        if np.all(np.abs(local) <= reach):
+            # Out through the nearer vertical side.
+            axis = int(np.argmin((reach - np.abs(local))[:2]))
+            local[axis] = np.copysign(reach[axis], local[axis] if local[axis] != 0 else 1.0)
+            eye = inst.center + inst.rotation @ local
     return eye
 
 
@@ -302,7 +296,8 @@ def walk_frames(
     lo, hi = np.log(spec.walk_distance[0]), np.log(spec.walk_distance[1])
     distance = np.exp(lo + (hi - lo) * _smooth(rng, n))
     azimuth = rng.uniform(0, 2 * np.pi) + 2 * np.pi * np.arange(n) / n + rng.normal(0, 0.05, n)
-    elevation = np.deg2rad(15.0 + 50.0 * _smooth(rng, n))
+    low, high = spec.walk_elevation_deg
+    elevation = np.deg2rad(low + (high - low) * _smooth(rng, n))
     half_room = spec.room_size / 2 - 0.1
     K = pinhole(spec.width, spec.height, spec.fov_deg)
     frames = []

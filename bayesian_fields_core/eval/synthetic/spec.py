@@ -72,6 +72,7 @@ class SceneSpec(BaseModel):
         "orbit", description="orbit: the ring above; walk: a handheld path at varying distance and height"
     )
     walk_distance: tuple[float, float] = (0.3, 2.2)
+    walk_elevation_deg: tuple[float, float] = (10.0, 45.0)
     border_cut_share: float = Field(
         0.0, ge=0, le=1, description="share of frames re-aimed so an object is cut by the image border"
     )
@@ -121,6 +122,7 @@ class SceneSpec(BaseModel):
 CAPTURE_FIELDS: tuple[str, ...] = (
     "trajectory",
     "walk_distance",
+    "walk_elevation_deg",
     "border_cut_share",
     "n_occluders",
     "n_clutter",

@@ -90,7 +90,7 @@ def test_walk_varies_distance_with_close_ups_and_far_views(capture_scene: Synthe
     assert max(nearest) / min(nearest) > 3
     ids = IdImageRenderer(capture_scene.gaussians, capture_scene.instance_ids)
     largest = _object_shares(capture_scene, frames, ids).max(axis=1)
-    assert largest.max() > 0.25  # a close-up: one object fills a quarter of the frame or more
+    assert largest.max() > 0.2  # a close-up: one object fills a fifth of the frame or more
     assert largest.min() < 0.05  # a far view: the largest object is small
     orbit = build_scene(SMALL)
     orbit_frames = capture_frames(SMALL, orbit)
@@ -189,9 +189,10 @@ def test_clutter_is_on_the_table_and_never_a_task(capture_scene: SyntheticScene)
     assert not {c.id for c in clutter} & {i for t in tasks for i in t.instance_ids}
 
 
-def test_texture_makes_the_segmenter_mix_and_cut_more_regions() -> None:
-    """Measured on capture-a's walk (8 frames, no clutter): stripes give more segments, and more
-    segments that mix two instances (under-segmentation), than flat colours."""
+def test_texture_makes_the_segmenter_split_objects_and_mix_regions() -> None:
+    """Measured on capture-a's walk (8 frames, no clutter): with stripes the classical segmenter
+    splits more objects into several large segments (over-segmentation) and makes more segments
+    that mix two instances (under-segmentation) than with flat colours."""
     counts = {}
     for texture in ("flat", "stripes"):
         spec = suite_specs(suite="capture")[0].model_copy(
@@ -201,17 +202,22 @@ def test_texture_makes_the_segmenter_mix_and_cut_more_regions() -> None:
         renderer = GaussianRenderer(scene.gaussians)
         ids = IdImageRenderer(scene.gaussians, scene.instance_ids)
         segmenter = ClassicalSegmenter()
-        segments = mixed = 0
+        objects = [i.id for i in scene.instances if i.category == "object"]
+        split = mixed = 0
         for f in capture_frames(spec, scene):
             rgb = to_uint8(renderer.render(f.K, f.world_to_camera, f.width, f.height).rgb)
             labels = segmenter.segment(rgb)
             id_image = ids.render(f.K, f.world_to_camera, f.width, f.height)
+            for o in objects:
+                mask = id_image == o
+                if mask.sum() >= 200:
+                    _, c = np.unique(labels[mask], return_counts=True)
+                    split += int((c >= 0.15 * mask.sum()).sum() >= 2)
             for s in np.unique(labels[labels >= 0]):
                 _, c = np.unique(id_image[labels == s], return_counts=True)
-                segments += 1
                 mixed += int((c >= 0.15 * c.sum()).sum() >= 2)
-        counts[texture] = (segments, mixed)
-    assert counts["stripes"][0] > counts["flat"][0], counts
+        counts[texture] = (split, mixed)
+    assert counts["stripes"][0] >= 2 * counts["flat"][0] > 0, counts
     assert counts["stripes"][1] > 1.1 * counts["flat"][1], counts
 
 

@@ -81,8 +81,8 @@ class SceneSpec(BaseModel):
     texture: Literal["flat", "stripes"] = Field(
         "flat", description="stripes: banded objects and a checkered room instead of flat colours"
     )
-    texture_period: float = Field(0.03, gt=0, description="stripe width (m); the room's checker is 4x")
-    texture_contrast: float = Field(0.35, ge=0, lt=1, description="darkening of the dark stripes")
+    texture_period: float = Field(0.04, gt=0, description="stripe width (m); the room's checker is 4x")
+    texture_contrast: float = Field(0.6, ge=0, lt=1, description="darkening of the dark stripes")
     n_labelled: int = Field(
         0, ge=0, description="objects with a coloured label on one side, and a task naming it"
     )

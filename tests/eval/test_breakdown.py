@@ -66,3 +66,15 @@ def test_score_intervals_bracket_the_pooled_value_and_shrink_with_agreement() ->
     assert score_intervals(scores([1] * 40))["strict_osr"].low == 1.0
     table = format_interval_table({"full": mixed})
     assert "0.50 [" in table and "1.00 [1.00, 1.00]" in table
+
+
+def test_eval_command_selects_the_suite_by_name() -> None:
+    import pytest
+
+    from bayesian_fields_core.cli import build_parser
+
+    args = build_parser().parse_args(["eval", "--suite", "capture", "--breakdown", "--seeds", "7,8,9"])
+    assert (args.suite, args.breakdown, args.seeds) == ("capture", True, [7, 8, 9])
+    assert build_parser().parse_args(["eval"]).suite == "tabletop"
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["eval", "--suite", "kitchen"])

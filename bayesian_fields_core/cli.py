@@ -229,6 +229,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
         lerf_views=args.lerf_views,
         seeds=args.seeds,
         not_found_curve=args.not_found_curve,
+        suite=args.suite,
+        breakdown=args.breakdown,
     )
     return 0
 
@@ -406,11 +408,20 @@ def build_parser() -> argparse.ArgumentParser:
     gen.add_argument("extra", nargs=argparse.REMAINDER, help="options passed to the generator")
     gen.set_defaults(func=cmd_generate)
 
+    from .eval.synthetic.spec import SUITES
+
     ev = sub.add_parser("eval", help="evaluate the method, ablations and baselines on the synthetic suite")
     ev.add_argument(
         "--suite-dir", default="bench/_generated/suite", help="where suite scenes are generated/cached"
     )
     ev.add_argument("--out", default="bench/_generated/eval", help="where runs are written")
+    ev.add_argument(
+        "--suite",
+        choices=SUITES,
+        default="tabletop",
+        help="which synthetic suite: tabletop (orbiting cameras, whole objects) or capture "
+        "(handheld walks, close-ups, border cuts, occluders, one-sided labels, texture, clutter)",
+    )
     ev.add_argument("--scenes", type=_suite_count, default=5, help="number of suite scenes (3 to 5)")
     ev.add_argument("--profile", help="model profile YAML")
     ev.add_argument("--markdown", action="store_true", help="print the table as Markdown")
@@ -432,6 +443,12 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="also print the 'not found' trade-off curve: threshold vs absent tasks answered "
         "'not found' and recall lost on present ones",
+    )
+    ev.add_argument(
+        "--breakdown",
+        action="store_true",
+        help="also print why GT objects were missed (merged neighbours, split objects, wrong "
+        "instance, missed), per task for the full method and per task family for each row",
     )
     clio = ev.add_argument_group(
         "one scene with Clio-format ground truth (README: Table 1 on the Clio datasets)"

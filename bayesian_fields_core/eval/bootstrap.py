@@ -62,3 +62,43 @@ def paired_differences(
             float(point), float(np.quantile(diff, tail)), float(np.quantile(diff, 1 - tail)), level
         )
     return out
+
+
+@dataclass(frozen=True)
+class Interval:
+    """A metric's pooled value with its task-bootstrap percentile interval (`low`, `high`)."""
+
+    value: float
+    low: float
+    high: float
+
+    def __str__(self) -> str:
+        return f"{self.value:.2f} [{self.low:.2f}, {self.high:.2f}]"
+
+
+def score_intervals(
+    scores: ClioScores, *, samples: int = 4000, level: float = 0.95, seed: int = 0
+) -> dict[str, Interval]:
+    """Strict-osR, Relaxed-osR and IoU of one row with intervals from resampling whole tasks.
+
+    The same resampling unit as `paired_differences`: a task's (task, GT) pairs move together,
+    because one task's answers share a text query and are not independent.
+    """
+    keys = sorted(scores.per_task)
+    if not keys:
+        raise InputError("no per-task scores to resample")
+    units = np.array(
+        [[s.strict, s.relaxed, s.iou_sum, s.num_gt] for s in (scores.per_task[k] for k in keys)], float
+    )
+    draws = np.random.default_rng(seed).integers(0, len(keys), size=(samples, len(keys)))
+    gt = np.maximum(units[draws, 3].sum(axis=1), 1.0)
+    tail = (1 - level) / 2
+    out: dict[str, Interval] = {}
+    for name, col in (("strict_osr", 0), ("relaxed_osr", 1), ("iou", 2)):
+        resampled = units[draws, col].sum(axis=1) / gt
+        out[name] = Interval(
+            float(units[:, col].sum() / units[:, 3].sum()),
+            float(np.quantile(resampled, tail)),
+            float(np.quantile(resampled, 1 - tail)),
+        )
+    return out

@@ -28,7 +28,8 @@ from ..results.reader import read_result
 from ..store import LocalStore
 from ..tasks import load_tasks
 from .baselines import BaselineParams, clio_style, semantic_gaussians
-from .bootstrap import paired_differences
+from .bootstrap import paired_differences, score_intervals
+from .breakdown import SceneInstance, TaskBreakdown, format_breakdown, task_breakdowns
 from .clio import ClioScores, EstimatedObject, GTObject, TaskScores, clio_metrics, format_table
 from .lerf import LerfScores, format_lerf_table
 from .lerf_views import DEFAULT_VIEWS, LerfViews, prepare_views, score_map
@@ -40,6 +41,7 @@ from .not_found import (
     task_outcomes,
     tradeoff_curve,
 )
+from .tables import format_interval_table
 
 FULL = "Bayesian Fields (ours)"
 METHOD_ROWS: dict[str, dict[str, Any]] = {
@@ -60,6 +62,7 @@ class SceneEvaluation:
     clio: dict[str, ClioScores]
     lerf: dict[str, LerfScores]
     not_found: dict[str, list[TaskOutcome]] = field(default_factory=dict)
+    breakdown: dict[str, list[TaskBreakdown]] = field(default_factory=dict)
 
 
 @dataclass
@@ -70,6 +73,7 @@ class SceneCase:
     folder: Path
     tasks: list[str]
     ground_truth: list[GTObject]
+    instances: list[SceneInstance] = field(default_factory=list)  # objects and clutter
 
 
 def estimates_from_selection(
@@ -121,13 +125,16 @@ def pool_scores(per_scene: list[ClioScores]) -> ClioScores:
     )
 
 
-def prepare_scenes(suite_dir: Path, n_scenes: int, seeds: Sequence[int] | None = None) -> list[SceneCase]:
-    """Generate (once; cached on disk) the suite's scenes and read their tasks and GT.
+def prepare_scenes(
+    suite_dir: Path, n_scenes: int, seeds: Sequence[int] | None = None, suite: str = "tabletop"
+) -> list[SceneCase]:
+    """Generate (once; cached on disk) the named suite's scenes and read their tasks and GT.
 
     With `seeds`, the re-seeded held-out variants of the first ``len(seeds)`` scenes instead."""
-    from .synthetic import generate_scene, load_clio_boxes, suite_specs
+    from ..objects.obb import OrientedBox
+    from .synthetic import generate_scene, load_clio_boxes, load_ground_truth, suite_specs
 
-    specs = suite_specs(seeds) if seeds else suite_specs()[:n_scenes]
+    specs = suite_specs(seeds, suite=suite) if seeds else suite_specs(suite=suite)[:n_scenes]
     cases = []
     for spec in specs:
         folder = suite_dir / spec.name
@@ -139,6 +146,11 @@ def prepare_scenes(suite_dir: Path, n_scenes: int, seeds: Sequence[int] | None =
                 folder=folder,
                 tasks=load_tasks(folder / "tasks.yaml"),
                 ground_truth=load_clio_boxes(folder),
+                instances=[
+                    SceneInstance(i.name, OrientedBox(i.center, i.rotation, i.extents))
+                    for i in load_ground_truth(folder).instances
+                    if i.category == "object" or i.name == "clutter"
+                ],
             )
         )
     return cases
@@ -161,6 +173,7 @@ def evaluate_scene(
     rows: dict[str, ClioScores] = {}
     lerf: dict[str, LerfScores] = {}
     not_found: dict[str, list[TaskOutcome]] = {}
+    breakdown: dict[str, list[TaskBreakdown]] = {}
     views: LerfViews | None = None
     perceive_s = 0.0
     visibility_s = 0.0
@@ -203,6 +216,7 @@ def evaluate_scene(
         }
         estimates = estimates_from_selection(case.tasks, selection)
         rows[row] = clio_metrics(estimates, case.ground_truth, num_objects=result.num_objects, time_s=seconds)
+        breakdown[row] = task_breakdowns(case.name, case.tasks, estimates, case.ground_truth, case.instances)
         best = {task: objs[0].peak if objs else None for task, objs in result.selections.items()}
         not_found[row] = task_outcomes(case.tasks, rows[row], best)
         if views is not None:
@@ -230,7 +244,7 @@ def evaluate_scene(
             lerf[row] = score_map(views, case.tasks, object_map.object_ids, object_map.task_scores)
         not_found[row] = []  # no per-view peak: the rule does not apply
         log(_row_line(case.name, row, rows[row], lerf.get(row)))
-    return SceneEvaluation(clio=rows, lerf=lerf, not_found=not_found)
+    return SceneEvaluation(clio=rows, lerf=lerf, not_found=not_found, breakdown=breakdown)
 
 
 def _row_line(scene: str, row: str, scores: ClioScores, lerf: LerfScores | None) -> str:
@@ -249,15 +263,21 @@ def run_suite(
     lerf_views: int = DEFAULT_VIEWS,
     seeds: Sequence[int] | None = None,
     not_found_curve: bool = False,
+    suite: str = "tabletop",
+    breakdown: bool = False,
 ) -> dict[str, ClioScores]:
     """Generate the suite, evaluate every row on every scene, print the pooled Table 1, the
     "not found" columns and, unless `lerf_views=0`, the LeRF table. `seeds` evaluates on held-out
-    re-seeded scenes; `not_found_curve` adds the rule's threshold trade-off curve."""
+    re-seeded scenes; `not_found_curve` adds the rule's threshold trade-off curve; `suite` names
+    the suite ("tabletop", or "capture": handheld-capture effects, `synthetic/capture.py`);
+    `breakdown` adds why each method row missed GT objects (`breakdown.py`), per task for the full
+    method."""
     models = load_models(profile)
-    cases = prepare_scenes(suite_dir, n_scenes, seeds)
+    cases = prepare_scenes(suite_dir, n_scenes, seeds, suite)
     per_row: dict[str, list[ClioScores]] = {}
     lerf_rows: dict[str, dict[str, LerfScores]] = {}
     outcomes: dict[str, list[TaskOutcome]] = {}
+    causes: dict[str, list[TaskBreakdown]] = {}
     for case in cases:
         print(f"scene {case.name}: {len(case.tasks)} tasks, {len(case.ground_truth)} GT objects")
         scene_eval = evaluate_scene(case, models, out_dir, base_params=base_params, lerf_views=lerf_views)
@@ -267,10 +287,21 @@ def run_suite(
             lerf_rows.setdefault(row, {})[case.name] = lerf
         for row, task_list in scene_eval.not_found.items():
             outcomes.setdefault(row, []).extend(task_list)
+        for row, task_causes in scene_eval.breakdown.items():
+            causes.setdefault(row, []).extend(task_causes)
     pooled = {row: pool_scores(scores) for row, scores in per_row.items()}
     print()
-    print(f"Synthetic suite: {len(cases)} scenes, {pooled[FULL].num_gt} (task, GT object) pairs")
+    kind = "held-out" if seeds else "public"
+    print(
+        f"Synthetic suite {suite!r} ({kind} seeds): {len(cases)} scenes "
+        f"({', '.join(c.name for c in cases)}), {pooled[FULL].num_gt} (task, GT object) pairs"
+    )
     print(format_table(pooled, markdown=markdown))
+    print()
+    n_tasks = len(pooled[FULL].per_task)
+    print(f"The same scores with 95% intervals (bootstrap over the {n_tasks} tasks):")
+    intervals = {row.strip(): score_intervals(scores) for row, scores in pooled.items()}
+    print(format_interval_table(intervals, markdown=markdown))
     print()
     print(f"Full method minus each row, paired bootstrap over the {len(pooled[FULL].per_task)} tasks (95%):")
     for row, scores in pooled.items():
@@ -281,6 +312,8 @@ def run_suite(
         print(f"  {row.strip():<56} strict {diff['strict_osr']}  IoU {diff['iou']}  {marks}")
     print("  (* = the interval excludes 0)")
     print_not_found(outcomes, base_params, markdown=markdown, curve=not_found_curve)
+    if breakdown:
+        print_breakdown(causes, markdown=markdown)
     if lerf_rows:
         queries = sum(s.num_queries for s in lerf_rows[FULL].values())
         print()
@@ -291,6 +324,16 @@ def run_suite(
             )
         )
     return pooled
+
+
+def print_breakdown(causes: dict[str, list[TaskBreakdown]], *, markdown: bool = False) -> None:
+    """Why GT objects were missed: per task for the full method, per task family for every row."""
+    for row, rows in causes.items():
+        print()
+        print(
+            f"Causes per (task, GT object), {row.strip()} (breakdown.py: merged = a neighbour inside the answer):"
+        )
+        print(format_breakdown(rows, markdown=markdown, per_task=row == FULL))
 
 
 def print_not_found(

@@ -21,3 +21,13 @@ def render_table(header: Sequence[str], rows: Sequence[Sequence[str]], *, markdo
         return "  ".join([cells[0].ljust(widths[0]), *rest])
 
     return "\n".join([fmt(header), "-" * len(fmt(header)), *(fmt(r) for r in rows)])
+
+
+def format_interval_table(
+    rows: dict[str, dict[str, object]], *, level: float = 0.95, markdown: bool = False
+) -> str:
+    """Table 1's scores with their intervals: one row per method, one "value [low, high]" cell
+    per metric (strict_osr, relaxed_osr, iou), as `bootstrap.score_intervals` gives them."""
+    header = ["Method", f"Strict-osR ({level:.0%} CI)", "Relaxed-osR", "IoU"]
+    body = [[name, str(m["strict_osr"]), str(m["relaxed_osr"]), str(m["iou"])] for name, m in rows.items()]
+    return render_table(header, body, markdown=markdown)

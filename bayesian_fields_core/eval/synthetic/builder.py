@@ -8,11 +8,13 @@ contain all of their Gaussians' centres by construction.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from bayesian_fields_core.eval.synthetic import capture
+from bayesian_fields_core.eval.synthetic.capture import Label
 from bayesian_fields_core.eval.synthetic.spec import SceneSpec
 from bayesian_fields_core.eval.vocabulary import COLOURS, KINDS, NEUTRALS, Part, object_name, sample_part
 from bayesian_fields_core.scene.types import Gaussians, sh_coefficient_count
@@ -37,6 +39,7 @@ class Instance:
     rotation: np.ndarray
     extents: np.ndarray
     n_gaussians: int
+    label: str | None = None  # colour of its label patch (capture.add_labels), None without one
 
 
 @dataclass
@@ -48,6 +51,8 @@ class SyntheticScene:
     instance_ids: np.ndarray  # (N,) int32
     instances: list[Instance]
     table_top_center: np.ndarray  # (3,) the point cameras look at
+    labels: list[Label] = field(default_factory=list)
+    label_gaussians: np.ndarray | None = None  # (N,) bool: the label patches' Gaussians
 
 
 def _yaw(angle: float) -> np.ndarray:
@@ -122,6 +127,7 @@ class _Piece:
     rgb: np.ndarray
     density: float
     frame_rotation: np.ndarray  # the instance frame used for its oriented box
+    origin: np.ndarray = field(default_factory=lambda: np.zeros(3))  # its local frame's origin
 
 
 def _sample_parts(
@@ -259,6 +265,7 @@ def _object_pieces(spec: SceneSpec, rng: np.random.Generator) -> list[_Piece]:
                 rgb,
                 spec.object_density,
                 rot,
+                offset,
             )
         )
     return pieces
@@ -276,7 +283,18 @@ def oriented_box(
 def build_scene(spec: SceneSpec) -> SyntheticScene:
     """The scene's Gaussians (room first, then objects) and its ground-truth instances."""
     rng = np.random.default_rng(spec.seed)
-    pieces = _room_pieces(spec, rng) + _object_pieces(spec, rng)
+    room = _room_pieces(spec, rng)
+    objects = _object_pieces(spec, rng)
+    # Capture effects draw from their own stream: with them off, nothing above or below changes.
+    capture_rng = np.random.default_rng([spec.seed, 3])
+    pieces = (
+        room
+        + objects
+        + capture.occluder_pieces(spec, capture_rng)
+        + capture.clutter_pieces(spec, capture_rng, objects)
+    )
+    capture.apply_texture(spec, pieces, capture_rng)
+    labelled = capture.add_labels(spec, pieces, capture_rng, first_object=len(room))
     points = np.concatenate([p.points for p in pieces])
     normals = np.concatenate([p.normals for p in pieces])
     rgb = np.concatenate([p.rgb for p in pieces])
@@ -285,6 +303,22 @@ def build_scene(spec: SceneSpec) -> SyntheticScene:
     )
     ids = np.repeat(np.arange(len(pieces), dtype=np.int32), [len(p.points) for p in pieces])
     gaussians = surfels_to_gaussians(points, normals, rgb, sigma, spec, rng)
+    starts = np.concatenate([[0], np.cumsum([len(p.points) for p in pieces])])
+    label_of: dict[int, str] = {}
+    labels: list[Label] = []
+    label_gaussians = np.zeros(len(points), dtype=bool) if labelled else None
+    for index, colour, normal, mask in labelled:
+        rows = starts[index] + np.flatnonzero(mask)
+        shade = lambert(normals[rows], spec)[:, None]
+        label_rgb = np.asarray(COLOURS[colour]) * shade
+        object_rgb = gaussians.sh[rows, 0, :].astype(np.float64) * SH_C0 + 0.5
+        f_dc, f_rest = capture.label_sh(object_rgb, label_rgb, normal, spec.label_half_angle_deg)
+        gaussians.sh[rows, 0, :] = f_dc
+        gaussians.sh[rows, 1:4, :] = f_rest
+        label_of[index] = colour
+        labels.append(Label(index, colour, normal))
+        assert label_gaussians is not None
+        label_gaussians[rows] = True
     instances = []
     for i, piece in enumerate(pieces):
         centre, extents = oriented_box(gaussians.means[ids == i].astype(np.float64), piece.frame_rotation)
@@ -299,7 +333,8 @@ def build_scene(spec: SceneSpec) -> SyntheticScene:
                 piece.frame_rotation,
                 extents,
                 len(piece.points),
+                label_of.get(i),
             )
         )
     top = np.array([0.0, 0.0, spec.table_height])
-    return SyntheticScene(spec, gaussians, ids, instances, top)
+    return SyntheticScene(spec, gaussians, ids, instances, top, labels, label_gaussians)

@@ -6,11 +6,16 @@ written as COLMAP text and as nerfstudio transforms and read back identically.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from bayesian_fields_core.eval.synthetic.spec import SceneSpec
 from bayesian_fields_core.scene.geometry import intrinsics, rigid
 from bayesian_fields_core.scene.types import Frame
+
+if TYPE_CHECKING:
+    from bayesian_fields_core.eval.synthetic.builder import SyntheticScene
 
 
 def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = np.array([0.0, 0.0, 1.0])) -> np.ndarray:
@@ -59,3 +64,20 @@ def orbit_frames(
         )
         for i in range(n)
     ]
+
+
+def capture_frames(spec: SceneSpec, scene: SyntheticScene, prefix: str = "frame") -> list[Frame]:
+    """The scene's cameras: the orbit (default) or a handheld walk, then the border cuts.
+
+    Each draws from its own seeded stream ([seed, 1] as before for the path, [seed, 4] for the
+    cuts), so a default spec's cameras are the same as before the capture effects existed.
+    """
+    from bayesian_fields_core.eval.synthetic import capture
+
+    rng = np.random.default_rng([spec.seed, 1])
+    if spec.trajectory == "walk":
+        frames = capture.walk_frames(spec, scene, rng, prefix)
+    else:
+        frames = orbit_frames(spec, scene.table_top_center, rng, prefix)
+    capture.cut_at_border(frames, spec, scene, np.random.default_rng([spec.seed, 4]))
+    return frames

@@ -17,7 +17,7 @@ import yaml
 from PIL import Image
 
 from bayesian_fields_core.eval.synthetic.builder import build_scene
-from bayesian_fields_core.eval.synthetic.cameras import orbit_frames
+from bayesian_fields_core.eval.synthetic.cameras import capture_frames
 from bayesian_fields_core.eval.synthetic.ground_truth import write_ground_truth
 from bayesian_fields_core.eval.synthetic.spec import SceneSpec
 from bayesian_fields_core.eval.synthetic.tasks import make_tasks
@@ -42,7 +42,7 @@ def generate_scene(out_dir: str | Path, spec: SceneSpec | None = None, *, device
     out = Path(out_dir)
     (out / "images").mkdir(parents=True, exist_ok=True)
     scene = build_scene(spec)
-    frames = orbit_frames(spec, scene.table_top_center, np.random.default_rng([spec.seed, 1]))
+    frames = capture_frames(spec, scene)
     tasks = make_tasks(spec, scene.instances, np.random.default_rng([spec.seed, 2]))
     renderer = GaussianRenderer(scene.gaussians, device=device)
     for frame in frames:

@@ -73,6 +73,7 @@ def _box(instance: Instance) -> dict:
 
 
 def _instance_json(instance: Instance) -> dict:
+    label = {} if instance.label is None else {"label": instance.label}
     return {
         "id": instance.id,
         "name": instance.name,
@@ -81,7 +82,7 @@ def _instance_json(instance: Instance) -> dict:
         "category": instance.category,
         "n_gaussians": instance.n_gaussians,
         "box": _box(instance),
-    }
+    } | label
 
 
 def write_ground_truth(folder: Path, scene: SyntheticScene, tasks: list[TaskSpec]) -> None:
@@ -90,7 +91,7 @@ def write_ground_truth(folder: Path, scene: SyntheticScene, tasks: list[TaskSpec
     doc = {
         "format": FORMAT,
         "version": VERSION,
-        "spec": scene.spec.model_dump(mode="json"),
+        "spec": scene.spec.ground_truth_dump(),
         "num_gaussians": int(len(scene.gaussians)),
         "gaussians_file": GT_ARRAYS,
         "instances": [_instance_json(i) for i in scene.instances],

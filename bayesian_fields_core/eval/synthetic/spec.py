@@ -7,6 +7,7 @@ spec alone (the spec is written into ``gt.json``) and the eval suite is a list o
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
@@ -66,6 +67,29 @@ class SceneSpec(BaseModel):
     max_fine_tasks: int = Field(8, ge=0)
     max_coarse_tasks: int = Field(3, ge=0)
     n_absent_tasks: int = Field(1, ge=0)
+    # Capture effects (eval/synthetic/capture.py); the defaults switch them all off.
+    trajectory: Literal["orbit", "walk"] = Field(
+        "orbit", description="orbit: the ring above; walk: a handheld path at varying distance and height"
+    )
+    walk_distance: tuple[float, float] = (0.3, 2.2)
+    walk_elevation_deg: tuple[float, float] = (10.0, 45.0)
+    border_cut_share: float = Field(
+        0.0, ge=0, le=1, description="share of frames re-aimed so an object is cut by the image border"
+    )
+    n_occluders: int = Field(0, ge=0, le=8, description="posts and cabinets between cameras and table")
+    n_clutter: int = Field(0, ge=0, le=40, description="small neutral items on the table (never a task)")
+    texture: Literal["flat", "stripes"] = Field(
+        "flat", description="stripes: banded objects and a checkered room instead of flat colours"
+    )
+    texture_period: float = Field(0.04, gt=0, description="stripe width (m); the room's checker is 4x")
+    texture_contrast: float = Field(0.6, ge=0, lt=1, description="darkening of the dark stripes")
+    n_labelled: int = Field(
+        0, ge=0, description="objects with a coloured label on one side, and a task naming it"
+    )
+    label_half_angle_deg: float = Field(
+        50.0, gt=0, lt=90, description="the label reads as its colour within this angle of its normal"
+    )
+    label_size: float = Field(0.03, gt=0, description="half side of the label per unit object size (m)")
 
     @model_validator(mode="after")
     def _check(self) -> SceneSpec:
@@ -80,13 +104,42 @@ class SceneSpec(BaseModel):
             raise ValueError("orbit_radius must keep the cameras inside the room")
         if not self.orbit_heights:
             raise ValueError("orbit_heights must not be empty")
+        if self.n_labelled > 0 and self.sh_degree < 1:
+            raise ValueError("n_labelled > 0 needs sh_degree >= 1 (the label's colour is view-dependent)")
+        if not 0 < self.walk_distance[0] < self.walk_distance[1]:
+            raise ValueError("walk_distance must be (near, far) with 0 < near < far")
         return self
 
+    def ground_truth_dump(self) -> dict:
+        """The spec for gt.json: capture fields left at their defaults are omitted, so scenes made
+        before they existed keep byte-identical ground-truth files."""
+        skip = {
+            name for name in CAPTURE_FIELDS if getattr(self, name) == SceneSpec.model_fields[name].default
+        }
+        return self.model_dump(mode="json", exclude=skip)
 
+
+CAPTURE_FIELDS: tuple[str, ...] = (
+    "trajectory",
+    "walk_distance",
+    "walk_elevation_deg",
+    "border_cut_share",
+    "n_occluders",
+    "n_clutter",
+    "texture",
+    "texture_period",
+    "texture_contrast",
+    "n_labelled",
+    "label_half_angle_deg",
+    "label_size",
+)
 SUITE_SIZE = 5
 
 
-def suite_specs(seeds: Sequence[int] | None = None) -> list[SceneSpec]:
+SUITES: tuple[str, ...] = ("tabletop", "capture")
+
+
+def suite_specs(seeds: Sequence[int] | None = None, suite: str = "tabletop") -> list[SceneSpec]:
     """Five modest scenes (~35-60k Gaussians, 24-32 frames at 320x240) for ``bfields eval``.
 
     They differ in seed, clutter, colour reuse and grouping, so the suite exercises fine tasks
@@ -96,8 +149,13 @@ def suite_specs(seeds: Sequence[int] | None = None) -> list[SceneSpec]:
     objects, colours, placements and tasks) and renames them ``<name>-s<seed>``: held-out scenes
     for checking that a choice made while looking at the suite carries over to scenes it was
     not made on.
+
+    `suite` names the suite: "tabletop" (orbiting cameras, whole objects) or "capture" (the
+    handheld-capture effects of `capture_layouts`).
     """
-    specs = _suite_layouts()
+    if suite not in SUITES:
+        raise ValueError(f"unknown suite {suite!r}; known: {', '.join(SUITES)}")
+    specs = _suite_layouts() if suite == "tabletop" else capture_layouts()
     if seeds is None:
         return specs
     if not 1 <= len(seeds) <= len(specs):
@@ -143,5 +201,88 @@ def _suite_layouts() -> list[SceneSpec]:
             n_frames=28,
             orbit_radius=1.5,
             orbit_heights=(1.25, 1.6),
+        ),
+    ]
+
+
+def capture_layouts() -> list[SceneSpec]:
+    """Five scenes with the effects of handheld captures (paper Fig. 3): walks at varying distance
+    (close-ups, far views), border cuts, occluding furniture, labels readable from one side, with
+    look-alike duplicates, striped textures and clutter. Each mixes the effects differently."""
+    common = {
+        "trajectory": "walk",
+        "texture": "stripes",
+        "sh_degree": 1,
+        "n_frames": 32,
+    }
+    return [
+        SceneSpec(
+            name="capture-a",
+            seed=61,
+            n_objects=8,
+            n_duplicates=2,
+            n_colours=4,
+            n_groups=2,
+            n_labelled=2,
+            n_occluders=2,
+            n_clutter=6,
+            border_cut_share=0.2,
+            **common,
+        ),
+        SceneSpec(
+            name="capture-b",
+            seed=73,
+            n_objects=10,
+            n_duplicates=2,
+            n_colours=5,
+            n_groups=3,
+            n_labelled=2,
+            n_occluders=3,
+            n_clutter=8,
+            border_cut_share=0.15,
+            **common,
+        ),
+        SceneSpec(
+            name="capture-c",
+            seed=89,
+            n_objects=11,
+            n_duplicates=3,
+            n_colours=5,
+            n_groups=3,
+            n_labelled=3,
+            n_occluders=2,
+            n_clutter=10,
+            border_cut_share=0.25,
+            walk_distance=(0.25, 2.4),
+            n_absent_tasks=2,
+            **common,
+        ),
+        SceneSpec(
+            name="capture-d",
+            seed=97,
+            n_objects=9,
+            n_duplicates=2,
+            n_colours=4,
+            n_groups=2,
+            n_labelled=2,
+            n_occluders=4,
+            n_clutter=4,
+            border_cut_share=0.2,
+            label_half_angle_deg=40.0,
+            **common,
+        ),
+        SceneSpec(
+            name="capture-e",
+            seed=103,
+            n_objects=10,
+            n_duplicates=2,
+            n_colours=6,
+            n_groups=3,
+            n_labelled=2,
+            n_occluders=3,
+            n_clutter=8,
+            border_cut_share=0.2,
+            walk_distance=(0.3, 2.0),
+            **common,
         ),
     ]

@@ -33,6 +33,11 @@ def fine_task_text(colour: str, kind: str, count: int) -> str:
     return f"{verb} the {colour} {noun}"
 
 
+def label_task_text(colour: str, kind: str, label: str) -> str:
+    """ "get the red cube with the blue label": one object, told from look-alikes by its label."""
+    return f"{fine_task_text(colour, kind, 1)} with the {label} label"
+
+
 def make_tasks(spec: SceneSpec, instances: list[Instance], rng: np.random.Generator) -> list[TaskSpec]:
     """Fine, coarse and absent tasks, capped by the spec, in a seeded but stable order."""
     objects = [i for i in instances if i.category == "object"]
@@ -49,6 +54,12 @@ def make_tasks(spec: SceneSpec, instances: list[Instance], rng: np.random.Genera
     fine = [
         TaskSpec(fine_task_text(c, k, len(by_pair[(c, k)])), "fine", tuple(by_pair[(c, k)]))
         for c, k in (pairs[i] for i in rng.permutation(len(pairs))[: spec.max_fine_tasks])
+    ]
+    # A labelled object is named by its label: its look-alike duplicates are not the answer.
+    fine += [
+        TaskSpec(label_task_text(obj.colour, obj.kind, obj.label), "fine", (obj.id,))
+        for obj in objects
+        if obj.label is not None and obj.colour is not None
     ]
     kinds_of = {c: {k for (cc, k) in by_pair if cc == c} for c in by_colour}
     colours_of = {k: {c for (c, kk) in by_pair if kk == k} for k in by_kind}

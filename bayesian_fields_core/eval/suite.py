@@ -303,7 +303,7 @@ def run_suite(
     intervals = {row.strip(): score_intervals(scores) for row, scores in pooled.items()}
     print(format_interval_table(intervals, markdown=markdown))
     print()
-    print(f"Full method minus each row, paired bootstrap over the {len(pooled[FULL].per_task)} tasks (95%):")
+    print(f"Full method minus each row, paired bootstrap over the {n_tasks} tasks (95%):")
     for row, scores in pooled.items():
         if row == FULL:
             continue

@@ -99,6 +99,15 @@ def _check(pyx: np.ndarray, edges: np.ndarray, weights: np.ndarray | None) -> np
     return w / w.sum() if w.size else w
 
 
+def adjacency_lists(edges: np.ndarray, num: int) -> tuple[np.ndarray, np.ndarray]:
+    """CSR (indptr (num+1,), indices (2E,)) int64 neighbour lists of the undirected (E, 2) `edges`
+    over `num` nodes, the form the merge kernel walks."""
+    adjacency = csr_matrix(
+        (np.ones(2 * len(edges), dtype=np.int8), (edges.ravel(), edges[:, ::-1].ravel())), shape=(num, num)
+    )
+    return adjacency.indptr.astype(np.int64), adjacency.indices.astype(np.int64)
+
+
 def _sorted_distinct(edges: np.ndarray, num: int) -> bool:
     """Whether (E, 2) `edges` are already what `unique_pairs` returns: `lo < hi`, sorted, no
     repeats (a vectorised check, ~10x cheaper than redoing the sort)."""
@@ -127,15 +136,12 @@ def aib(
     if not _sorted_distinct(edges, num):  # merge_identical hands over sorted distinct pairs already
         edges = unique_pairs(edges, num)
     if edges.size:
-        adjacency = csr_matrix(
-            (np.ones(2 * len(edges), dtype=np.int8), (edges.ravel(), edges[:, ::-1].ravel())),
-            shape=(num, num),
-        )
+        indptr, indices = adjacency_lists(edges, num)
         merges, costs, stopped_at = greedy_merges(
             px.copy(),
             pyx.copy(),
-            adjacency.indptr.astype(np.int64),
-            adjacency.indices.astype(np.int64),
+            indptr,
+            indices,
             edges,
             info,
             float(delta),

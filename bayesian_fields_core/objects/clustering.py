@@ -18,8 +18,8 @@ import scipy.sparse as sp
 
 from ..params import PipelineParams
 from ..results.format import task_scores
+from ..threads import single_blas_thread
 from .aib import aib
-from .blas_threads import single_blas_thread
 from .edges import MergedGraph, merge_identical, overlap_edges
 from .knn_filter import statistical_outlier_mask
 from .obb import OrientedBox, minimum_obb

@@ -24,6 +24,7 @@ from PIL import Image, ImageDraw, ImageFont
 
 from ..render.output import RasterSettings
 from ..scene.types import Frame, Gaussians
+from ..threads import torch_threads
 from .export import SH_C0
 from .format import Result
 
@@ -229,77 +230,60 @@ def render_previews(
     Gaussians each CPU render of a preview takes seconds). `settings` are the rasterisation
     constants (`PREVIEW_RASTER` by default); torch runs with `threads` intra-op threads meanwhile
     (its previous setting is restored)."""
-    import torch
-
     if not frames:
         return []
-    previous = torch.get_num_threads()
-    if threads is not None:
-        torch.set_num_threads(threads)
-    try:
-        return _render_previews(
-            result, gaussians, frames, max_side=max_side, device=device, settings=settings
-        )
-    finally:
-        torch.set_num_threads(previous)
+    with torch_threads(threads):
+        from ..render.renderer import GaussianRenderer
 
-
-def _render_previews(
-    result: Result, gaussians: Gaussians, frames: list[Frame], *, max_side: int, device: str,
-    settings: RasterSettings,
-) -> list[Preview]:  # fmt: skip
-    """`render_previews` once torch's threads are set."""
-    from ..render.renderer import GaussianRenderer
-
-    ids = np.asarray(result.object_ids)
-    base = base_colours(gaussians)
-    renderer = GaussianRenderer(gaussians, device=device, backend="torch", settings=settings)
-    background = np.array([0.08, 0.08, 0.1], dtype=np.float32)
-    previews = []
-    for t, task in enumerate(result.tasks):
-        objects = result.selections.get(task, [])
-        top = ids == objects[0].object_id if objects else np.ones(len(ids), dtype=bool)
-        index = best_view(frames, np.asarray(gaussians.means)[top]) if top.any() else 0
-        frame = frames[index]
-        K, width, height = _scaled_camera(frame, max_side)
-        tinted = base * DIM
-        flat = np.zeros_like(base)
-        for rank, obj in enumerate(objects):
-            mask = ids == obj.object_id
-            colour = rank_colour(rank)
-            tinted[mask] = (1 - TINT) * base[mask] + TINT * colour
-            flat[mask] = colour
-        image, alpha = _composite_colours(
-            renderer, K, frame.world_to_camera, width, height, np.concatenate([tinted, flat], axis=1)
-        )
-        colour_img = np.clip(image[..., :3] + (1.0 - alpha)[..., None] * background, 0.0, 1.0)
-        rgb = (colour_img * 255).astype(np.uint8)
-        if objects:
-            palette = np.array([rank_colour(r) for r in range(len(objects))])  # (k, 3)
-            dist = ((image[:, :, None, 3:] - palette[None, None]) ** 2).sum(-1)  # (H, W, k)
-            labels = np.where(dist.min(-1) < 0.12, dist.argmin(-1), -1)
-            edge = _outline(labels)
-            rgb[edge] = (palette[labels[edge]] * 255).astype(np.uint8)
-            rgb[edge & (labels >= 0)] = np.maximum(rgb[edge & (labels >= 0)], 60)
-        rows = [(r, o.object_id, o.probability) for r, o in enumerate(objects)]
-        missing = result.not_found.get(task)
-        image_out = _legend(
-            Image.fromarray(rgb),
-            task,
-            rows,
-            f"not found: {missing.reason}" if missing else "no object selected",
-        )
-        previews.append(
-            Preview(
-                task=task,
-                key=preview_key(t),
-                frame=frame.name,
-                png=_png(image_out),
-                width=image_out.width,
-                height=image_out.height,
-            )  # fmt: skip
-        )
-    return previews
+        ids = np.asarray(result.object_ids)
+        base = base_colours(gaussians)
+        renderer = GaussianRenderer(gaussians, device=device, backend="torch", settings=settings)
+        background = np.array([0.08, 0.08, 0.1], dtype=np.float32)
+        previews = []
+        for t, task in enumerate(result.tasks):
+            objects = result.selections.get(task, [])
+            top = ids == objects[0].object_id if objects else np.ones(len(ids), dtype=bool)
+            index = best_view(frames, np.asarray(gaussians.means)[top]) if top.any() else 0
+            frame = frames[index]
+            K, width, height = _scaled_camera(frame, max_side)
+            tinted = base * DIM
+            flat = np.zeros_like(base)
+            for rank, obj in enumerate(objects):
+                mask = ids == obj.object_id
+                colour = rank_colour(rank)
+                tinted[mask] = (1 - TINT) * base[mask] + TINT * colour
+                flat[mask] = colour
+            image, alpha = _composite_colours(
+                renderer, K, frame.world_to_camera, width, height, np.concatenate([tinted, flat], axis=1)
+            )
+            colour_img = np.clip(image[..., :3] + (1.0 - alpha)[..., None] * background, 0.0, 1.0)
+            rgb = (colour_img * 255).astype(np.uint8)
+            if objects:
+                palette = np.array([rank_colour(r) for r in range(len(objects))])  # (k, 3)
+                dist = ((image[:, :, None, 3:] - palette[None, None]) ** 2).sum(-1)  # (H, W, k)
+                labels = np.where(dist.min(-1) < 0.12, dist.argmin(-1), -1)
+                edge = _outline(labels)
+                rgb[edge] = (palette[labels[edge]] * 255).astype(np.uint8)
+                rgb[edge & (labels >= 0)] = np.maximum(rgb[edge & (labels >= 0)], 60)
+            rows = [(r, o.object_id, o.probability) for r, o in enumerate(objects)]
+            missing = result.not_found.get(task)
+            image_out = _legend(
+                Image.fromarray(rgb),
+                task,
+                rows,
+                f"not found: {missing.reason}" if missing else "no object selected",
+            )
+            previews.append(
+                Preview(
+                    task=task,
+                    key=preview_key(t),
+                    frame=frame.name,
+                    png=_png(image_out),
+                    width=image_out.width,
+                    height=image_out.height,
+                )  # fmt: skip
+            )
+        return previews
 
 
 def contact_sheet(previews: list[Preview], *, thumb_width: int = 320) -> bytes:

@@ -1,6 +1,8 @@
-"""One BLAS thread while the cluster stage does its many small matrix products.
+"""Fewer threads for work made of many small steps: one OpenBLAS thread for the cluster stage's
+box search (`single_blas_thread`), a set number of torch intra-op threads for previews
+(`torch_threads`). Both limit process-wide settings for the length of a block and restore them.
 
-Why: the box search multiplies a few thousand points by 3x3 frames and 64 directions per object,
+OpenBLAS, why: the box search multiplies a few thousand points by 3x3 frames and 64 directions per object,
 100+ objects per result. OpenBLAS splits each such product over all cores and its threads
 busy-wait between calls, so on 2 cores the boxes cost 2.3x the CPU they need (0.39 against
 0.17 s at the scale bench), and the per-object worker threads of `clustering._per_object` then
@@ -66,3 +68,19 @@ def single_blas_thread() -> Iterator[None]:
     finally:
         for (_, set_threads), count in zip(controls, previous, strict=True):
             set_threads(count)
+
+
+@contextmanager
+def torch_threads(count: int | None) -> Iterator[None]:
+    """Run the block with `count` torch intra-op threads (None: leave the setting alone),
+    restoring the previous count after. Why: torch ops of a few hundred small steps end each in a
+    barrier where idle threads spin, so on a shared CPU more threads cost CPU, not time saved."""
+    import torch
+
+    previous = torch.get_num_threads()
+    if count is not None:
+        torch.set_num_threads(count)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(previous)

@@ -1,12 +1,13 @@
 """`single_blas_thread` sets every loaded OpenBLAS to one thread inside the block, restores the
-previous counts after (also when the block raises), and leaves the products' values unchanged."""
+previous counts after (also when the block raises), and leaves the products' values unchanged;
+`torch_threads` does the same for torch's intra-op threads."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from bayesian_fields_core.objects.blas_threads import loaded_openblas, single_blas_thread
+from bayesian_fields_core.threads import loaded_openblas, single_blas_thread, torch_threads
 
 
 def test_one_thread_inside_and_restored_after() -> None:
@@ -27,3 +28,15 @@ def test_products_are_the_same_floats() -> None:
     with single_blas_thread():
         single = a @ b
     np.testing.assert_array_equal(single, threaded)
+
+
+def test_torch_threads_set_inside_and_restored_after() -> None:
+    import torch
+
+    before = torch.get_num_threads()
+    with pytest.raises(RuntimeError), torch_threads(1):
+        assert torch.get_num_threads() == 1
+        raise RuntimeError("the block fails")
+    assert torch.get_num_threads() == before
+    with torch_threads(None):
+        assert torch.get_num_threads() == before

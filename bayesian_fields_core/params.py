@@ -107,6 +107,17 @@ class PipelineParams(BaseModel):
     outlier_rejection: bool = Field(
         True, description="OR-phi: skip masks that would lower every task's probability."
     )
+    view_correlation: float = Field(
+        0.0,
+        ge=0.0,
+        le=1.0,
+        description=(
+            "rho: correlation of one Gaussian's score errors across its views. 0 = the paper (views "
+            "independent, evidence grows with every view); rho > 0 divides a Gaussian's summed "
+            "evidence by 1 + (n - 1) rho for its n accepted views (equicorrelated Gaussian "
+            "likelihood; 1 = all views one measurement). README: Correlated views."
+        ),
+    )
     depth_source: Literal["median", "expected", "input"] = Field(
         "median",
         description="Depth image for visibility: rendered median or expected depth, or the input depth maps.",

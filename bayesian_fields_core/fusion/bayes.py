@@ -78,6 +78,40 @@ def bayes_update(
     return accepted
 
 
+def discount_correlated_views(
+    logodds: np.ndarray, view_counts: np.ndarray, rho: float, prior: float = default("prior")
+) -> None:
+    """Rescale each Gaussian's accumulated evidence for views whose errors are correlated, in place.
+
+    Why: the recursive update (Eq. 5) assumes every view's score is fresh noise, so its evidence
+    `logodds - logit(prior)` grows linearly with the number of views; one object's scores across
+    views share its systematic confusions. If the n scores of a Gaussian are jointly Gaussian with
+    the likelihoods' variance s^2 and pairwise correlation rho (covariance s^2 ((1 - rho) I +
+    rho 11^T)), the exact log-likelihood ratio of the n views is the independent one divided by
+    1 + (n - 1) rho: for many views it tends to the mean score's ratio over rho, so evidence stays
+    bounded as averaging's does, while few views count almost fully.
+    logodds: (N, T) float32 after the last frame; view_counts: (N,) accepted views per Gaussian.
+    """
+    if not 0.0 <= rho <= 1.0:
+        raise InputError(f"must be in [0, 1], got {rho}", source="fusion.view_correlation")
+    if view_counts.shape != (logodds.shape[0],):
+        raise InvariantError(
+            f"view_counts has shape {view_counts.shape}, expected ({logodds.shape[0]},)",
+            source="fusion.view_counts",
+        )
+    if rho == 0.0:
+        return
+    base = np.float32(logit(prior))
+    rows = max(1, BLOCK_BYTES // max(1, 4 * logodds.shape[1]))
+    for start in range(0, logodds.shape[0], rows):
+        block = logodds[start : start + rows]
+        n = view_counts[start : start + rows].astype(np.float32)
+        scale = 1.0 / (1.0 + np.maximum(n - 1.0, 0.0) * np.float32(rho))
+        block -= base
+        block *= scale[:, None]
+        block += base
+
+
 def probabilities(logodds: np.ndarray) -> np.ndarray:
     """Relevance probabilities `sigmoid(logodds)` as float32, same shape."""
     return expit(logodds).astype(np.float32, copy=False)

@@ -6,12 +6,18 @@ objects (alone, and inside whole scenes with occlusions) and background segments
 the pipeline's own ``mask_crops``, and trains a transformers ``CLIPModel`` with a multi-positive
 contrastive loss: a caption such as "move all the red things" is right for every red object, so
 every (image, caption) pair whose meaning matches is a positive, not only the sampled pair.
+Some cubes, cylinders and mugs carry a coloured label on one side (the capture suite's
+view-dependent identity, paper Fig. 3a): "get the red cube with the blue label" is right for a
+crop that shows the blue label and wrong for the same cube seen from behind, so each batch also
+holds label captions naming the wrong label or an unseen one, as hard negatives. Some objects
+and scenes are striped / checkered as the capture suite's are, so texture is not mistaken for
+identity.
 It then fits ``calibration.json`` (mu0 from unrelated tasks, mu1 and s from right tasks) on
 held-out crops from other seeds, and writes a word-level tokenizer and ``preprocessor_config.json``
 so ``perception.hf_clip.HFClipEncoder`` loads the folder with ``local_files_only``.
 
-Usage: ``.venv/bin/python scripts/train_tiny_clip.py [--out bayesian_fields_core/models/tiny-clip] [--steps 1800]``.
-Deterministic for a given seed; about 5-12 minutes on 2 shared CPU cores (mostly rendering the crops).
+Usage: ``.venv/bin/python scripts/train_tiny_clip.py [--out bayesian_fields_core/models/tiny-clip] [--steps 3600]``.
+Deterministic for a given seed; about 9 minutes on 2 CPU cores (half rendering the crops, half training).
 """
 
 from __future__ import annotations
@@ -27,14 +33,17 @@ from tokenizers import Tokenizer, models, normalizers, pre_tokenizers, processor
 from transformers import CLIPConfig, CLIPModel, PreTrainedTokenizerFast
 
 from bayesian_fields_core.calibration.model import fit_calibration, save_calibration
+from bayesian_fields_core.eval.clip_quality import label_reading
 from bayesian_fields_core.eval.synthetic.crops import LabelledCrop, object_crops, scene_crops
 from bayesian_fields_core.eval.vocabulary import (
     BACKGROUND_KINDS,
     COLOURS,
     KINDS,
+    LABELLED_KINDS,
     Caption,
     all_words,
     captions_for,
+    label_colours,
 )
 from bayesian_fields_core.perception.clip_inputs import CLIP_MEAN, CLIP_STD, ClipImagePreprocessor
 from bayesian_fields_core.perception.hf_clip import hf_clip_model_id
@@ -112,19 +121,35 @@ def preprocessor_config() -> dict:
     }
 
 
-def make_crops(seed: int, n_objects: int, n_scenes: int, views_per_scene: int) -> list[LabelledCrop]:
+Class = tuple[str | None, str, str | None]  # (colour, kind, colour of the label in sight)
+
+
+def make_crops(seed: int, n_objects: int, n_scenes: int, args: argparse.Namespace) -> list[LabelledCrop]:
     rng = np.random.default_rng(seed)
-    return object_crops(rng, n_objects, views_per_object=4) + scene_crops(rng, n_scenes, views_per_scene)
+    objects = object_crops(
+        rng, n_objects, views_per_object=4, label_share=args.label_share, stripe_share=args.stripe_share
+    )
+    return objects + scene_crops(rng, n_scenes, args.views, textured_share=args.textured_scenes)
 
 
-def caption_table() -> tuple[list[Caption], np.ndarray, list[tuple[str | None, str]]]:
-    """All captions, the (classes, captions) match matrix, and the classes (colour, kind)."""
-    classes: list[tuple[str | None, str]] = [(c, k) for k in KINDS for c in COLOURS] + [
-        (None, b) for b in BACKGROUND_KINDS
-    ]
+def caption_table() -> tuple[list[Caption], np.ndarray, list[Class]]:
+    """All captions, the (classes, captions) match matrix, and the classes."""
+    classes: list[Class] = [(c, k, None) for k in KINDS for c in COLOURS]
+    classes += [(None, b, None) for b in BACKGROUND_KINDS]
+    classes += [(c, k, lab) for k in LABELLED_KINDS for c in COLOURS for lab in label_colours(c)]
     captions = list({cap.text: cap for cls in classes for cap in captions_for(*cls)}.values())
-    match = np.array([[cap.matches(c, k) for cap in captions] for c, k in classes])
+    match = np.array([[cap.matches(c, k, lab) for cap in captions] for c, k, lab in classes])
     return captions, match, classes
+
+
+def label_caption_index(captions: list[Caption]) -> dict[tuple[str, str, str], list[int]]:
+    """(colour, kind, label) -> the indices of the captions that name that label."""
+    out: dict[tuple[str, str, str], list[int]] = {}
+    for i, cap in enumerate(captions):
+        if cap.label is not None:
+            assert cap.colour is not None and cap.kind is not None
+            out.setdefault((cap.colour, cap.kind, cap.label), []).append(i)
+    return out
 
 
 def encode(
@@ -146,6 +171,10 @@ def multi_positive_loss(logits: torch.Tensor, positive: torch.Tensor) -> torch.T
     neg_inf = torch.finfo(logits.dtype).min
 
     def one_side(lg: torch.Tensor, pos: torch.Tensor) -> torch.Tensor:
+        # Rows without a positive (a hard-negative caption no crop of the batch matches) only
+        # count on the other side, as negatives.
+        has = pos.any(dim=1)
+        lg, pos = lg[has], pos[has]
         return -(torch.logsumexp(lg.masked_fill(~pos, neg_inf), dim=1) - torch.logsumexp(lg, dim=1)).mean()
 
     return 0.5 * (one_side(logits, positive) + one_side(logits.T, positive.T))
@@ -161,6 +190,36 @@ def augment(x: torch.Tensor, gen: torch.Generator) -> torch.Tensor:
     return b * x + (b - 1.0) * mean / std
 
 
+def sample_caption(
+    cls: int, cap_choices: list[torch.Tensor], label_choices: list[torch.Tensor], gen: torch.Generator
+) -> torch.Tensor:
+    """One matching caption for a crop of class `cls`; one naming its label half of the time."""
+    pool = cap_choices[cls]
+    if len(label_choices[cls]) and torch.rand(1, generator=gen).item() < 0.5:
+        pool = label_choices[cls]
+    return pool[torch.randint(len(pool), (1,), generator=gen)][0]
+
+
+def hard_negatives(
+    batch: list[int],
+    classes: list[Class],
+    label_caps: dict[tuple[str, str, str], list[int]],
+    gen: torch.Generator,
+) -> torch.Tensor:
+    """For each crop of a labellable kind, one caption naming a label it does not show: another
+    colour when it shows one, any colour when it shows none (its look-alike's task)."""
+    out = []
+    for cls in batch:
+        colour, kind, label = classes[cls]
+        if colour is None or kind not in LABELLED_KINDS:
+            continue
+        wrong = [lab for lab in label_colours(colour) if lab != label]
+        pick = wrong[int(torch.randint(len(wrong), (1,), generator=gen))]
+        caps = label_caps[(colour, kind, pick)]
+        out.append(caps[int(torch.randint(len(caps), (1,), generator=gen))])
+    return torch.tensor(out, dtype=torch.long)
+
+
 def train(args: argparse.Namespace) -> None:
     torch.set_num_threads(args.threads)
     t0 = time.perf_counter()
@@ -170,20 +229,23 @@ def train(args: argparse.Namespace) -> None:
 
     captions, match, classes = caption_table()
     class_index = {cls: i for i, cls in enumerate(classes)}
-    crops = make_crops(args.seed, args.objects, args.scenes, args.views)
-    held = make_crops(args.seed + 1000, args.objects // 6, max(args.scenes // 4, 1), args.views)
+    crops = make_crops(args.seed, args.objects, args.scenes, args)
+    held = make_crops(args.seed + 1000, args.objects // 6, max(args.scenes // 4, 1), args)
     print(
         f"data: {len(crops)} training crops, {len(held)} held-out crops in {time.perf_counter() - t0:.0f} s"
     )
 
     prep = preprocessor()
     pixels = torch.from_numpy(prep([c.image for c in crops]))
-    labels = torch.tensor([class_index[(c.colour, c.kind)] for c in crops])
+    labels = torch.tensor([class_index[(c.colour, c.kind, c.label)] for c in crops])
     enc = tokenizer([c.text for c in captions], padding=True, return_tensors="pt")
     cap_ids, cap_mask = enc["input_ids"], enc["attention_mask"]
     match_t = torch.from_numpy(match)
-    # Per class, the captions it may be paired with (sampled uniformly per step).
+    # Per class, the captions it may be paired with (sampled uniformly per step); a crop that shows
+    # a label is paired with a caption naming it half of the time (they are a few of its many).
+    label_caps = label_caption_index(captions)
     cap_choices = [torch.from_numpy(np.flatnonzero(row)) for row in match]
+    label_choices = [torch.tensor(label_caps.get(cls, []), dtype=torch.long) for cls in classes]  # type: ignore[arg-type]
 
     gen = torch.Generator().manual_seed(args.seed)
     opt = torch.optim.AdamW(model.parameters(), lr=args.lr, weight_decay=0.05)
@@ -192,9 +254,8 @@ def train(args: argparse.Namespace) -> None:
     for step in range(args.steps):
         idx = torch.randint(len(crops), (args.batch,), generator=gen)
         y = labels[idx]
-        pick = torch.stack(
-            [cap_choices[c][torch.randint(len(cap_choices[c]), (1,), generator=gen)][0] for c in y.tolist()]
-        )
+        pick = torch.stack([sample_caption(c, cap_choices, label_choices, gen) for c in y.tolist()])
+        pick = torch.cat([pick, hard_negatives(y.tolist(), classes, label_caps, gen)])
         img, txt = encode(model, augment(pixels[idx], gen), cap_ids[pick], cap_mask[pick])
         logits = model.logit_scale.exp().clamp(max=100.0) * img @ txt.T
         loss = multi_positive_loss(logits, match_t[y][:, pick])
@@ -230,7 +291,7 @@ def save(
     img = encoder.encode_images([c.image for c in held])
     txt = encoder.encode_texts([c.text for c in captions])
     scores = img @ txt.T
-    y = np.array([class_index[(c.colour, c.kind)] for c in held])
+    y = np.array([class_index[(c.colour, c.kind, c.label)] for c in held])
     canon = [
         i
         for i, c in enumerate(captions)
@@ -253,6 +314,7 @@ def save(
     report = {
         "held_out_crops": len(held),
         "top1_canonical": round(top1, 4),
+        **label_reading(encoder, held).as_dict(),
         "mu0": cal.mu0,
         "mu1": cal.mu1,
         "s": cal.s,
@@ -264,13 +326,18 @@ def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--out", default="bayesian_fields_core/models/tiny-clip")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--steps", type=int, default=1800)
+    p.add_argument("--steps", type=int, default=3600)
     p.add_argument("--batch", type=int, default=128)
     p.add_argument("--lr", type=float, default=3e-3)
     p.add_argument("--objects", type=int, default=800, help="single objects rendered (4 views each)")
     p.add_argument("--scenes", type=int, default=12, help="whole scenes for context and background crops")
     p.add_argument("--views", type=int, default=10, help="random views per scene")
     p.add_argument("--threads", type=int, default=2)
+    p.add_argument(
+        "--label-share", type=float, default=0.5, help="share of cubes, cylinders and mugs with a label"
+    )
+    p.add_argument("--stripe-share", type=float, default=0.3, help="share of single objects striped")
+    p.add_argument("--textured-scenes", type=float, default=0.5, help="share of scenes striped / checkered")
     train(p.parse_args(argv))
 
 

@@ -133,6 +133,16 @@ KINDS: dict[str, Callable[[float], list[Part]]] = {
 }
 COMPOUND_KINDS: frozenset[str] = frozenset({"mug", "lamp"})
 
+# Kinds that may carry a coloured label (capture scenes; tasks "get the red cube with the blue
+# label"): their side at local +y (away from a mug's handle, which is at +x) is a surface at a
+# known distance from the axis. kind: (surface distance from the axis, label centre height), per
+# unit size factor.
+LABELLED_KINDS: dict[str, tuple[float, float]] = {
+    "cube": (0.055, 0.055),
+    "cylinder": (0.04, 0.07),
+    "mug": (0.045, 0.05),
+}
+
 
 def plural(word: str) -> str:
     """Regular English plural of a vocabulary noun ("cube" -> "cubes", "torus" -> "toruses")."""
@@ -277,15 +287,22 @@ def sample_part(rng: np.random.Generator, part: Part, density: float) -> tuple[n
 
 @dataclass(frozen=True)
 class Caption:
-    """A phrasing and what it refers to: colour and/or kind (None = any), e.g. "red things"."""
+    """A phrasing and what it refers to: colour and/or kind (None = any), e.g. "red things", and
+    the colour of a label the object must show (None = any object, labelled or not)."""
 
     text: str
     colour: str | None
     kind: str | None
+    label: str | None = None
 
-    def matches(self, colour: str | None, kind: str) -> bool:
-        """Whether an instance of this colour and kind is a right answer for the caption."""
-        return (self.colour is None or self.colour == colour) and (self.kind is None or self.kind == kind)
+    def matches(self, colour: str | None, kind: str, label: str | None = None) -> bool:
+        """Whether an instance of this colour and kind, showing a label of colour `label` (None: no
+        label in sight), is a right answer for the caption."""
+        return (
+            (self.colour is None or self.colour == colour)
+            and (self.kind is None or self.kind == kind)
+            and (self.label is None or self.label == label)
+        )
 
 
 # Task-like phrasings; {c} colour, {k} kind, {K} plural kind, {b} background kind.
@@ -308,10 +325,22 @@ COLOUR_TEMPLATES = (
     "something {c}",
 )
 BACKGROUND_TEMPLATES = ("{b}", "the {b}", "a {b}")
+# Phrasings that name an object by its label ({l}); the tasks' own form comes from
+# eval.synthetic.tasks.label_task_text ("get"/"pick up" by kind).
+LABEL_TEMPLATES = (
+    "{c} {k} with the {l} label",
+    "the {c} {k} with the {l} label",
+    "get the {c} {k} with the {l} label",
+    "pick up the {c} {k} with the {l} label",
+    "{c} {k} with a {l} label",
+)
 
 
-def captions_for(colour: str | None, kind: str) -> list[Caption]:
-    """Every phrasing that rightly describes an instance (an object, or a background kind)."""
+def captions_for(colour: str | None, kind: str, label: str | None = None) -> list[Caption]:
+    """Every phrasing that rightly describes an instance (an object, or a background kind);
+    `label`: the colour of the label it shows, which adds the phrasings that name the label."""
+    if label is not None and (kind not in LABELLED_KINDS or label == colour or label not in COLOURS):
+        raise ValueError(f"a {colour} {kind} cannot show a {label} label")
     if kind in BACKGROUND_KINDS:
         return [Caption(t.format(b=kind), None, kind) for t in BACKGROUND_TEMPLATES]
     if colour is None:
@@ -320,11 +349,19 @@ def captions_for(colour: str | None, kind: str) -> list[Caption]:
     out = [Caption(t.format(c=colour, k=k, K=big_k), colour, kind) for t in COLOUR_KIND_TEMPLATES]
     out += [Caption(t.format(k=k, K=big_k), None, kind) for t in KIND_TEMPLATES]
     out += [Caption(t.format(c=colour), colour, None) for t in COLOUR_TEMPLATES]
+    if label is not None:
+        out += [Caption(t.format(c=colour, k=k, l=label), colour, kind, label) for t in LABEL_TEMPLATES]
     return out
+
+
+def label_colours(colour: str) -> list[str]:
+    """The colours a label on an object of `colour` may have (any other vocabulary colour)."""
+    return [c for c in COLOURS if c != colour]
 
 
 def all_words() -> list[str]:
     """Every word of every phrasing of the vocabulary, sorted (the tiny CLIP's word list)."""
     texts = [c.text for k in BACKGROUND_KINDS for c in captions_for(None, k)]
     texts += [c.text for col in COLOURS for k in KINDS for c in captions_for(col, k)]
+    texts += [t.format(c=col, k=k, l=col) for t in LABEL_TEMPLATES for col in COLOURS for k in LABELLED_KINDS]
     return sorted({w for t in texts for w in t.lower().split()})

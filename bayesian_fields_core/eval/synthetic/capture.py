@@ -26,20 +26,12 @@ import numpy as np
 
 from bayesian_fields_core.eval.synthetic.cameras import look_at, pinhole
 from bayesian_fields_core.eval.synthetic.spec import SceneSpec
-from bayesian_fields_core.eval.vocabulary import COLOURS, NEUTRALS, Part, sample_part
+from bayesian_fields_core.eval.vocabulary import COLOURS, LABELLED_KINDS, NEUTRALS, Part, sample_part
 from bayesian_fields_core.scene.types import Frame
 
 if TYPE_CHECKING:
     from bayesian_fields_core.eval.synthetic.builder import SyntheticScene, _Piece
 
-# Kinds that get a label: their side at local +y (away from a mug's handle, which is at +x) is a
-# surface at a known distance from the axis.
-LABELLED_KINDS: dict[str, tuple[float, float]] = {
-    # kind: (surface distance from the axis, label centre height), per unit size factor
-    "cube": (0.055, 0.055),
-    "cylinder": (0.04, 0.07),
-    "mug": (0.045, 0.05),
-}
 _LABEL_OFFSET = 0.002  # the label floats this far (m) in front of the surface, so it is never hidden
 
 
@@ -161,13 +153,19 @@ def apply_texture(spec: SceneSpec, pieces: list[_Piece], rng: np.random.Generato
     for piece in pieces:
         pts = piece.points
         if piece.category == "object":
-            tilt = rng.normal(0.0, 0.3, 2)
-            coord = pts[:, 2] + pts[:, :2] @ tilt + rng.uniform(0, period)
-            on = np.floor(coord / period).astype(int) % 2 == 1
+            on = stripes(pts, period, rng)
         else:
             cell = np.floor(pts / (4 * period)).astype(int)
             on = cell.sum(axis=1) % 2 == 1
         piece.rgb = np.asarray(piece.rgb, dtype=np.float64) * np.where(on, dark, 1.0)[:, None]
+
+
+def stripes(points: np.ndarray, period: float, rng: np.random.Generator) -> np.ndarray:
+    """(n,) bool: the dark bands of horizontal stripes of `period` (m) with a random small tilt
+    and phase, over an object's surface points (n, 3)."""
+    tilt = rng.normal(0.0, 0.3, 2)
+    coord = points[:, 2] + points[:, :2] @ tilt + rng.uniform(0, period)
+    return np.floor(coord / period).astype(int) % 2 == 1
 
 
 def add_labels(
@@ -200,15 +198,7 @@ def add_labels(
         size = float(np.ptp(piece.points @ piece.frame_rotation, axis=0)[2]) / (
             2 * LABELLED_KINDS[piece.kind][1]
         )
-        surface, height = (v * size for v in LABELLED_KINDS[piece.kind])
-        half = spec.label_size * size
-        part = Part(
-            "rect",
-            {"hx": half, "hy": half},
-            rotation=((1.0, 0.0, 0.0), (0.0, 0.0, 1.0), (0.0, -1.0, 0.0)),
-            translation=(0.0, surface + _LABEL_OFFSET, height),
-        )
-        pts, nrm = sample_part(rng, part, spec.object_density)
+        pts, nrm = sample_part(rng, label_part(piece.kind, size, spec.label_size), spec.object_density)
         base, rot = piece.origin, piece.frame_rotation
         # Copies of one object get different label colours, so every label task has one answer.
         taken = {c for j, c, _, _ in out if pieces[j].name == piece.name}
@@ -223,6 +213,19 @@ def add_labels(
         mask[n_before:] = True
         out.append((index, colour, rot[:, 1].copy(), mask))
     return out
+
+
+def label_part(kind: str, size: float, label_size: float) -> Part:
+    """The label patch of an object of `kind` and size factor `size`: a square of half side
+    `label_size * size` facing local +y, just in front of the surface (object coordinates)."""
+    surface, height = (v * size for v in LABELLED_KINDS[kind])
+    half = label_size * size
+    return Part(
+        "rect",
+        {"hx": half, "hy": half},
+        rotation=((1.0, 0.0, 0.0), (0.0, 0.0, 1.0), (0.0, -1.0, 0.0)),
+        translation=(0.0, surface + _LABEL_OFFSET, height),
+    )
 
 
 def label_sh(

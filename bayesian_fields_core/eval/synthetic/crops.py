@@ -2,7 +2,9 @@
 
 Two sources, both cropped by the pipeline's own `perception.crops.mask_crops`, so the model sees
 the same kind of input at training time as in the pipeline:
-- single objects rendered alone from random viewpoints, distances and resolutions (mask = alpha);
+- single objects rendered alone from random viewpoints, distances and resolutions (mask = alpha),
+  some of them with a coloured label on one side (as `capture.add_labels` gives them), so the
+  crop shows the label only when the camera faces it, and some striped (`capture.apply_texture`);
 - whole synthetic scenes seen from random cameras, with masks from the GT id images: objects
   with real occlusions and clipping, and background segments (table, floor, wall), sometimes cut
   to a random window the way an over-segmenter splits large surfaces.
@@ -14,31 +16,77 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bayesian_fields_core.eval.synthetic.builder import build_scene, surfels_to_gaussians
+from bayesian_fields_core.eval.synthetic.builder import SH_C0, build_scene, lambert, surfels_to_gaussians
 from bayesian_fields_core.eval.synthetic.cameras import look_at, pinhole
+from bayesian_fields_core.eval.synthetic.capture import label_part, label_sh, stripes
 from bayesian_fields_core.eval.synthetic.generate import to_uint8
 from bayesian_fields_core.eval.synthetic.id_images import IdImageRenderer
 from bayesian_fields_core.eval.synthetic.spec import SceneSpec
-from bayesian_fields_core.eval.vocabulary import COLOURS, KINDS, NEUTRALS, sample_part
+from bayesian_fields_core.eval.vocabulary import (
+    COLOURS,
+    KINDS,
+    LABELLED_KINDS,
+    NEUTRALS,
+    label_colours,
+    sample_part,
+)
 from bayesian_fields_core.perception.crops import mask_crops
 from bayesian_fields_core.render import GaussianRenderer
 
 
 @dataclass(frozen=True)
 class LabelledCrop:
-    """A uint8 masked crop and what it shows (colour None for background kinds)."""
+    """A uint8 masked crop and what it shows (colour None for background kinds; label: the colour
+    of the label in sight, None when the object has none or it faces away)."""
 
     image: np.ndarray
     colour: str | None
     kind: str
+    label: str | None = None
 
 
 def _random_eye(
-    rng: np.random.Generator, target: np.ndarray, distance: float, elevation: tuple[float, float]
+    rng: np.random.Generator,
+    target: np.ndarray,
+    distance: float,
+    elevation: tuple[float, float],
+    azimuth: float | None = None,
 ) -> np.ndarray:
-    az = rng.uniform(0.0, 2 * np.pi)
+    az = rng.uniform(0.0, 2 * np.pi) if azimuth is None else azimuth
     el = np.deg2rad(rng.uniform(*elevation))
     return target + distance * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+
+
+@dataclass(frozen=True)
+class _LabelPatch:
+    """A label on a single rendered object: its colour, centre (object coordinates, facing +y)
+    and the half-angle within which it reads as its colour."""
+
+    colour: str
+    centre: np.ndarray
+    half_angle_deg: float
+
+    def seen_from(self, eye: np.ndarray) -> str | None | bool:
+        """The label's colour when it reads clearly from `eye` (at least halfway from the object's
+        colour to the label's), None when it shows the object's colour, False in between (an
+        ambiguous view that training leaves out)."""
+        direction = (eye - self.centre) / np.linalg.norm(eye - self.centre)
+        cos_h = np.cos(np.deg2rad(self.half_angle_deg))
+        blend = (direction[1] - cos_h) / (1.0 - cos_h)
+        if blend >= 0.5:
+            return self.colour
+        return None if blend <= 0.0 else False
+
+
+def _add_label(
+    rng: np.random.Generator, kind: str, colour: str, size: float, density: float, spec: SceneSpec
+) -> tuple[np.ndarray, np.ndarray, _LabelPatch]:
+    """Surfels of a label patch for one object, and the patch (its half-angle drawn per object)."""
+    label = label_colours(colour)[rng.integers(len(COLOURS) - 1)]
+    part = label_part(kind, size, spec.label_size)
+    pts, nrm = sample_part(rng, part, density)
+    patch = _LabelPatch(label, np.asarray(part.translation), float(rng.uniform(35.0, 55.0)))
+    return pts, nrm, patch
 
 
 def object_crops(
@@ -49,25 +97,51 @@ def object_crops(
     density: float = 15000.0,
     side_range: tuple[int, int] = (24, 80),
     min_area: int = 30,
+    label_share: float = 0.0,
+    stripe_share: float = 0.0,
 ) -> list[LabelledCrop]:
-    """Crops of single objects (uniform over colour x kind) from random viewpoints and scales."""
-    spec = SceneSpec()
+    """Crops of single objects (uniform over colour x kind) from random viewpoints and scales.
+
+    label_share: the share of objects of a labellable kind that carry a label; half of their views
+    look at the label's side, and views where the label is half-read are left out.
+    stripe_share: the share of objects striped as the capture suite's are (the label stays flat).
+    Both 0 keep the random stream (and so the crops) of before labels and stripes existed.
+    """
+    spec = SceneSpec(sh_degree=1 if label_share > 0 else 0)
     out: list[LabelledCrop] = []
     colours, kinds = list(COLOURS), list(KINDS)
     fov = 40.0
     for _ in range(n_objects):
         colour, kind = colours[rng.integers(len(colours))], kinds[rng.integers(len(kinds))]
         pts, nrm, rgb = [], [], []
-        for part in KINDS[kind](float(rng.uniform(*spec.size_range))):
+        size = float(rng.uniform(*spec.size_range))
+        for part in KINDS[kind](size):
             p, n = sample_part(rng, part, density)
             pts.append(p)
             nrm.append(n)
             rgb.append(
                 np.broadcast_to(COLOURS[colour] if part.colour == "main" else NEUTRALS[part.colour], p.shape)
             )
+        if stripe_share > 0 and rng.uniform() < stripe_share:
+            on = stripes(np.concatenate(pts), spec.texture_period, rng)
+            rgb = [np.concatenate(rgb) * np.where(on, 1.0 - spec.texture_contrast, 1.0)[:, None]]
+        patch = None
+        if label_share > 0 and kind in LABELLED_KINDS and rng.uniform() < label_share:
+            p, n, patch = _add_label(rng, kind, colour, size, density, spec)
+            pts.append(p)
+            nrm.append(n)
+            rgb.append(np.broadcast_to(COLOURS[colour], p.shape))
         points = np.concatenate(pts)
+        normals = np.concatenate(nrm)
         sigma = np.full(len(points), spec.tangential_scale / np.sqrt(density))
-        g = surfels_to_gaussians(points, np.concatenate(nrm), np.concatenate(rgb), sigma, spec, rng)
+        g = surfels_to_gaussians(points, normals, np.concatenate(rgb), sigma, spec, rng)
+        if patch is not None:
+            rows = np.arange(len(points) - len(pts[-1]), len(points))
+            label_rgb = np.asarray(COLOURS[patch.colour]) * lambert(normals[rows], spec)[:, None]
+            object_rgb = g.sh[rows, 0, :].astype(np.float64) * SH_C0 + 0.5
+            f_dc, f_rest = label_sh(object_rgb, label_rgb, np.array([0.0, 1.0, 0.0]), patch.half_angle_deg)
+            g.sh[rows, 0, :] = f_dc
+            g.sh[rows, 1:4, :] = f_rest
         renderer = GaussianRenderer(g)
         centre = (points.min(0) + points.max(0)) / 2
         radius = float(np.linalg.norm(points - centre, axis=1).max())
@@ -75,13 +149,16 @@ def object_crops(
             side = int(rng.integers(*side_range))
             fill = rng.uniform(0.45, 0.95)
             distance = radius / np.tan(np.deg2rad(fov) / 2) / fill
-            w2c = look_at(
-                _random_eye(rng, centre, distance, (5.0, 70.0)), centre + rng.normal(0, 0.1 * radius, 3)
-            )
+            azimuth, elevation = None, (5.0, 70.0)
+            if patch is not None and rng.uniform() < 0.5:  # towards the label's side (+y), low
+                azimuth, elevation = np.pi / 2 + rng.normal(0.0, 0.3), (5.0, 35.0)
+            eye = _random_eye(rng, centre, distance, elevation, azimuth)
+            label = patch.seen_from(eye) if patch is not None else None
+            w2c = look_at(eye, centre + rng.normal(0, 0.1 * radius, 3))
             res = renderer.render(pinhole(side, side, fov), w2c, side, side, background=(0.5, 0.5, 0.5))
             labels = np.where(res.alpha > 0.5, 0, -1).astype(np.int32)
-            if (labels == 0).sum() >= min_area:
-                out.append(LabelledCrop(mask_crops(to_uint8(res.rgb), labels)[0], colour, kind))
+            if label is not False and (labels == 0).sum() >= min_area:
+                out.append(LabelledCrop(mask_crops(to_uint8(res.rgb), labels)[0], colour, kind, label))
     return out
 
 
@@ -106,11 +183,18 @@ def scene_crops(
     height: int = 96,
     min_area: int = 40,
     cut_probability: float = 0.5,
+    textured_share: float = 0.0,
 ) -> list[LabelledCrop]:
-    """Object and background crops from random views of random scenes, masks from id images."""
+    """Object and background crops from random views of random scenes, masks from id images.
+
+    textured_share: the share of scenes with the capture suite's texture (striped objects, a
+    checkered room); 0 keeps the random stream of before.
+    """
     out: list[LabelledCrop] = []
     for _ in range(n_scenes):
+        textured = textured_share > 0 and rng.uniform() < textured_share
         spec = SceneSpec(
+            texture="stripes" if textured else "flat",
             seed=int(rng.integers(1 << 30)),
             n_objects=int(rng.integers(6, 12)),
             n_duplicates=1,

@@ -48,7 +48,7 @@ class CalibrationRequest(BaseModel):
             # A calibration is only used with the CLIP it was fitted for; without an id no profile
             # would ever accept the file.
             raise InputError(
-                "--scores needs --model-id (the encoder's model id, e.g. tiny-clip@b8b6386ff433)"
+                "--scores needs --model-id (the encoder's model id, e.g. tiny-clip@1d545f781fac)"
             )
 
 

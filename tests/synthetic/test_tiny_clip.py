@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from bayesian_fields_core.calibration.model import load_calibration
+from bayesian_fields_core.eval.clip_quality import label_reading
 from bayesian_fields_core.eval.synthetic.crops import object_crops, scene_crops
 from bayesian_fields_core.eval.vocabulary import BACKGROUND_KINDS, COLOURS, KINDS, canonical_captions
 from bayesian_fields_core.perception.hf_clip import HFClipEncoder, hf_clip_model_id
@@ -52,3 +53,13 @@ def test_task_phrasings_prefer_the_right_objects(encoder: HFClipEncoder) -> None
         mine = np.array([c.colour == colour for c in crops])
         assert mine.any() and (~mine).any()
         assert np.median(s[mine]) > np.percentile(s[~mine], 90)
+
+
+def test_label_tasks_prefer_the_crops_that_show_the_label(encoder: HFClipEncoder) -> None:
+    """ "get the red cube with the blue label" scores a red cube showing a blue label above the same
+    cube from behind and above its look-alikes, and above the tasks naming other labels."""
+    crops = object_crops(np.random.default_rng(HELD_OUT_SEED + 3), 80, views_per_object=4, label_share=1.0)
+    reading = label_reading(encoder, crops)
+    assert reading.label_crops >= 20
+    assert reading.label_auc >= 0.85, reading
+    assert reading.label_top1 >= 0.45, reading  # chance: 1/6

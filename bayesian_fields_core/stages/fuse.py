@@ -191,8 +191,10 @@ def run(ctx: JobContext) -> dict[str, Any]:
 
     accepted_chunks: list[np.ndarray] = []
     mask_counts = np.zeros(len(frames), dtype=np.int64)
-    # Accepted views per Gaussian, for view_correlation (fusion.bayes.discount_correlated_views).
-    view_counts = np.zeros(len(gaussians), dtype=np.int32)
+    # Accepted views per Gaussian, only when view_correlation needs them
+    # (fusion.bayes.discount_correlated_views); the paper's update never reads them.
+    count_views = use_bayes and ctx.params.view_correlation > 0
+    view_counts = np.zeros(len(gaussians) if count_views else 0, dtype=np.int32)
     primitives = PrimitiveBuilder(len(gaussians))  # step 6, while each frame's pairs are in memory
     rendered = 0
     for n, (index, frame) in enumerate(frames):
@@ -228,7 +230,8 @@ def run(ctx: JobContext) -> dict[str, Any]:
             rendered += int(was_rendered)
             accepted_chunks.append(accepted)
             ids_host, masks_host = gaussian_ids.cpu().numpy(), mask_ids.cpu().numpy()
-            view_counts[ids_host[accepted[masks_host]]] += 1
+            if count_views:
+                view_counts[ids_host[accepted[masks_host]]] += 1
             primitives.add_frame(ids_host, masks_host, accepted)
             mask_counts[n] = len(phi)
             ctx.progress("fuse", (n + 1) / len(frames))
@@ -244,7 +247,8 @@ def run(ctx: JobContext) -> dict[str, Any]:
             averaging.add_frame(gaussian_ids, mask_ids, phi, accepted)
         update_peak(peak, gaussian_ids, mask_ids, margins, accepted)
         accepted_chunks.append(np.asarray(accepted, dtype=bool))
-        view_counts[gaussian_ids[accepted_chunks[-1][mask_ids]]] += 1  # once per frame at most
+        if count_views:
+            view_counts[gaussian_ids[accepted_chunks[-1][mask_ids]]] += 1  # once per frame at most
         primitives.add_frame(gaussian_ids, mask_ids, accepted_chunks[-1])
         mask_counts[n] = len(phi)
         ctx.progress("fuse", (n + 1) / len(frames))
@@ -260,7 +264,8 @@ def run(ctx: JobContext) -> dict[str, Any]:
         peak = peak.cpu().numpy()
         del logodds_t
     if use_bayes:
-        discount_correlated_views(logodds, view_counts, ctx.params.view_correlation, ctx.params.prior)
+        if count_views:
+            discount_correlated_views(logodds, view_counts, ctx.params.view_correlation, ctx.params.prior)
         # Written a block at a time: the (N, T) probabilities are never held beside the log-odds.
         probs: Any = ArrayBlocks(logodds.shape, np.dtype(np.float32), probability_blocks(logodds))
     else:

@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from scipy.special import logit
 
 from bayesian_fields_core.artifacts import ACCEPTED_KEY, FUSION_KEY
 from bayesian_fields_core.params import PipelineParams
@@ -82,3 +83,27 @@ def test_auto_backend_is_numpy_on_cpu(scene_dir: Path, profile: dict[str, Any], 
         params=PipelineParams(fusion="average", fusion_backend="torch"),
     )
     assert not fusion_on_torch(avg, "cuda")  # the averaging ablation stays on numpy
+
+
+def test_view_correlation_shrinks_evidence_alike_on_both_backends(
+    scene_dir: Path, profile: dict[str, Any], tmp_path: Path
+) -> None:
+    """The stage counts each Gaussian's accepted views on either backend and divides its evidence
+    by 1 + (n - 1) rho: never more evidence than the paper's update, less for Gaussians seen twice+."""
+    cache = tmp_path / "cache"
+    logodds: dict[str, np.ndarray] = {}
+    for name, params in {
+        "paper": PipelineParams(fusion_backend="numpy"),
+        "numpy": PipelineParams(fusion_backend="numpy", view_correlation=0.3),
+        "torch": PipelineParams(fusion_backend="torch", view_correlation=0.3),
+    }.items():
+        ctx = make_ctx(scene_dir, tmp_path / name, cache, counting_models(profile), params=params)
+        if name == "paper":
+            run_stage("perceive", ctx)
+        run_stage("fuse", ctx)
+        logodds[name] = get_arrays(LocalStore(tmp_path / name), "job/" + FUSION_KEY)["logodds"]
+    base = np.float32(logit(PipelineParams().prior))  # where every Gaussian's evidence starts
+    paper, discounted = logodds["paper"] - base, logodds["numpy"] - base
+    np.testing.assert_allclose(logodds["torch"], logodds["numpy"], rtol=0, atol=1e-4)
+    assert np.all(np.abs(discounted) <= np.abs(paper) + 1e-4)
+    assert (np.abs(discounted) < 0.5 * np.abs(paper)).any()

@@ -114,6 +114,26 @@ def surfels_to_gaussians(
     )
 
 
+def paint_label(
+    gaussians: Gaussians,
+    rows: np.ndarray,
+    surface_normals: np.ndarray,
+    colour: str,
+    normal: np.ndarray,
+    half_angle_deg: float,
+    spec: SceneSpec,
+) -> None:
+    """Give the label Gaussians `rows` (R,) view-dependent colour in place: `colour`, shaded as
+    their surface (`surface_normals` (R, 3)), within `half_angle_deg` of the label's `normal`,
+    their current (object) colour beyond it (`capture.label_sh`). One place for scenes and for
+    the tiny CLIP's single-object crops, so both show the same label."""
+    label_rgb = np.asarray(COLOURS[colour]) * lambert(surface_normals, spec)[:, None]
+    object_rgb = gaussians.sh[rows, 0, :].astype(np.float64) * SH_C0 + 0.5
+    f_dc, f_rest = capture.label_sh(object_rgb, label_rgb, normal, half_angle_deg)
+    gaussians.sh[rows, 0, :] = f_dc
+    gaussians.sh[rows, 1:4, :] = f_rest
+
+
 @dataclass
 class _Piece:
     """Sampled surface of one instance before it becomes Gaussians."""
@@ -309,12 +329,7 @@ def build_scene(spec: SceneSpec) -> SyntheticScene:
     label_gaussians = np.zeros(len(points), dtype=bool) if labelled else None
     for index, colour, normal, mask in labelled:
         rows = starts[index] + np.flatnonzero(mask)
-        shade = lambert(normals[rows], spec)[:, None]
-        label_rgb = np.asarray(COLOURS[colour]) * shade
-        object_rgb = gaussians.sh[rows, 0, :].astype(np.float64) * SH_C0 + 0.5
-        f_dc, f_rest = capture.label_sh(object_rgb, label_rgb, normal, spec.label_half_angle_deg)
-        gaussians.sh[rows, 0, :] = f_dc
-        gaussians.sh[rows, 1:4, :] = f_rest
+        paint_label(gaussians, rows, normals[rows], colour, normal, spec.label_half_angle_deg, spec)
         label_of[index] = colour
         labels.append(Label(index, colour, normal))
         assert label_gaussians is not None

@@ -16,9 +16,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bayesian_fields_core.eval.synthetic.builder import SH_C0, build_scene, lambert, surfels_to_gaussians
+from bayesian_fields_core.eval.synthetic.builder import build_scene, paint_label, surfels_to_gaussians
 from bayesian_fields_core.eval.synthetic.cameras import look_at, pinhole
-from bayesian_fields_core.eval.synthetic.capture import label_part, label_sh, stripes
+from bayesian_fields_core.eval.synthetic.capture import label_part, stripes
 from bayesian_fields_core.eval.synthetic.generate import to_uint8
 from bayesian_fields_core.eval.synthetic.id_images import IdImageRenderer
 from bayesian_fields_core.eval.synthetic.spec import SceneSpec
@@ -137,11 +137,9 @@ def object_crops(
         g = surfels_to_gaussians(points, normals, np.concatenate(rgb), sigma, spec, rng)
         if patch is not None:
             rows = np.arange(len(points) - len(pts[-1]), len(points))
-            label_rgb = np.asarray(COLOURS[patch.colour]) * lambert(normals[rows], spec)[:, None]
-            object_rgb = g.sh[rows, 0, :].astype(np.float64) * SH_C0 + 0.5
-            f_dc, f_rest = label_sh(object_rgb, label_rgb, np.array([0.0, 1.0, 0.0]), patch.half_angle_deg)
-            g.sh[rows, 0, :] = f_dc
-            g.sh[rows, 1:4, :] = f_rest
+            paint_label(
+                g, rows, normals[rows], patch.colour, np.array([0.0, 1.0, 0.0]), patch.half_angle_deg, spec
+            )
         renderer = GaussianRenderer(g)
         centre = (points.min(0) + points.max(0)) / 2
         radius = float(np.linalg.norm(points - centre, axis=1).max())

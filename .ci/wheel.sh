@@ -24,6 +24,10 @@ case "$installed" in
   "$work/venv/"*) echo "imported from the wheel: $installed" ;;
   *) echo "wheel stage: bayesian_fields_core imported from $installed, not the clean venv" >&2; exit 1 ;;
 esac
+# The wheel installs two import packages and no generic top-level `services`.
+tops="$(python3 -c 'import sys, zipfile; print(" ".join(sorted({n.split("/")[0] for n in zipfile.ZipFile(sys.argv[1]).namelist() if not n.split("/")[0].endswith(".dist-info")})))' "$work"/dist/bayesian_fields-*.whl)"
+echo "wheel top-level entries: $tops"
+[ "$tops" = "bayesian_fields_core bayesian_fields_service" ] || { echo "wheel stage: unexpected top-level entries: $tops" >&2; exit 1; }
 step "$work/venv/bin/bfields" run "$repo/samples/tabletop" --out "$work/x" --cache-dir "$work/cache" -q
 test -s "$work/x/result/summary.json" || { echo "wheel stage: no result/summary.json" >&2; exit 1; }
 echo "wheel stage: ok in $(($(date +%s) - start)) s"

@@ -36,7 +36,7 @@ class PipelineParams(BaseModel):
         None, ge=1, le=1_000_000, description="Use at most this many frames (after stride)."
     )
 
-    # --- alignment check before perception (scene/alignment.py explains the scores) -----------
+    # --- alignment check before perception (checks/alignment.py explains the scores) -----------
     alignment_check: bool = Field(
         True, description="Refuse a scene whose splat does not line up with its cameras and photos."
     )

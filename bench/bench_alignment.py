@@ -1,7 +1,7 @@
 """The alignment check's numbers on a good scene and on misaligned copies of it (CPU).
 
 Builds, from a scene folder (default samples/tabletop), the copies the thresholds of
-`scene/alignment.py` were chosen on: as shipped; photos degraded like a real capture against its
+`checks/alignment.py` were chosen on: as shipped; photos degraded like a real capture against its
 splat (blur, a few pixels of shift, noise, gamma, gain); splat scaled 0.5 + shifted 0.4 m; shifted 0.4 m; scaled 0.5;
 rotated 20 degrees about z; cameras with the OpenGL/OpenCV convention flipped; photos shuffled
 between cameras; splat shifted 10 m. Prints, per copy, the geometric shares, the extent ratio,
@@ -22,8 +22,8 @@ import numpy as np
 from PIL import Image
 from scipy import ndimage
 
+from bayesian_fields_core.checks.alignment import assess_alignment, geometric_alignment
 from bayesian_fields_core.params import PipelineParams
-from bayesian_fields_core.scene.alignment import assess_alignment, geometric_alignment
 from bayesian_fields_core.scene.loader import load_scene
 from tests.scene_transforms import copy_scene, flip_camera_convention, move_splat, rotation_z, shuffle_images
 

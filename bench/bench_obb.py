@@ -18,7 +18,7 @@ from scipy.spatial import ConvexHull
 from scipy.spatial.transform import Rotation
 
 from bayesian_fields_core.eval.box_iou import obb_iou
-from bayesian_fields_core.objects.obb import minimum_obb
+from bayesian_fields_core.geometry.obb import minimum_obb
 
 
 def brute_force_volume(points: np.ndarray, n: int = 20_000) -> float:

@@ -56,11 +56,11 @@ from PIL import Image  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from bayesian_fields_core.job.pipeline import load_models  # noqa: E402
 from bayesian_fields_core.params import PipelineParams  # noqa: E402
 from bayesian_fields_core.perception.batching import CropBatcher  # noqa: E402
 from bayesian_fields_core.perception.crops import mask_crops  # noqa: E402
 from bayesian_fields_core.perception.masks import exclusive_labels  # noqa: E402
-from bayesian_fields_core.pipeline import load_models  # noqa: E402
 
 WIDTH, HEIGHT = 640, 480
 PROFILES = {  # profile file -> (segmenter label, encoder label), as make_reference_models writes them

@@ -22,9 +22,9 @@ import time
 import numpy as np
 from scipy.spatial import cKDTree
 
-from bayesian_fields_core.objects.obb import minimum_obb
+from bayesian_fields_core.geometry.obb import minimum_obb
+from bayesian_fields_core.job.store import LocalStore
 from bayesian_fields_core.results import Result, SelectedObject, result_sizes, write_result
-from bayesian_fields_core.store import LocalStore
 
 
 def synthetic_map(num_gaussians: int, num_primitives: int, num_objects: int, order: str, seed: int = 0):

@@ -53,17 +53,17 @@ from typing import Any
 import numpy as np
 from PIL import Image
 
-from bayesian_fields_core.content_keys import perception_input_digest
-from bayesian_fields_core.context import JobContext
-from bayesian_fields_core.eval.synthetic.cameras import look_at, pinhole
+from bayesian_fields_core.geometry.transforms import look_at, pinhole
+from bayesian_fields_core.job.content_keys import perception_input_digest
+from bayesian_fields_core.job.context import JobContext
+from bayesian_fields_core.job.pipeline import run_stage
+from bayesian_fields_core.job.store import LocalStore, put_arrays
 from bayesian_fields_core.params import PipelineParams
-from bayesian_fields_core.pipeline import run_stage
 from bayesian_fields_core.results.reader import read_result
 from bayesian_fields_core.scene.nerfstudio import write_transforms
 from bayesian_fields_core.scene.ply import write_ply
 from bayesian_fields_core.scene.types import Frame, Gaussians
 from bayesian_fields_core.stages.perceive import smallest_label_dtype
-from bayesian_fields_core.store import LocalStore, put_arrays
 
 EMBED_DIM = 512
 MU0, MU1 = 0.20, 0.27  # target cosine of irrelevant / relevant masks (paper's calibration)

@@ -45,15 +45,15 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_scale as bs  # noqa: E402 - sibling benchmark module, not a package
 
-from bayesian_fields_core.artifacts import FUSION_KEY  # noqa: E402
-from bayesian_fields_core.content_keys import perception_input_digest  # noqa: E402
-from bayesian_fields_core.context import JobContext  # noqa: E402
+from bayesian_fields_core.job.artifacts import FUSION_KEY  # noqa: E402
+from bayesian_fields_core.job.content_keys import perception_input_digest  # noqa: E402
+from bayesian_fields_core.job.context import JobContext  # noqa: E402
+from bayesian_fields_core.job.pipeline import run_stage  # noqa: E402
+from bayesian_fields_core.job.store import LocalStore, put_arrays  # noqa: E402
 from bayesian_fields_core.params import PipelineParams  # noqa: E402
-from bayesian_fields_core.pipeline import run_stage  # noqa: E402
 from bayesian_fields_core.scene.nerfstudio import write_transforms  # noqa: E402
 from bayesian_fields_core.scene.ply import write_ply  # noqa: E402
 from bayesian_fields_core.stages.perceive import smallest_label_dtype  # noqa: E402
-from bayesian_fields_core.store import LocalStore, put_arrays  # noqa: E402
 
 WIDTH, HEIGHT, MASKS = 640, 480, 100
 

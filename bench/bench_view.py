@@ -26,11 +26,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_scale import make_frames, make_gaussians  # noqa: E402
 
-from bayesian_fields_core.objects.obb import minimum_obb  # noqa: E402
+from bayesian_fields_core.geometry.obb import minimum_obb  # noqa: E402
+from bayesian_fields_core.job.store import LocalStore  # noqa: E402
 from bayesian_fields_core.results import Result, SelectedObject, write_result  # noqa: E402
 from bayesian_fields_core.scene.nerfstudio import write_transforms  # noqa: E402
 from bayesian_fields_core.scene.ply import write_ply  # noqa: E402
-from bayesian_fields_core.store import LocalStore  # noqa: E402
 
 CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
                  "--disable-background-networking", "--disable-component-update", "--disable-sync",

@@ -31,12 +31,12 @@ from PIL import Image
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_scale  # noqa: E402 - sibling benchmark module, not a package
 
-from bayesian_fields_core.context import JobContext  # noqa: E402
+from bayesian_fields_core.job.context import JobContext  # noqa: E402
+from bayesian_fields_core.job.pipeline import load_models, run_stage  # noqa: E402
+from bayesian_fields_core.job.store import LocalStore  # noqa: E402
 from bayesian_fields_core.params import PipelineParams  # noqa: E402
-from bayesian_fields_core.pipeline import load_models, run_stage  # noqa: E402
 from bayesian_fields_core.render import GaussianRenderer  # noqa: E402
 from bayesian_fields_core.scene.loader import load_scene  # noqa: E402
-from bayesian_fields_core.store import LocalStore  # noqa: E402
 
 
 def sync(device: str) -> None:

@@ -25,14 +25,16 @@ import numpy as np
 from PIL import Image, ImageDraw
 from scipy import ndimage
 
-from bayesian_fields_core.eval.synthetic.builder import SyntheticScene, build_scene
-from bayesian_fields_core.eval.synthetic.cameras import capture_frames, look_at, pinhole
+from bayesian_fields_core.eval.synthetic.builder import build_scene
+from bayesian_fields_core.eval.synthetic.cameras import capture_frames
 from bayesian_fields_core.eval.synthetic.generate import to_uint8
 from bayesian_fields_core.eval.synthetic.id_images import IdImageRenderer
+from bayesian_fields_core.eval.synthetic.pieces import SyntheticScene
 from bayesian_fields_core.eval.synthetic.spec import suite_specs
 from bayesian_fields_core.eval.synthetic.tasks import fine_task_text, label_task_text, make_tasks
+from bayesian_fields_core.geometry.transforms import look_at, pinhole
+from bayesian_fields_core.job.pipeline import load_models
 from bayesian_fields_core.perception.crops import mask_crops
-from bayesian_fields_core.pipeline import load_models
 from bayesian_fields_core.render import GaussianRenderer
 
 MIN_PIXELS = 30

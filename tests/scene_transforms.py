@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bayesian_fields_core.scene.geometry import OPENGL_TO_OPENCV, quat_to_rotmat, rotmat_to_quat
+from bayesian_fields_core.geometry.transforms import OPENGL_TO_OPENCV, quat_to_rotmat, rotmat_to_quat
 from bayesian_fields_core.scene.ply import read_ply, write_ply
 from bayesian_fields_core.scene.types import Gaussians
 

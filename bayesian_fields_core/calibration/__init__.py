@@ -1,6 +1,6 @@
-"""Calibration of the likelihoods (METHOD step 3), in one place.
+"""Calibration of the likelihoods (METHOD step 3): the fitted `Calibration` (mu0, mu1, s per CLIP
+model id), its fit and its JSON file (`model`). Perception reads it to pick a model's file.
 
-- `model`: the fitted `Calibration` (mu0, mu1, s per CLIP model id), its fit and its JSON file;
-- `ground_truth`: labelled scores from scenes with ground truth, through the pipeline's own stages;
-- `entry`: `calibrate(CalibrationRequest)`, the typed entry point `bfields calibrate` calls.
+Fitting from labelled scores or from scenes with ground truth (`bfields calibrate`) runs the
+pipeline, so it lives higher up, in `eval.calibration`.
 """

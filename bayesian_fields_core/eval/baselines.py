@@ -20,11 +20,11 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from ..context import JobContext
-from ..objects.clustering import ObjectMap, objects_from_primitives
-from ..objects.primitives import PrimitiveBuilder
-from ..objects.probabilities import membership_matrix
-from ..store import get_arrays
+from bayesian_fields_core.job.context import JobContext
+from bayesian_fields_core.job.store import get_arrays
+from bayesian_fields_core.objects.clustering import ObjectMap, objects_from_primitives
+from bayesian_fields_core.objects.primitives import PrimitiveBuilder
+from bayesian_fields_core.objects.probabilities import membership_matrix
 
 
 @dataclass
@@ -127,8 +127,8 @@ def _finish(
     means: np.ndarray, object_ids: np.ndarray, table: np.ndarray, sizes: np.ndarray, ctx: JobContext
 ) -> ObjectMap:
     """Selection and boxes for a baseline that produced objects directly."""
-    from ..objects.obb import minimum_obb
-    from ..objects.select import top_k
+    from bayesian_fields_core.geometry.obb import minimum_obb
+    from bayesian_fields_core.objects.select import top_k
 
     selection = (
         top_k(table, sizes, ctx.params.top_k)

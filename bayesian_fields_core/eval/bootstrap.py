@@ -14,8 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import InputError
-from .clio import ClioScores
+from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.eval.clio import ClioScores
 
 
 @dataclass(frozen=True)

@@ -14,7 +14,7 @@ import numpy as np
 from scipy.optimize import linprog
 from scipy.spatial import ConvexHull, HalfspaceIntersection, QhullError
 
-from ..objects.obb import OrientedBox
+from bayesian_fields_core.geometry.obb import OrientedBox
 
 _EMPTY_DEPTH = 1e-9
 """Inscribed-ball radius (relative to the boxes' size) below which an intersection counts as empty:

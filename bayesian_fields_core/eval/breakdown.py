@@ -21,10 +21,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..objects.obb import OrientedBox
-from .box_iou import obb_contains_centroid, obb_iou_matrix
-from .clio import EstimatedObject, GTObject, top_k_for_task
-from .tables import render_table
+from bayesian_fields_core.eval.box_iou import obb_contains_centroid, obb_iou_matrix
+from bayesian_fields_core.eval.clio import EstimatedObject, GTObject, top_k_for_task
+from bayesian_fields_core.eval.tables import render_table
+from bayesian_fields_core.geometry.obb import OrientedBox
 
 CAUSES: tuple[str, ...] = ("ok", "merged", "split", "wrong instance", "missed", "other")
 

@@ -30,10 +30,10 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.spatial.transform import Rotation
 
-from ..errors import InputError
-from ..objects.obb import OrientedBox
-from .box_iou import obb_contains_centroid, obb_iou_matrix
-from .tables import render_table
+from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.eval.box_iou import obb_contains_centroid, obb_iou_matrix
+from bayesian_fields_core.eval.tables import render_table
+from bayesian_fields_core.geometry.obb import OrientedBox
 
 Matching = Literal["greedy", "hungarian"]
 RelaxedRule = Literal["either", "estimate_contains_gt"]

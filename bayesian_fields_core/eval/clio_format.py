@@ -28,11 +28,11 @@ from typing import Any
 import numpy as np
 import yaml
 
-from ..errors import InputError
-from ..objects.obb import OrientedBox
-from ..scene.similarity import Similarity
-from ..tasks import normalise_tasks
-from .clio import GTObject
+from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.eval.clio import GTObject
+from bayesian_fields_core.geometry.obb import OrientedBox
+from bayesian_fields_core.job.task_list import normalise_tasks
+from bayesian_fields_core.scene.similarity import Similarity
 
 MAX_FILE_BYTES = 16 * 1024 * 1024
 """A ground-truth or transform file larger than this is refused (Clio's are a few kB)."""

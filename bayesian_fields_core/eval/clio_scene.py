@@ -14,12 +14,12 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from ..errors import InputError
-from ..pipeline import load_models
-from .bootstrap import paired_differences
-from .clio import ClioScores, format_table
-from .clio_format import load_clio_case
-from .suite import FULL, SceneCase, evaluate_scene, print_not_found
+from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.eval.bootstrap import paired_differences
+from bayesian_fields_core.eval.clio import ClioScores, format_table
+from bayesian_fields_core.eval.clio_format import load_clio_case
+from bayesian_fields_core.eval.suite import FULL, SceneCase, evaluate_scene, print_not_found
+from bayesian_fields_core.job.pipeline import load_models
 
 
 def clio_case(

@@ -19,8 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import InputError
-from .tables import render_table
+from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.eval.tables import render_table
 
 DEFAULT_RATIO = 0.8
 DEFAULT_ACCURACY_THRESHOLD = 0.25

@@ -20,11 +20,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
-from ..scene.types import Frame, Gaussians
-from .lerf import DEFAULT_RATIO, LerfScores, lerf_scores, query_iou
-from .synthetic.ground_truth import load_ground_truth
-from .synthetic.id_images import IdImageRenderer
+from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.eval.lerf import DEFAULT_RATIO, LerfScores, lerf_scores, query_iou
+from bayesian_fields_core.eval.synthetic.ground_truth import load_ground_truth
+from bayesian_fields_core.eval.synthetic.id_images import IdImageRenderer
+from bayesian_fields_core.scene.types import Frame, Gaussians
 
 DEFAULT_VIEWS = 4
 DEFAULT_MIN_PIXELS = 50

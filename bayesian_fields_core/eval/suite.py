@@ -18,22 +18,25 @@ from typing import Any
 
 import numpy as np
 
-from ..artifacts import RESULT_PREFIX
-from ..context import JobContext, Models
-from ..fusion.likelihood import resolve_likelihood
-from ..objects.clustering import ObjectMap
-from ..params import PipelineParams
-from ..pipeline import load_models, run_job
-from ..results.reader import read_result
-from ..store import LocalStore
-from ..tasks import load_tasks
-from .baselines import BaselineParams, clio_style, semantic_gaussians
-from .bootstrap import paired_differences, score_intervals
-from .breakdown import SceneInstance, TaskBreakdown, format_breakdown, task_breakdowns
-from .clio import ClioScores, EstimatedObject, GTObject, TaskScores, clio_metrics, format_table
-from .lerf import LerfScores, format_lerf_table
-from .lerf_views import DEFAULT_VIEWS, LerfViews, prepare_views, score_map
-from .not_found import (
+from bayesian_fields_core.eval.baselines import BaselineParams, clio_style, semantic_gaussians
+from bayesian_fields_core.eval.bootstrap import paired_differences, score_intervals
+from bayesian_fields_core.eval.breakdown import (
+    SceneInstance,
+    TaskBreakdown,
+    format_breakdown,
+    task_breakdowns,
+)
+from bayesian_fields_core.eval.clio import (
+    ClioScores,
+    EstimatedObject,
+    GTObject,
+    TaskScores,
+    clio_metrics,
+    format_table,
+)
+from bayesian_fields_core.eval.lerf import LerfScores, format_lerf_table
+from bayesian_fields_core.eval.lerf_views import DEFAULT_VIEWS, LerfViews, prepare_views, score_map
+from bayesian_fields_core.eval.not_found_tradeoff import (
     TaskOutcome,
     best_threshold,
     format_curve,
@@ -41,7 +44,16 @@ from .not_found import (
     task_outcomes,
     tradeoff_curve,
 )
-from .tables import format_interval_table
+from bayesian_fields_core.eval.tables import format_interval_table
+from bayesian_fields_core.fusion.likelihood import resolve_likelihood
+from bayesian_fields_core.job.artifacts import RESULT_PREFIX
+from bayesian_fields_core.job.context import JobContext, Models
+from bayesian_fields_core.job.pipeline import load_models, run_job
+from bayesian_fields_core.job.store import LocalStore
+from bayesian_fields_core.job.task_list import load_tasks
+from bayesian_fields_core.objects.clustering import ObjectMap
+from bayesian_fields_core.params import PipelineParams
+from bayesian_fields_core.results.reader import read_result
 
 FULL = "Bayesian Fields (ours)"
 METHOD_ROWS: dict[str, dict[str, Any]] = {
@@ -131,8 +143,13 @@ def prepare_scenes(
     """Generate (once; cached on disk) the named suite's scenes and read their tasks and GT.
 
     With `seeds`, the re-seeded held-out variants of the first ``len(seeds)`` scenes instead."""
-    from ..objects.obb import OrientedBox
-    from .synthetic import generate_scene, load_clio_boxes, load_ground_truth, suite_specs
+    from bayesian_fields_core.eval.synthetic import (
+        generate_scene,
+        load_clio_boxes,
+        load_ground_truth,
+        suite_specs,
+    )
+    from bayesian_fields_core.geometry.obb import OrientedBox
 
     specs = suite_specs(seeds, suite=suite) if seeds else suite_specs(suite=suite)[:n_scenes]
     cases = []

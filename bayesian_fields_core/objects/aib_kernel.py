@@ -34,7 +34,7 @@ from __future__ import annotations
 import numpy as np
 from numba.typed import List
 
-from bayesian_fields_core.jit import compiled
+from bayesian_fields_core.compute.jit import compiled
 
 _COMPACT_GROWTH = 1.5
 """The heap is compacted (`_compact`) once it holds this many times the entries it kept at the

@@ -16,16 +16,15 @@ from typing import TypeVar
 import numpy as np
 import scipy.sparse as sp
 
-from ..params import PipelineParams
-from ..results.format import task_scores
-from ..threads import single_blas_thread
-from .aib import aib
-from .edges import MergedGraph, merge_identical, overlap_edges
-from .knn_filter import statistical_outlier_mask
-from .obb import OrientedBox, minimum_obb
-from .probabilities import conditionals, primitive_means
-from .select import prune_mask, top_k
-from .timing import StepTimer
+from bayesian_fields_core.compute.threads import single_blas_thread
+from bayesian_fields_core.geometry.obb import OrientedBox, minimum_obb
+from bayesian_fields_core.objects.aib import aib
+from bayesian_fields_core.objects.edges import MergedGraph, merge_identical, overlap_edges
+from bayesian_fields_core.objects.knn_filter import statistical_outlier_mask
+from bayesian_fields_core.objects.probabilities import conditionals, primitive_means
+from bayesian_fields_core.objects.select import prune_mask, task_scores, top_k
+from bayesian_fields_core.objects.timing import StepTimer
+from bayesian_fields_core.params import PipelineParams
 
 _T = TypeVar("_T")
 

@@ -10,10 +10,10 @@ import time
 
 import numpy as np
 
-from bayesian_fields_core.jit import KERNELS, is_cached
+from bayesian_fields_core.compute.jit import KERNELS, is_cached
+from bayesian_fields_core.geometry.obb import minimum_obb
 from bayesian_fields_core.objects.aib import aib
 from bayesian_fields_core.objects.edges import merge_identical, overlap_edges
-from bayesian_fields_core.objects.obb import minimum_obb
 from bayesian_fields_core.objects.primitives import PrimitiveBuilder
 from bayesian_fields_core.objects.probabilities import primitive_means
 

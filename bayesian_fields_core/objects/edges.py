@@ -19,8 +19,8 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
+from bayesian_fields_core.compute.jit import compiled
 from bayesian_fields_core.errors import InputError
-from bayesian_fields_core.jit import compiled
 from bayesian_fields_core.objects.probabilities import membership_matrix
 from bayesian_fields_core.params import default
 

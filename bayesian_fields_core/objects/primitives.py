@@ -21,8 +21,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from bayesian_fields_core.compute.jit import compiled
 from bayesian_fields_core.errors import InputError
-from bayesian_fields_core.jit import compiled
 
 
 class PrimitiveBuilder:

@@ -18,8 +18,8 @@ from typing import Literal
 import numpy as np
 import scipy.sparse as sp
 
+from bayesian_fields_core.compute.jit import compiled
 from bayesian_fields_core.errors import InputError
-from bayesian_fields_core.jit import compiled
 from bayesian_fields_core.params import default
 
 NullMode = Literal["product", "one_minus_max"]

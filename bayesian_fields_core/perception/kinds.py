@@ -1,4 +1,4 @@
-"""The model kinds a profile can name: one class per kind (see ``kind_registry``).
+"""The model kinds a profile can name: one class per kind (see ``kind_base``).
 
 Each class types the kind's ``params`` (the model class's keyword arguments; unset ones take that
 class's defaults), builds the model, and, for an encoder, computes its ``model_id`` from its files
@@ -15,7 +15,7 @@ from pydantic import Field
 from bayesian_fields_core.perception.classical import Method
 from bayesian_fields_core.perception.clip_inputs import ResizeMode
 from bayesian_fields_core.perception.encoder import Encoder
-from bayesian_fields_core.perception.kind_registry import (
+from bayesian_fields_core.perception.kind_base import (
     ENCODERS,
     SEGMENTERS,
     EncoderConfig,

@@ -9,52 +9,7 @@ from __future__ import annotations
 
 import torch
 
-C0 = 0.28209479177387814
-C1 = 0.4886025119029199
-C2 = (
-    1.0925484305920792,
-    -1.0925484305920792,
-    0.31539156525252005,
-    -1.0925484305920792,
-    0.5462742152960396,
-)
-C3 = (
-    -0.5900435899266435,
-    2.890611442640554,
-    -0.4570457994644658,
-    0.3731763325901154,
-    -0.4570457994644658,
-    1.445305721320277,
-    -0.5900435899266435,
-)
-
-
-def sh_basis(dirs: torch.Tensor, degree: int) -> torch.Tensor:
-    """Real SH basis values (N, (degree+1)^2) for unit directions (N, 3), 3DGS sign convention."""
-    x, y, z = dirs.unbind(-1)
-    terms = [torch.full_like(x, C0)]
-    if degree > 0:
-        terms += [-C1 * y, C1 * z, -C1 * x]
-    if degree > 1:
-        xx, yy, zz = x * x, y * y, z * z
-        terms += [
-            C2[0] * x * y,
-            C2[1] * y * z,
-            C2[2] * (2.0 * zz - xx - yy),
-            C2[3] * x * z,
-            C2[4] * (xx - yy),
-        ]
-    if degree > 2:
-        terms += [
-            C3[0] * y * (3.0 * xx - yy),
-            C3[1] * x * y * z,
-            C3[2] * y * (4.0 * zz - xx - yy),
-            C3[3] * z * (2.0 * zz - 3.0 * xx - 3.0 * yy),
-            C3[4] * x * (4.0 * zz - xx - yy),
-            C3[5] * z * (xx - yy),
-            C3[6] * x * (xx - 3.0 * yy),
-        ]
-    return torch.stack(terms, dim=-1)
+from bayesian_fields_core.geometry.spherical_harmonics import sh_basis
 
 
 def sh_to_rgb(sh: torch.Tensor, means: torch.Tensor, camera_centre: torch.Tensor) -> torch.Tensor:

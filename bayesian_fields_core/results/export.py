@@ -9,30 +9,13 @@ Recoloured files carry an int32 `object_id` vertex property (-1 = none), so a vi
 
 from __future__ import annotations
 
-import colorsys
-
 import numpy as np
 
-from ..scene.ply import ply_rows
-from ..scene.types import Gaussians
-from ..store import Store
-
-SH_C0 = 0.28209479177387814
-"""Degree-0 SH basis constant: rendered colour = 0.5 + SH_C0 * f_dc."""
-
-BACKGROUND_GREY = 0.25
-"""Colour (in [0, 1]) of Gaussians that belong to no object in the recoloured scene."""
-
-_GOLDEN = 0.618033988749895
-
-
-def object_palette(num_objects: int, *, saturation: float = 0.75, value: float = 0.95) -> np.ndarray:
-    """(num_objects, 3) RGB in [0, 1]: hues stepped by the golden ratio so that neighbouring ids
-    (often neighbouring objects) get far-apart colours. A loop over objects, not Gaussians."""
-    hues = (np.arange(num_objects) * _GOLDEN) % 1.0
-    return np.array([colorsys.hsv_to_rgb(h, saturation, value) for h in hues], dtype=np.float32).reshape(
-        -1, 3
-    )
+from bayesian_fields_core.geometry.spherical_harmonics import SH_C0
+from bayesian_fields_core.job.store import Store
+from bayesian_fields_core.results.colours import BACKGROUND_GREY, object_palette, rank_colour
+from bayesian_fields_core.scene.ply import ply_rows
+from bayesian_fields_core.scene.types import Gaussians
 
 
 def recolour(gaussians: Gaussians, object_ids: np.ndarray, num_objects: int) -> Gaussians:
@@ -56,7 +39,6 @@ def recolour(gaussians: Gaussians, object_ids: np.ndarray, num_objects: int) -> 
 def task_colour_sh(object_ids: np.ndarray, selected: list[int]) -> np.ndarray:
     """(N, 1, 3) float32 degree-0 SH of one task's colouring: its selected objects (ids in rank
     order) in their rank colour (`previews.RANK_COLOURS`), every other Gaussian grey."""
-    from .previews import rank_colour
 
     ids = np.asarray(object_ids)
     rgb = np.full((len(ids), 3), BACKGROUND_GREY, dtype=np.float32)

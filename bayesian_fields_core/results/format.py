@@ -19,8 +19,10 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import InputError
-from ..objects.obb import OrientedBox
+from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.geometry.obb import OrientedBox
+from bayesian_fields_core.objects.not_found import NotFound
+from bayesian_fields_core.objects.select import task_scores
 
 FORMAT_NAME = "bayesian-fields-result"
 FORMAT_VERSION = "1.3"
@@ -108,54 +110,6 @@ class SelectedObject:
             )
         except KeyError as exc:
             raise InputError(f"result summary: selected object missing field {exc.args[0]!r}") from None
-
-
-@dataclass
-class NotFound:
-    """Why a task has no answer (format 1.3): its best candidate did not carry enough evidence.
-
-    `rule` names the score the rule thresholds, `score` is the best candidate's value of it (None
-    when no object qualified at all), `threshold` the least value that answers (None: rule off),
-    `object_id` the rejected candidate (None when there was none), `reason` one readable line."""
-
-    reason: str
-    rule: str
-    threshold: float | None
-    score: float | None = None
-    object_id: int | None = None
-
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "reason": self.reason,
-            "rule": self.rule,
-            "threshold": None if self.threshold is None else float(self.threshold),
-            "score": None if self.score is None else float(self.score),
-            "object_id": None if self.object_id is None else int(self.object_id),
-        }
-
-    @classmethod
-    def from_dict(cls, data: Any) -> NotFound:
-        if not isinstance(data, dict):
-            raise InputError("result summary: not_found must be an object")
-        try:
-            score, object_id, threshold = data.get("score"), data.get("object_id"), data["threshold"]
-            return cls(
-                reason=str(data["reason"]),
-                rule=str(data["rule"]),
-                threshold=None if threshold is None else float(threshold),
-                score=None if score is None else float(score),
-                object_id=None if object_id is None else int(object_id),
-            )
-        except KeyError as exc:
-            raise InputError(f"result summary: not_found missing field {exc.args[0]!r}") from None
-        except (TypeError, ValueError) as exc:
-            raise InputError(f"result summary: malformed not_found ({exc})") from None
-
-
-def task_scores(probabilities: np.ndarray, relevance: np.ndarray | None) -> np.ndarray:
-    """(O, T) the per-task object score that selection, LeRF queries and reports rank by:
-    p(y = 1 | object) when known, else p(task | object) without the null column."""
-    return np.asarray(relevance) if relevance is not None else np.asarray(probabilities)[:, :-1]
 
 
 @dataclass

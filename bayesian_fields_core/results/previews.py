@@ -22,32 +22,14 @@ from typing import Any
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
-from ..render.output import RasterSettings
-from ..scene.types import Frame, Gaussians
-from ..threads import torch_threads
-from .export import SH_C0
-from .format import Result
+from bayesian_fields_core.compute.threads import torch_threads
+from bayesian_fields_core.render.output import RasterSettings
+from bayesian_fields_core.results.colours import DIM, TINT, base_colours, rank_colour
+from bayesian_fields_core.results.format import Result
+from bayesian_fields_core.scene.types import Frame, Gaussians
 
 PREVIEW_DIR = "previews/"
 CONTACT_SHEET_KEY = "previews/contact_sheet.png"
-RANK_COLOURS = np.array(
-    [
-        [1.00, 0.25, 0.20],  # rank 1: red
-        [1.00, 0.75, 0.10],  # rank 2: amber
-        [0.25, 0.85, 0.30],  # rank 3: green
-        [0.25, 0.60, 1.00],  # rank 4: blue
-        [0.85, 0.35, 1.00],  # rank 5: violet
-    ],
-    dtype=np.float32,
-)
-"""Colour of a task's k-th object (cycled past 5) in previews, task exports and the viewer."""
-
-DIM = 0.35
-"""Brightness factor of Gaussians outside the task's selection in a preview."""
-
-TINT = 0.65
-"""Weight of the rank colour when tinting a selected object's Gaussians (1 = flat colour)."""
-
 _MAX_VIEW_POINTS = 4000
 
 PREVIEW_RASTER = RasterSettings(tile_size=8, cull_faint_tiles=True)
@@ -67,11 +49,6 @@ A preview's compositing runs a few hundred small steps; with several intra-op th
 ends in a barrier where idle threads spin, so on the scale bench two threads cost about twice the
 CPU of one for a little less wall time, and on a busy machine far more (a spinning thread waits
 for one that is descheduled). The cluster stage runs on the CPU queue, where CPU is the cost."""
-
-
-def rank_colour(rank: int) -> np.ndarray:
-    """(3,) RGB in [0, 1] of the object at 0-based `rank`."""
-    return RANK_COLOURS[rank % len(RANK_COLOURS)]
 
 
 def preview_key(task_index: int) -> str:
@@ -116,11 +93,6 @@ def best_view(frames: list[Frame], points: np.ndarray) -> int:
         if (count, area) > best_score:
             best, best_score = i, (count, area)
     return best
-
-
-def base_colours(g: Gaussians) -> np.ndarray:
-    """(N, 3) view-independent colour of each Gaussian (its degree-0 SH term)."""
-    return np.clip(0.5 + SH_C0 * np.asarray(g.sh[:, 0, :], dtype=np.float32), 0.0, 1.0)
 
 
 def _scaled_camera(frame: Frame, max_side: int) -> tuple[np.ndarray, int, int]:
@@ -191,9 +163,9 @@ def _composite_colours(
     in one pass (a preview's tinted colours and its label colours together)."""
     import torch
 
-    from ..render.composite import composite
-    from ..render.projection import project
-    from ..render.tiles import bin_gaussians, faint_cull
+    from bayesian_fields_core.render.composite import composite
+    from bayesian_fields_core.render.projection import project
+    from bayesian_fields_core.render.tiles import bin_gaussians, faint_cull
 
     s = renderer.settings
     device = renderer.device
@@ -233,7 +205,7 @@ def render_previews(
     if not frames:
         return []
     with torch_threads(threads):
-        from ..render.renderer import GaussianRenderer
+        from bayesian_fields_core.render.renderer import GaussianRenderer
 
         ids = np.asarray(result.object_ids)
         base = base_colours(gaussians)

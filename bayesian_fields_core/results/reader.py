@@ -9,11 +9,10 @@ from typing import Any
 
 import numpy as np
 
-from ..artifacts import RESULT_PREFIX
-from ..errors import InputError
-from ..scene.types import Gaussians
-from ..store import ArtifactNotFound, LocalStore, Store
-from .format import (
+from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.job.artifacts import RESULT_PREFIX
+from bayesian_fields_core.job.store import ArtifactNotFound, LocalStore, Store
+from bayesian_fields_core.results.format import (
     FORMAT_NAME,
     FORMAT_VERSION,
     OBJECT_IDS_KEY,
@@ -27,7 +26,8 @@ from .format import (
     decode_array,
     decode_ids,
 )
-from .writer import normalise_prefix
+from bayesian_fields_core.results.writer import normalise_prefix
+from bayesian_fields_core.scene.types import Gaussians
 
 
 def _check_version(summary: dict[str, Any], where: str) -> None:

@@ -14,13 +14,12 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import InputError
-from ..objects.timing import StepTimer
-from ..params import default
-from ..scene.types import Frame, Gaussians
-from ..store import Store, put_json
-from .export import put_ply, put_task_plys, recolour
-from .format import (
+from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.job.store import Store, put_json
+from bayesian_fields_core.objects.timing import StepTimer
+from bayesian_fields_core.params import default
+from bayesian_fields_core.results.export import put_ply, put_task_plys, recolour
+from bayesian_fields_core.results.format import (
     FORMAT_NAME,
     FORMAT_VERSION,
     NULL_TASK,
@@ -37,7 +36,13 @@ from .format import (
     encode_array,
     encode_ids,
 )
-from .previews import CONTACT_SHEET_KEY, PREVIEW_DIR, contact_sheet, render_previews
+from bayesian_fields_core.results.previews import (
+    CONTACT_SHEET_KEY,
+    PREVIEW_DIR,
+    contact_sheet,
+    render_previews,
+)
+from bayesian_fields_core.scene.types import Frame, Gaussians
 
 
 def normalise_prefix(prefix: str) -> str:

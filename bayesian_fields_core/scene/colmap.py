@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from bayesian_fields_core.errors import InputError, input_boundary
-from bayesian_fields_core.scene.geometry import intrinsics, quat_to_rotmat, rigid, rotmat_to_quat
+from bayesian_fields_core.geometry.transforms import intrinsics, quat_to_rotmat, rigid, rotmat_to_quat
 from bayesian_fields_core.scene.images import clean_distortion, resolve_image_path
 from bayesian_fields_core.scene.types import Frame
 

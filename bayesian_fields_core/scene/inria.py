@@ -18,14 +18,14 @@ from typing import Any
 import numpy as np
 
 from bayesian_fields_core.errors import InputError, input_boundary
-from bayesian_fields_core.scene.files import load_json
-from bayesian_fields_core.scene.geometry import (
+from bayesian_fields_core.geometry.transforms import (
     RIGID_TOLERANCE,
     intrinsics,
     invert_rigid,
     rigid,
     rotation_error,
 )
+from bayesian_fields_core.scene.files import load_json
 from bayesian_fields_core.scene.images import resolve_image_path
 from bayesian_fields_core.scene.types import Frame
 

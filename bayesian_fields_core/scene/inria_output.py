@@ -26,7 +26,7 @@ from typing import Any
 from PIL import Image
 
 from bayesian_fields_core.errors import InputError
-from bayesian_fields_core.scene.geometry import intrinsics
+from bayesian_fields_core.geometry.transforms import intrinsics
 from bayesian_fields_core.scene.types import Frame
 
 CFG_ARGS = "cfg_args"

@@ -20,14 +20,14 @@ import numpy as np
 from PIL import Image
 
 from bayesian_fields_core.errors import InputError, input_boundary
-from bayesian_fields_core.scene.files import load_json, resolve_inside
-from bayesian_fields_core.scene.geometry import (
+from bayesian_fields_core.geometry.transforms import (
     OPENGL_TO_OPENCV,
     RIGID_TOLERANCE,
     intrinsics,
     invert_rigid,
     rotation_error,
 )
+from bayesian_fields_core.scene.files import load_json, resolve_inside
 from bayesian_fields_core.scene.images import DISTORTION_KEYS, clean_distortion, resolve_image_path
 from bayesian_fields_core.scene.types import Frame
 

@@ -18,8 +18,8 @@ from typing import Any
 import numpy as np
 
 from bayesian_fields_core.errors import InputError
-from bayesian_fields_core.objects.obb import OrientedBox
-from bayesian_fields_core.scene.geometry import rotation_error, rotmat_to_quat
+from bayesian_fields_core.geometry.obb import OrientedBox
+from bayesian_fields_core.geometry.transforms import rotation_error, rotmat_to_quat
 from bayesian_fields_core.scene.types import Gaussians
 
 SIMILARITY_TOLERANCE = 1e-4
@@ -173,7 +173,7 @@ def sh_band_rotations(rotation: np.ndarray, degree: int) -> list[np.ndarray]:
     """
     import torch
 
-    from bayesian_fields_core.render.sh import sh_basis
+    from bayesian_fields_core.geometry.spherical_harmonics import sh_basis
 
     d = _sample_directions()
     back = d @ np.asarray(rotation, dtype=np.float64)  # rows R^T d

@@ -13,17 +13,18 @@ from typing import Any
 
 import numpy as np
 
-from ..artifacts import ACCEPTED_KEY, FUSION_KEY, PRIMITIVES_KEY, RESULT_PREFIX
-from ..context import JobContext
-from ..fusion.peak import object_peak
-from ..objects.clustering import ObjectMap, objects_from_primitives, primitive_scores
-from ..objects.compile_kernels import prepare_kernels
-from ..objects.not_found import not_found_reason
-from ..objects.primitives import PrimitiveBuilder
-from ..objects.timing import StepTimer
-from ..results.format import NotFound, Result, SelectedObject
-from ..store import get_arrays
-from .markers import write_marker
+from bayesian_fields_core.fusion.peak import object_peak
+from bayesian_fields_core.job.artifacts import ACCEPTED_KEY, FUSION_KEY, PRIMITIVES_KEY, RESULT_PREFIX
+from bayesian_fields_core.job.context import JobContext
+from bayesian_fields_core.job.markers import write_marker
+from bayesian_fields_core.job.stage_table import STAGES
+from bayesian_fields_core.job.store import get_arrays
+from bayesian_fields_core.objects.clustering import ObjectMap, objects_from_primitives, primitive_scores
+from bayesian_fields_core.objects.compile_kernels import prepare_kernels
+from bayesian_fields_core.objects.not_found import not_found_reason
+from bayesian_fields_core.objects.primitives import PrimitiveBuilder
+from bayesian_fields_core.objects.timing import StepTimer
+from bayesian_fields_core.results.format import NotFound, Result, SelectedObject
 
 
 def load_primitives(ctx: JobContext) -> np.ndarray:
@@ -53,7 +54,7 @@ def build_primitives(ctx: JobContext) -> np.ndarray:
 
 
 def run(ctx: JobContext) -> dict[str, Any]:
-    from ..results.writer import write_result
+    from bayesian_fields_core.results.writer import write_result
 
     t0 = time.perf_counter()
     timer = StepTimer()
@@ -176,7 +177,7 @@ def build_result(
 
 
 def _stage_timings(ctx: JobContext) -> dict[str, float]:
-    from .markers import STAGES, is_done, read_marker
+    from bayesian_fields_core.job.markers import is_done, read_marker
 
     return {
         stage: float(read_marker(ctx, stage).get("seconds", 0.0))

@@ -19,24 +19,30 @@ from typing import Any
 import numpy as np
 from scipy.special import logit
 
-from ..artifacts import ACCEPTED_KEY, FUSION_KEY, PRIMITIVES_KEY
-from ..context import JobContext
-from ..errors import InputError
-from ..fusion.averaging import CosineAverager
-from ..fusion.bayes import (
+from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.fusion.averaging import CosineAverager
+from bayesian_fields_core.fusion.bayes import (
     accepted_masks,
     bayes_update,
     discount_correlated_views,
     init_logodds,
     probability_blocks,
 )
-from ..fusion.likelihood import LikelihoodParams, log_likelihood_ratio, resolve_likelihood
-from ..fusion.peak import init_peak, init_peak_torch, margin, update_peak, update_peak_torch
-from ..fusion.visibility import mask_associations
-from ..objects.primitives import PrimitiveBuilder
-from ..scene.images import load_depth
-from ..store import ArrayBlocks, get_arrays, put_array_blocks, put_arrays
-from .markers import write_marker
+from bayesian_fields_core.fusion.likelihood import LikelihoodParams, log_likelihood_ratio, resolve_likelihood
+from bayesian_fields_core.fusion.peak import (
+    init_peak,
+    init_peak_torch,
+    margin,
+    update_peak,
+    update_peak_torch,
+)
+from bayesian_fields_core.fusion.visibility import mask_associations
+from bayesian_fields_core.job.artifacts import ACCEPTED_KEY, FUSION_KEY, PRIMITIVES_KEY
+from bayesian_fields_core.job.context import JobContext
+from bayesian_fields_core.job.markers import write_marker
+from bayesian_fields_core.job.store import ArrayBlocks, get_arrays, put_array_blocks, put_arrays
+from bayesian_fields_core.objects.primitives import PrimitiveBuilder
+from bayesian_fields_core.scene.images import load_depth
 
 log = logging.getLogger(__name__)
 
@@ -107,7 +113,7 @@ def associations_on_device(
     """
     import torch
 
-    from ..fusion.visibility_torch import mask_associations_torch
+    from bayesian_fields_core.fusion.visibility_torch import mask_associations_torch
 
     store = ctx.scene_store
     assert store is not None
@@ -165,7 +171,7 @@ def run(ctx: JobContext) -> dict[str, Any]:
     if on_torch:
         import torch
 
-        from ..fusion.bayes_torch import bayes_update_torch, init_logodds_torch
+        from bayesian_fields_core.fusion.bayes_torch import bayes_update_torch, init_logodds_torch
 
         means_t = torch.as_tensor(np.ascontiguousarray(gaussians.means, np.float32), device=device)
         logodds_t = init_logodds_torch(len(gaussians), n_tasks, means_t.device, ctx.params.prior)
@@ -184,7 +190,7 @@ def run(ctx: JobContext) -> dict[str, Any]:
     def renderer_factory():
         nonlocal renderer
         if renderer is None:
-            from ..render import GaussianRenderer
+            from bayesian_fields_core.render import GaussianRenderer
 
             renderer = GaussianRenderer(gaussians, device=device)
         return renderer

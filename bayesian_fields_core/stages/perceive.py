@@ -4,7 +4,7 @@ Outputs are task-independent, so each frame is cached under its image's content 
 perception fingerprint (models + parameters): re-running a scene with a new task list, from another
 folder, or with one image changed recomputes only the frames whose pixels changed. Frames already
 in the cache are skipped one by one, so a crashed stage resumes where it stopped.
-The stage starts with the alignment check (`scene/alignment.py`): a splat that does not line up
+The stage starts with the alignment check (`checks/alignment.py`): a splat that does not line up
 with its cameras fails the job here, with a one-line reason, before any frame is segmented.
 """
 
@@ -16,14 +16,14 @@ from typing import Any
 
 import numpy as np
 
-from ..context import JobContext
-from ..errors import CancelledError
-from ..perception.batching import CropBatcher
-from ..perception.crops import mask_crops
-from ..perception.prefetch import pipelined
-from ..scene.images import load_image
-from ..store import put_arrays
-from .markers import write_marker
+from bayesian_fields_core.errors import CancelledError
+from bayesian_fields_core.job.context import JobContext
+from bayesian_fields_core.job.markers import write_marker
+from bayesian_fields_core.job.store import put_arrays
+from bayesian_fields_core.perception.batching import CropBatcher
+from bayesian_fields_core.perception.crops import mask_crops
+from bayesian_fields_core.perception.prefetch import pipelined
+from bayesian_fields_core.scene.images import load_image
 
 log = logging.getLogger(__name__)
 

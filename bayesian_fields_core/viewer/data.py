@@ -14,15 +14,21 @@ from typing import Any
 
 import numpy as np
 
-from ..artifacts import FUSION_KEY, RESULT_PREFIX
-from ..errors import InputError
-from ..objects.obb import OrientedBox, minimum_obb
-from ..results.export import BACKGROUND_GREY, object_palette
-from ..results.format import Result
-from ..results.previews import DIM, TINT, base_colours, rank_colour
-from ..results.reader import read_result
-from ..scene.types import Frame, Gaussians
-from ..store import LocalStore
+from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.geometry.obb import OrientedBox, minimum_obb
+from bayesian_fields_core.job.artifacts import FUSION_KEY, RESULT_PREFIX
+from bayesian_fields_core.job.store import LocalStore
+from bayesian_fields_core.results.colours import (
+    BACKGROUND_GREY,
+    DIM,
+    TINT,
+    base_colours,
+    object_palette,
+    rank_colour,
+)
+from bayesian_fields_core.results.format import Result
+from bayesian_fields_core.results.reader import read_result
+from bayesian_fields_core.scene.types import Frame, Gaussians
 
 DEFAULT_MAX_GAUSSIANS = 1_000_000
 """Cap on the Gaussians sent to the browser. Above it the viewer keeps every Gaussian of a selected
@@ -163,8 +169,8 @@ def load_view(
 ) -> ViewData:
     """Read a result and its scene. The scene is `scene_dir`, else the folder summary.json records
     (`scene.folder`), else the geometry of the result's own recoloured scene export (no cameras)."""
-    from ..scene.loader import load_scene
-    from ..scene.ply import read_ply
+    from bayesian_fields_core.scene.loader import load_scene
+    from bayesian_fields_core.scene.ply import read_ply
 
     root, prefix = result_root(path)
     store = LocalStore(root)

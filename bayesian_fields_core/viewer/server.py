@@ -15,10 +15,9 @@ from typing import Any
 
 import numpy as np
 
-from ..results.export import object_palette
-from ..results.previews import rank_colour
-from ..scene.geometry import quat_to_rotmat, rotmat_to_quat
-from .data import ViewData
+from bayesian_fields_core.geometry.transforms import quat_to_rotmat, rotmat_to_quat
+from bayesian_fields_core.results.colours import object_palette, rank_colour
+from bayesian_fields_core.viewer.data import ViewData
 
 COLOURINGS = ("task highlight", "relevance heat map", "all objects", "original colours")
 

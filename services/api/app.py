@@ -1,11 +1,11 @@
-"""FastAPI application factory: `create_app(settings)`; `services.api.app:app` for uvicorn.
+"""FastAPI application factory: `create_app(settings)`; `bayesian_fields_service.api.app:app` for uvicorn.
 
 The app holds one `AppState` (store, Redis, job store, key ring, Celery sender) built from the
 settings, so tests and deployments differ only in `ServiceSettings`. Input errors become 422 with
 the library's message (which names the file and the problem); nothing else leaks internals.
 Every call the API makes to Redis, the broker or the bucket has a short, bounded retry budget
 (`api_backend_timeout_s` x `api_backend_attempts`): an outage is answered 503 + Retry-After in
-about a second (`services.api.edge`), while the workers keep their own patient retries.
+about a second (`bayesian_fields_service.api.edge`), while the workers keep their own patient retries.
 """
 
 from __future__ import annotations
@@ -15,17 +15,16 @@ from fastapi import FastAPI
 from redis.backoff import ConstantBackoff
 from redis.retry import Retry
 
-from services.common.api_keys import ApiKeyRing
-from services.common.jobs import JobStore
-from services.common.settings import ServiceSettings, apply_log_level, get_settings
-from services.common.storage import build_store
-from services.worker.celery_app import make_celery
-
-from .edge import Utf8Guard, install_handlers
-from .routes import health, jobs, scenes, ui
-from .routes.health import metrics_registry
-from .state import AppState
-from .sweeper import Sweeper, lifespan
+from bayesian_fields_service.api.edge import Utf8Guard, install_handlers
+from bayesian_fields_service.api.routes import health, jobs, scenes, ui
+from bayesian_fields_service.api.routes.health import metrics_registry
+from bayesian_fields_service.api.state import AppState
+from bayesian_fields_service.api.sweeper import Sweeper, lifespan
+from bayesian_fields_service.common.api_keys import ApiKeyRing
+from bayesian_fields_service.common.jobs import JobStore
+from bayesian_fields_service.common.settings import ServiceSettings, apply_log_level, get_settings
+from bayesian_fields_service.common.storage import build_store
+from bayesian_fields_service.worker.celery_app import make_celery
 
 DESCRIPTION = """
 Bayesian Fields as a batch service: upload a scene (Gaussian splat + posed images), submit task

@@ -5,7 +5,7 @@ str holding a lone surrogate. Pydantic accepts it, it is stored, and every later
 contains it fails to encode (500). Refusing it once, here, covers every string of every JSON body
 (values and keys, tasks, names, parameters), every query parameter (percent-encoded bytes that
 are not UTF-8) and the headers the API reads, with a 422 naming the field. Multipart form fields
-are decoded by `services.api.multipart` with replacement, so they never carry surrogates.
+are decoded by `bayesian_fields_service.api.multipart` with replacement, so they never carry surrogates.
 
 The handlers give every 4xx/5xx the `Problem` body: ``detail`` is always a string; request
 validation adds ``errors`` (one entry per field). Backend outages (Redis, the broker, the bucket)
@@ -26,7 +26,7 @@ from fastapi.responses import JSONResponse
 from kombu.exceptions import OperationalError
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from services.common.sanitize import redact_locations, scrub_text
+from bayesian_fields_service.common.sanitize import redact_locations, scrub_text
 
 log = logging.getLogger(__name__)
 
@@ -180,7 +180,7 @@ def install_handlers(app: FastAPI, retry_after_s: int) -> None:
     from bayesian_fields_core.errors import InputError
 
     try:
-        from services.common.s3_store import StorageError
+        from bayesian_fields_service.common.s3_store import StorageError
     except ImportError:  # pragma: no cover - local-store deployments without boto3
         StorageError = OSError  # type: ignore[misc,assignment]  # noqa: N806
 

@@ -18,10 +18,9 @@ from pathlib import Path
 from typing import Any
 
 from bayesian_fields_core.errors import InputError, input_boundary
+from bayesian_fields_core.job.store import Store
 from bayesian_fields_core.scene.trainer_transforms import DATAPARSER_TRANSFORMS, SPLAT_TRANSFORM
-from bayesian_fields_core.store import Store
-
-from .archives import ArchiveLimits, extract_archive, is_archive_name
+from bayesian_fields_service.api.archives import ArchiveLimits, extract_archive, is_archive_name
 
 #: Camera files by name -> the folder they go to inside the scene (COLMAP's usual layout).
 CAMERA_FILES: dict[str, str] = {
@@ -140,7 +139,7 @@ def validate_scene(
     Messages name files relative to the scene folder, never the API's temp paths (the loaders
     report resolved paths, so the resolved folder is stripped too). The frame limit is checked
     by the validator before any image is decoded."""
-    from bayesian_fields_core.scene.validate import validate_scene_folder
+    from bayesian_fields_core.checks.upload import validate_scene_folder
 
     try:
         summary = validate_scene_folder(

@@ -8,7 +8,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from services.common.jobs import JobRecord, JobState
+from bayesian_fields_service.common.jobs import JobRecord, JobState
 
 SCENE_EXAMPLE_ID = "s_0192f3a1b2c3aa55bb66cc"
 JOB_EXAMPLE_ID = "j_0192f3a1b2c3d4e5f6a7b8"

@@ -11,15 +11,14 @@ import redis
 from celery import Celery
 from fastapi import Depends, HTTPException, Request, status
 
-from bayesian_fields_core.store import PrefixedStore, Store
-from services.common.api_keys import ApiKeyRing
-from services.common.auth import require_tenant
-from services.common.jobs import JobRecord, JobStore
-from services.common.settings import ServiceSettings
-from services.common.storage import tenant_store
-from services.worker.dispatch import enqueue_stages
-
-from .schemas import Problem
+from bayesian_fields_core.job.store import PrefixedStore, Store
+from bayesian_fields_service.api.schemas import Problem
+from bayesian_fields_service.common.api_keys import ApiKeyRing
+from bayesian_fields_service.common.auth import require_tenant
+from bayesian_fields_service.common.jobs import JobRecord, JobStore
+from bayesian_fields_service.common.settings import ServiceSettings
+from bayesian_fields_service.common.storage import tenant_store
+from bayesian_fields_service.worker.dispatch import enqueue_stages
 
 _ID = re.compile(r"^[sjb]_[0-9a-f]{22}$")
 

@@ -33,7 +33,7 @@ from typing import Any
 
 import redis
 
-from bayesian_fields_core.store import ArtifactNotFound, get_json
+from bayesian_fields_core.job.store import ArtifactNotFound, get_json
 
 log = logging.getLogger(__name__)
 

@@ -1,7 +1,7 @@
-"""``python -m services.client submit|status|fetch|batch ...``"""
+"""``python -m bayesian_fields_service.client submit|status|fetch|batch ...``"""
 
 import sys
 
-from .commands import main
+from bayesian_fields_service.client.commands import main
 
 sys.exit(main())

@@ -24,9 +24,8 @@ from rich.progress import BarColumn, DownloadColumn, Progress, TextColumn, Trans
 from rich.table import Table
 
 from bayesian_fields_core.errors import InputError
-from bayesian_fields_core.tasks import load_tasks, normalise_tasks
-
-from .api import BFieldsClient, ClientError
+from bayesian_fields_core.job.task_list import load_tasks, normalise_tasks
+from bayesian_fields_service.client.api import BFieldsClient, ClientError
 
 DEFAULT_SERVER = "http://127.0.0.1:8000"
 console = Console(stderr=True)
@@ -231,7 +230,7 @@ def register_client_commands(subparsers: argparse._SubParsersAction) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Stand-alone entry (``python -m services.client``) with the same sub-commands."""
+    """Stand-alone entry (``python -m bayesian_fields_service.client``) with the same sub-commands."""
     parser = argparse.ArgumentParser(prog="bfields-client")
     register_client_commands(parser.add_subparsers(dest="command", required=True))
     args = parser.parse_args(argv)

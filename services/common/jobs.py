@@ -22,7 +22,7 @@ markers for jobs stored but not yet enqueued: the API deletes it right after the
 that outlives the recovery grace period is a submission that crashed half-way (recovery fails it:
 the client never got a 202 for it and will have retried).
 
-Redis also holds the per-tenant quota set (`services.common.quota`): taken before a job is
+Redis also holds the per-tenant quota set (`bayesian_fields_service.common.quota`): taken before a job is
 stored, given back here on every terminal state.
 """
 
@@ -40,16 +40,15 @@ from typing import Any
 import redis
 from pydantic import BaseModel, Field
 
-from bayesian_fields_core.stages.markers import STAGES
-from bayesian_fields_core.store import ArtifactNotFound, Store, get_json, put_json
-
-from .quota import TenantQuota
-from .sanitize import redact_locations, scrub
-from .storage import tenant_store
+from bayesian_fields_core.job.stage_table import STAGE_TABLE, STAGES
+from bayesian_fields_core.job.store import ArtifactNotFound, Store, get_json, put_json
+from bayesian_fields_service.common.quota import TenantQuota
+from bayesian_fields_service.common.sanitize import redact_locations, scrub
+from bayesian_fields_service.common.storage import tenant_store
 
 #: Relative cost of each stage (in `STAGES` order, which the library defines), used to turn
 #: (stage, fraction) into one overall percentage.
-STAGE_WEIGHTS: dict[str, float] = dict(zip(STAGES, (0.6, 0.25, 0.15), strict=True))
+STAGE_WEIGHTS: dict[str, float] = {spec.name: spec.weight for spec in STAGE_TABLE}
 
 #: Seconds a finished job's live Redis hash is kept (the manifest stays for good).
 FINISHED_HASH_TTL_S = 24 * 3600

@@ -32,7 +32,7 @@ from boto3.s3.transfer import TransferConfig
 from botocore.config import Config
 
 from bayesian_fields_core.errors import BayesianFieldsError, InputError
-from bayesian_fields_core.store import ArtifactNotFound, validate_key
+from bayesian_fields_core.job.store import ArtifactNotFound, validate_key
 
 log = logging.getLogger(__name__)
 T = TypeVar("T")
@@ -190,7 +190,7 @@ class S3Store:
 
     @classmethod
     def from_settings(cls, settings: Any, **tuning: Any) -> S3Store:
-        """Build from `services.common.settings.ServiceSettings` (`tuning` overrides the retry and
+        """Build from `bayesian_fields_service.common.settings.ServiceSettings` (`tuning` overrides the retry and
         timeout parameters, e.g. the API's short request-path budget)."""
         creds = None
         if settings.s3_access_key_id and settings.s3_secret_access_key is not None:

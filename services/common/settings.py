@@ -184,7 +184,8 @@ class ServiceSettings(BaseSettings):
 
     # ---- misc ------------------------------------------------------------------------------------
     log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = Field(
-        "INFO", description="Level of the services' own loggers (services.*, bayesian_fields_core.*)."
+        "INFO",
+        description="Level of the services' own loggers (bayesian_fields_service.*, bayesian_fields_core.*).",
     )
 
     @field_validator("redis_url")
@@ -231,5 +232,5 @@ def apply_log_level(settings: ServiceSettings) -> None:
     """Set BFIELDS_LOG_LEVEL on the project's loggers (handlers stay with uvicorn / Celery)."""
     import logging
 
-    for name in ("services", "bayesian_fields_core"):
+    for name in ("bayesian_fields_service", "bayesian_fields_core"):
         logging.getLogger(name).setLevel(settings.log_level)

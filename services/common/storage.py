@@ -10,9 +10,8 @@ from __future__ import annotations
 import re
 
 from bayesian_fields_core.errors import InputError
-from bayesian_fields_core.store import LocalStore, PrefixedStore, Store
-
-from .settings import TENANT_PATTERN, ServiceSettings
+from bayesian_fields_core.job.store import LocalStore, PrefixedStore, Store
+from bayesian_fields_service.common.settings import TENANT_PATTERN, ServiceSettings
 
 TENANTS_ROOT = "tenants"
 
@@ -23,7 +22,7 @@ def build_store(settings: ServiceSettings, *, request_path: bool = False) -> Sto
     `request_path` (the API): few attempts and short timeouts, so an outage is answered 503
     within about a second instead of after the workers' patient retries."""
     if settings.storage_backend == "s3":
-        from .s3_store import S3Store  # boto3 is only needed by S3 deployments
+        from bayesian_fields_service.common.s3_store import S3Store  # boto3 is only needed by S3 deployments
 
         if request_path:
             t = settings.api_backend_timeout_s

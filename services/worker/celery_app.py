@@ -1,6 +1,6 @@
 """The Celery application: JSON only, late acks, one task in flight per process, gpu/cpu routing.
 
-`make_celery(settings)` is used by the workers (`celery -A services.worker.celery_app worker -Q gpu`)
+`make_celery(settings)` is used by the workers (`celery -A bayesian_fields_service.worker.celery_app worker -Q gpu`)
 and by the API (which only sends tasks by name). Reliability settings, and why:
 - ``task_acks_late`` + ``task_reject_on_worker_lost``: a task is acknowledged only after it ran, so
   a worker killed mid-stage leaves the message to be redelivered to another worker;
@@ -14,16 +14,17 @@ from __future__ import annotations
 
 from celery import Celery
 
-from services.common.settings import ServiceSettings, apply_log_level, get_settings
-
-from .dispatch import STAGE_QUEUE_ROLE, STAGE_TASKS
+from bayesian_fields_core.job.stage_table import STAGE_TABLE
+from bayesian_fields_service.common.settings import ServiceSettings, apply_log_level, get_settings
 
 
 def make_celery(settings: ServiceSettings, *, include_tasks: bool = False) -> Celery:
     apply_log_level(settings)
     """A Celery app bound to the settings' Redis; `include_tasks` registers the stage tasks."""
     app = Celery(
-        "bfields", broker=settings.redis_url, include=["services.worker.tasks"] if include_tasks else []
+        "bfields",
+        broker=settings.redis_url,
+        include=["bayesian_fields_service.worker.tasks"] if include_tasks else [],
     )
     queues = {"gpu": settings.gpu_queue, "cpu": settings.cpu_queue}
     app.conf.update(
@@ -40,7 +41,7 @@ def make_celery(settings: ServiceSettings, *, include_tasks: bool = False) -> Ce
         broker_connection_retry_on_startup=True,
         broker_connection_max_retries=None,
         task_default_queue=settings.cpu_queue,
-        task_routes={name: {"queue": queues[STAGE_QUEUE_ROLE[stage]]} for stage, name in STAGE_TASKS.items()},
+        task_routes={spec.task_name: {"queue": queues[spec.queue]} for spec in STAGE_TABLE},
         task_soft_time_limit=settings.job_soft_time_limit_s,
         task_time_limit=settings.job_time_limit_s,
         worker_send_task_events=False,
@@ -51,7 +52,7 @@ def make_celery(settings: ServiceSettings, *, include_tasks: bool = False) -> Ce
 
 
 def __getattr__(name: str) -> Celery:
-    """``services.worker.celery_app.app``: the worker's app, built from the environment on first use."""
+    """``bayesian_fields_service.worker.celery_app.app``: the worker's app, built from the environment on first use."""
     if name == "app":
         global app
         app = make_celery(get_settings(), include_tasks=True)

@@ -1,7 +1,7 @@
 """Enqueue a job's stages as a Celery chain, by task name.
 
 Kept apart from `tasks.py` so the API can enqueue without importing the pipeline (torch, models):
-it only needs the task names and queues. The chain is perceive -> fuse on the GPU queue, then
+it only needs the task names and queues, which the stage table (`job.stage_table`) gives. The chain is perceive -> fuse on the GPU queue, then
 cluster on the CPU queue; a resumed job sends only its unfinished stages.
 """
 
@@ -11,17 +11,12 @@ from collections.abc import Sequence
 
 from celery import Celery, chain
 
-STAGE_TASKS: dict[str, str] = {
-    "perceive": "bfields.stage.perceive",
-    "fuse": "bfields.stage.fuse",
-    "cluster": "bfields.stage.cluster",
-}
-#: Which queue each stage runs on ("gpu" or "cpu"; the real names come from the settings).
-STAGE_QUEUE_ROLE: dict[str, str] = {"perceive": "gpu", "fuse": "gpu", "cluster": "cpu"}
+from bayesian_fields_core.job.stage_table import stage as stage_spec
 
 
 def queue_for(stage: str, gpu_queue: str, cpu_queue: str) -> str:
-    return gpu_queue if STAGE_QUEUE_ROLE[stage] == "gpu" else cpu_queue
+    """The queue of `stage`: its table row says "gpu" or "cpu"; the names come from the settings."""
+    return gpu_queue if stage_spec(stage).queue == "gpu" else cpu_queue
 
 
 def enqueue_stages(
@@ -32,7 +27,7 @@ def enqueue_stages(
         return
     sigs = [
         app.signature(
-            STAGE_TASKS[stage],
+            stage_spec(stage).task_name,
             args=(tenant, job_id),
             immutable=True,
             queue=queue_for(stage, gpu_queue, cpu_queue),

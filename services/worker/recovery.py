@@ -30,10 +30,9 @@ import redis
 from celery import Celery
 from celery.utils.log import get_logger
 
-from services.common.jobs import JobState, JobStore, id_age_s, utcnow
-from services.common.settings import ServiceSettings
-
-from .dispatch import enqueue_stages
+from bayesian_fields_service.common.jobs import JobState, JobStore, id_age_s, utcnow
+from bayesian_fields_service.common.settings import ServiceSettings
+from bayesian_fields_service.worker.dispatch import enqueue_stages
 
 log = get_logger(__name__)  # a child of the 'celery' logger: lands in the worker log
 

@@ -38,7 +38,7 @@ from pathlib import Path
 from typing import Any
 
 from bayesian_fields_core.errors import InputError
-from bayesian_fields_core.store import LocalStore, PrefixedStore, Store
+from bayesian_fields_core.job.store import LocalStore, PrefixedStore, Store
 
 log = logging.getLogger(__name__)
 

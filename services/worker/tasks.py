@@ -26,7 +26,7 @@ import socket
 import tempfile
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -36,20 +36,19 @@ from celery.exceptions import SoftTimeLimitExceeded
 from celery.signals import worker_init, worker_process_init, worker_ready, worker_shutdown
 from celery.utils.log import get_logger
 
-from bayesian_fields_core.context import JobContext, Models
 from bayesian_fields_core.errors import CancelledError, InputError, ModelError
+from bayesian_fields_core.job.context import JobContext, Models
+from bayesian_fields_core.job.pipeline import load_models, run_stage
+from bayesian_fields_core.job.stage_table import STAGE_TABLE, STAGES, StageSpec
+from bayesian_fields_core.job.store import Store
 from bayesian_fields_core.params import PipelineParams
-from bayesian_fields_core.pipeline import load_models, run_stage
-from bayesian_fields_core.stages.markers import STAGES
-from services.common.jobs import JobRecord, JobState, JobStore, overall_progress, utcnow
-from services.common.settings import ServiceSettings
-from services.common.storage import build_store, tenant_store
-
-from .celery_app import app
-from .dispatch import STAGE_TASKS
-from .metrics import observe_job, observe_stage
-from .recovery import start_recovery_thread, stop_recovery_thread
-from .scene_cache import SceneCache
+from bayesian_fields_service.common.jobs import JobRecord, JobState, JobStore, overall_progress, utcnow
+from bayesian_fields_service.common.settings import ServiceSettings
+from bayesian_fields_service.common.storage import build_store, tenant_store
+from bayesian_fields_service.worker.celery_app import app
+from bayesian_fields_service.worker.metrics import observe_job, observe_stage
+from bayesian_fields_service.worker.recovery import start_recovery_thread, stop_recovery_thread
+from bayesian_fields_service.worker.scene_cache import SceneCache
 
 log = get_logger(__name__)  # a child of the 'celery' logger: lands in the worker log
 
@@ -61,7 +60,7 @@ TRANSIENT: tuple[type[BaseException], ...] = (
     TimeoutError,
 )
 try:  # storage errors only exist when boto3 is installed
-    from services.common.s3_store import StorageError
+    from bayesian_fields_service.common.s3_store import StorageError
 
     TRANSIENT = (*TRANSIENT, StorageError)
 except ImportError:  # pragma: no cover - local-store deployments
@@ -290,19 +289,19 @@ def execute_stage(task: Task, stage: str, tenant: str, job_id: str, lock_waits: 
 
 
 @dataclass
-class _WorkerContext(JobContext):
-    """A `JobContext` whose scene comes from the host's shared scene cache instead of a new
-    download per stage; the lease is held in `leases` until the stage returns."""
+class SharedSceneCopy:
+    """The job's scene as a `SceneSource`: a copy leased from the host's shared scene cache
+    instead of a new download per stage; the lease is held in `leases` until the stage returns."""
 
-    scene_cache: SceneCache | None = None
-    tenant: str = ""
-    scene_id: str = ""
-    leases: contextlib.ExitStack = field(default_factory=contextlib.ExitStack, repr=False)
+    cache: SceneCache
+    store: Store
+    tenant: str
+    scene_id: str
+    prefix: str
+    leases: contextlib.ExitStack
 
-    def _materialise_scene(self) -> Path:
-        if self.scene_cache is None or self.scene_store is None:
-            return super()._materialise_scene()
-        lease = self.scene_cache.lease(self.scene_store, self.tenant, self.scene_id, self.scene_prefix)
+    def folder(self) -> Path:
+        lease = self.cache.lease(self.store, self.tenant, self.scene_id, self.prefix)
         return self.leases.enter_context(lease)
 
 
@@ -340,8 +339,11 @@ def _run_locked(rt: _Runtime, record: JobRecord, stage: str) -> str:
             return False
 
     try:
-        ctx = _WorkerContext(
-            store=tenant_store(rt.store, tenant),
+        store = tenant_store(rt.store, tenant)
+        leases = contextlib.ExitStack()
+        source = SharedSceneCopy(rt.scene_cache, store, tenant, record.scene_id, record.scene_prefix, leases)
+        ctx = JobContext(
+            store=store,
             job_prefix=record.job_prefix,
             scene_prefix=record.scene_prefix,
             tasks=record.tasks,
@@ -351,12 +353,10 @@ def _run_locked(rt: _Runtime, record: JobRecord, stage: str) -> str:
             models=rt.models(record.model_profile),
             progress=progress,
             should_cancel=should_cancel,
-            scene_cache=rt.scene_cache,
-            tenant=tenant,
-            scene_id=record.scene_id,
+            scene_source=source,
         )
         t0 = time.perf_counter()
-        with ctx.leases:  # the scene copy stays in use (not evictable) until the stage ends
+        with leases:  # the scene copy stays in use (not evictable) until the stage ends
             report = run_stage(stage, ctx)
         seconds = time.perf_counter() - t0
     except CancelledError:
@@ -402,12 +402,12 @@ def _fail_after_retries(rt: _Runtime, tenant: str, job_id: str, stage: str, exc:
         _finish(rt, record, JobState.failed, f"{stage}: gave up after retries: {type(exc).__name__}: {exc}")
 
 
-def _make_stage_task(stage: str) -> Task:
+def _make_stage_task(spec: StageSpec) -> Task:
+    stage = spec.name
+
     # max_retries=None: Celery sets no limit; the transient-error budget is counted here, apart
     # from the waits for a stage lock (`lock_waits`), which must last until the lock's TTL.
-    @app.task(
-        name=STAGE_TASKS[stage], bind=True, acks_late=True, reject_on_worker_lost=True, max_retries=None
-    )
+    @app.task(name=spec.task_name, bind=True, acks_late=True, reject_on_worker_lost=True, max_retries=None)
     def stage_task(self: Task, tenant: str, job_id: str, lock_waits: int = 0) -> str:
         rt = runtime()
         try:
@@ -427,6 +427,5 @@ def _make_stage_task(stage: str) -> Task:
     return stage_task
 
 
-perceive_task = _make_stage_task("perceive")
-fuse_task = _make_stage_task("fuse")
-cluster_task = _make_stage_task("cluster")
+STAGE_TASKS: dict[str, Task] = {spec.name: _make_stage_task(spec) for spec in STAGE_TABLE}
+"""One Celery task per row of the stage table, registered under `StageSpec.task_name`."""

@@ -12,7 +12,7 @@ from bayesian_fields_core.eval.box_iou import (
     obb_iou,
     obb_iou_matrix,
 )
-from bayesian_fields_core.objects.obb import OrientedBox
+from bayesian_fields_core.geometry.obb import OrientedBox
 
 EYE = np.eye(3)
 

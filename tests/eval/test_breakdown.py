@@ -14,7 +14,7 @@ from bayesian_fields_core.eval.breakdown import (
 )
 from bayesian_fields_core.eval.clio import ClioScores, EstimatedObject, GTObject, TaskScores
 from bayesian_fields_core.eval.tables import format_interval_table
-from bayesian_fields_core.objects.obb import OrientedBox
+from bayesian_fields_core.geometry.obb import OrientedBox
 
 
 def _box(x: float, y: float = 0.0, size: float = 0.1) -> OrientedBox:
@@ -71,7 +71,7 @@ def test_score_intervals_bracket_the_pooled_value_and_shrink_with_agreement() ->
 def test_eval_command_selects_the_suite_by_name() -> None:
     import pytest
 
-    from bayesian_fields_core.cli import build_parser
+    from bayesian_fields_core.cli.main import build_parser
 
     args = build_parser().parse_args(["eval", "--suite", "capture", "--breakdown", "--seeds", "7,8,9"])
     assert (args.suite, args.breakdown, args.seeds) == ("capture", True, [7, 8, 9])

@@ -16,7 +16,7 @@ from bayesian_fields_core.eval.clio import (
     load_clio_ground_truth,
     top_k_for_task,
 )
-from bayesian_fields_core.objects.obb import OrientedBox
+from bayesian_fields_core.geometry.obb import OrientedBox
 
 EYE = np.eye(3)
 

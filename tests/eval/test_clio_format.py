@@ -19,7 +19,7 @@ from bayesian_fields_core.eval.clio_format import (
     quaternion_matrix,
     read_clio_ground_truth,
 )
-from bayesian_fields_core.objects.obb import OrientedBox
+from bayesian_fields_core.geometry.obb import OrientedBox
 from bayesian_fields_core.scene.similarity import Similarity
 
 # Clio's cubicle entry of clio_eval/scene_transforms.yaml (a rigid T and a scale).

@@ -12,22 +12,22 @@ import pytest
 import yaml
 from scipy.spatial.transform import Rotation
 
-from bayesian_fields_core.artifacts import RESULT_PREFIX
-from bayesian_fields_core.cli import main
-from bayesian_fields_core.context import JobContext
+from bayesian_fields_core.cli.main import main
 from bayesian_fields_core.eval.clio import clio_metrics
 from bayesian_fields_core.eval.clio_scene import clio_case
 from bayesian_fields_core.eval.suite import FULL, _slug, estimates_from_selection
 from bayesian_fields_core.eval.synthetic import generate_scene, load_clio_boxes, load_ground_truth
 from bayesian_fields_core.eval.synthetic.spec import SceneSpec
+from bayesian_fields_core.geometry.obb import OrientedBox
+from bayesian_fields_core.job.artifacts import RESULT_PREFIX
+from bayesian_fields_core.job.context import JobContext
+from bayesian_fields_core.job.pipeline import load_models, run_stage
+from bayesian_fields_core.job.store import LocalStore
+from bayesian_fields_core.job.task_list import load_tasks
 from bayesian_fields_core.objects.not_found import is_not_found
-from bayesian_fields_core.objects.obb import OrientedBox
 from bayesian_fields_core.params import PipelineParams
-from bayesian_fields_core.pipeline import load_models, run_stage
 from bayesian_fields_core.results import read_result
 from bayesian_fields_core.scene.similarity import Similarity
-from bayesian_fields_core.store import LocalStore
-from bayesian_fields_core.tasks import load_tasks
 
 # A scene -> GT transform like Clio's (rigid T, separate scale): rotated, shifted, scaled by 2.5.
 ROTATION = Rotation.from_euler("xyz", [80, -25, 140], degrees=True).as_matrix()

@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bayesian_fields_core.calibration.ground_truth import label_masks
-from bayesian_fields_core.cli import main
+from bayesian_fields_core.cli.main import main
+from bayesian_fields_core.eval.calibration.ground_truth import label_masks
 
 SAMPLE = Path(__file__).resolve().parents[2] / "samples" / "tabletop"
 

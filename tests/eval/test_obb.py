@@ -8,7 +8,7 @@ from scipy.spatial import ConvexHull
 from scipy.spatial.transform import Rotation
 
 from bayesian_fields_core.errors import InputError
-from bayesian_fields_core.objects.obb import OrientedBox, minimum_obb
+from bayesian_fields_core.geometry.obb import OrientedBox, minimum_obb
 
 
 def _points_in_box(rng, extents, rotation, center, n):

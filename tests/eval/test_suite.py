@@ -20,9 +20,9 @@ from bayesian_fields_core.eval.suite import (
 from bayesian_fields_core.eval.synthetic import generate_scene, load_clio_boxes
 from bayesian_fields_core.eval.synthetic.ground_truth import load_ground_truth
 from bayesian_fields_core.eval.synthetic.spec import SceneSpec
-from bayesian_fields_core.pipeline import load_models
+from bayesian_fields_core.job.pipeline import load_models
+from bayesian_fields_core.job.task_list import load_tasks
 from bayesian_fields_core.scene.loader import load_scene
-from bayesian_fields_core.tasks import load_tasks
 
 
 @pytest.fixture(scope="module")

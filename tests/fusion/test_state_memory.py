@@ -17,7 +17,7 @@ import pytest
 
 from bayesian_fields_core.errors import InvariantError
 from bayesian_fields_core.fusion.bayes import probabilities, probability_blocks
-from bayesian_fields_core.store import (
+from bayesian_fields_core.job.store import (
     ArrayBlocks,
     ArtifactNotFound,
     LocalStore,

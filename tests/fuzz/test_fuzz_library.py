@@ -19,16 +19,16 @@ from hypothesis import given
 from hypothesis import strategies as st
 from PIL import Image
 
+from bayesian_fields_core.checks.upload import validate_scene_folder
 from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.job.task_list import MAX_TASK_CHARS, MAX_TASKS, load_tasks, normalise_tasks
 from bayesian_fields_core.scene.colmap import read_colmap
 from bayesian_fields_core.scene.inria import read_cameras_json
 from bayesian_fields_core.scene.loader import load_scene
 from bayesian_fields_core.scene.nerfstudio import read_transforms
 from bayesian_fields_core.scene.ply import read_ply, write_ply
 from bayesian_fields_core.scene.types import Gaussians
-from bayesian_fields_core.scene.validate import validate_scene_folder
-from bayesian_fields_core.tasks import MAX_TASK_CHARS, MAX_TASKS, load_tasks, normalise_tasks
-from services.api.archives import ArchiveLimits, extract_archive
+from bayesian_fields_service.api.archives import ArchiveLimits, extract_archive
 
 from . import strategies as fz
 from .conftest import budget, count

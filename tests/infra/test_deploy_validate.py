@@ -213,7 +213,7 @@ def test_kustomization_lists_every_manifest() -> None:
 
 
 def test_configmap_keys_are_settings() -> None:
-    from services.common.settings import ServiceSettings
+    from bayesian_fields_service.common.settings import ServiceSettings
 
     data = documents(DEPLOY / "configmap.yaml")[0]["data"]
     fields = {f"BFIELDS_{n.upper()}" for n in ServiceSettings.model_fields}

@@ -12,8 +12,8 @@ import pytest
 from pydantic import ValidationError
 
 from bayesian_fields_core.errors import InputError
-from services.common.api_keys import ApiKeyRing, hash_api_key
-from services.common.settings import ServiceSettings, get_settings
+from bayesian_fields_service.common.api_keys import ApiKeyRing, hash_api_key
+from bayesian_fields_service.common.settings import ServiceSettings, get_settings
 
 
 @pytest.fixture
@@ -121,8 +121,8 @@ def test_no_service_module_reads_the_environment_itself() -> None:
 
 
 def test_stages_are_defined_once() -> None:
-    from bayesian_fields_core.stages.markers import STAGES
-    from services.common import jobs
+    from bayesian_fields_core.job.stage_table import STAGES
+    from bayesian_fields_service.common import jobs
 
     assert jobs.STAGES is STAGES
     assert list(jobs.STAGE_WEIGHTS) == list(STAGES)

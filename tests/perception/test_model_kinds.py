@@ -13,10 +13,11 @@ import pytest
 import yaml
 
 from bayesian_fields_core.errors import InputError
-from bayesian_fields_core.perception import registry
+from bayesian_fields_core.job.pipeline import load_models
+from bayesian_fields_core.perception import profiles as registry
 from bayesian_fields_core.perception.digest import files_digest
 from bayesian_fields_core.perception.encoder import Encoder, l2_normalize
-from bayesian_fields_core.perception.kind_registry import (
+from bayesian_fields_core.perception.kind_base import (
     ENCODERS,
     SEGMENTERS,
     EncoderConfig,
@@ -25,7 +26,6 @@ from bayesian_fields_core.perception.kind_registry import (
     SegmenterConfig,
 )
 from bayesian_fields_core.perception.segmenter import Segmenter
-from bayesian_fields_core.pipeline import load_models
 
 
 class GridSegmenter:

@@ -11,7 +11,7 @@ import yaml
 
 from bayesian_fields_core.calibration.model import Calibration, save_calibration
 from bayesian_fields_core.errors import InputError
-from bayesian_fields_core.perception import registry
+from bayesian_fields_core.perception import profiles as registry
 from bayesian_fields_core.perception.classical import ClassicalSegmenter
 from bayesian_fields_core.perception.hf_clip import HFClipEncoder, hf_clip_model_id
 from bayesian_fields_core.perception.onnx_clip import OnnxClipEncoder
@@ -188,7 +188,7 @@ def test_readme_kind_table_lists_every_kind_and_param() -> None:
     """The README's kind table names each registered kind and each of its params."""
     import re
 
-    from bayesian_fields_core.perception.kind_registry import ENCODERS, SEGMENTERS
+    from bayesian_fields_core.perception.kind_base import ENCODERS, SEGMENTERS
 
     rows = {
         line.split("|")[1].strip(): line

@@ -18,10 +18,10 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from bayesian_fields_core.context import JobContext, Models
+from bayesian_fields_core.job.context import JobContext, Models
+from bayesian_fields_core.job.pipeline import load_models
+from bayesian_fields_core.job.store import LocalStore
 from bayesian_fields_core.params import PipelineParams
-from bayesian_fields_core.pipeline import load_models
-from bayesian_fields_core.store import LocalStore
 
 TASKS = ["red chair", "blue cup", "green plant"]
 OTHER_TASKS = ["the mug", "a table", "photo of a red cup"]

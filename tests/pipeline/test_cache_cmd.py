@@ -10,10 +10,10 @@ from typing import Any
 
 import pytest
 
-from bayesian_fields_core.cache_cmd import parse_duration, parse_size
-from bayesian_fields_core.cli import local_context, main
+from bayesian_fields_core.cli.cache_command import parse_duration, parse_size
+from bayesian_fields_core.cli.main import local_context, main
+from bayesian_fields_core.job.pipeline import run_job
 from bayesian_fields_core.params import PipelineParams
-from bayesian_fields_core.pipeline import run_job
 
 from .conftest import N_FRAMES, TASKS, counting_models
 

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from bayesian_fields_core.calibration.model import load_calibration
-from bayesian_fields_core.cli import main
+from bayesian_fields_core.cli.main import main
 from tests.scene_transforms import copy_scene, flip_camera_convention, move_splat
 
 from .conftest import N_FRAMES
@@ -280,8 +280,8 @@ def test_eval_rejects_bad_scene_choices(
 def test_calibrate_is_one_typed_call(tmp_path: Path) -> None:
     """The library entry point needs no argparse: a `CalibrationRequest` in, a `Calibration` out
     (and the file written); a request with two sources or none is refused as bad input."""
-    from bayesian_fields_core.calibration import entry
     from bayesian_fields_core.errors import InputError
+    from bayesian_fields_core.eval.calibration import fit as entry
 
     scores = tmp_path / "scores.json"
     scores.write_text('{"positive": [0.30, 0.26, 0.28], "negative": [0.19, 0.21, 0.20]}')

@@ -8,12 +8,13 @@ from pathlib import Path
 
 import pytest
 
-from bayesian_fields_core import params_doc
-from bayesian_fields_core.cli import main
-from bayesian_fields_core.context import JobContext
+from bayesian_fields_core.cli.main import main
+from bayesian_fields_core.cli import params_table
+from bayesian_fields_core.job.context import JobContext
+from bayesian_fields_core.job.markers import is_done
+from bayesian_fields_core.job.pipeline import run_job
+from bayesian_fields_core.job.stage_table import STAGES
 from bayesian_fields_core.params import PipelineParams
-from bayesian_fields_core.pipeline import run_job
-from bayesian_fields_core.stages.markers import STAGES, is_done
 
 from .conftest import counting_models, make_ctx
 from .test_cli import _one_line_error, _run_args
@@ -28,7 +29,7 @@ def _help(argv: list[str], capsys: pytest.CaptureFixture[str]) -> str:
 
 def test_run_help_lists_every_parameter_with_type_and_default(capsys: pytest.CaptureFixture[str]) -> None:
     text = _help(["run", "--help"], capsys)
-    for row in params_doc.rows():
+    for row in params_table.rows():
         assert f"{row.name}  ({row.type}, default {row.default})" in text
     assert "Absolute visibility tolerance" in text  # the descriptions come along
 
@@ -38,7 +39,7 @@ def test_params_prints_the_table(capsys: pytest.CaptureFixture[str]) -> None:
     text = capsys.readouterr().out
     assert all(name in text for name in PipelineParams.model_fields)
     assert main(["params", "--markdown"]) == 0
-    assert capsys.readouterr().out == params_doc.markdown_table()
+    assert capsys.readouterr().out == params_table.markdown_table()
     assert main(["params", "--json"]) == 0
     rows = json.loads(capsys.readouterr().out)
     assert [r["name"] for r in rows] == list(PipelineParams.model_fields)

@@ -20,9 +20,9 @@ from typing import Any
 
 import pytest
 
-from bayesian_fields_core.cli import local_context, main
+from bayesian_fields_core.cli.main import local_context, main
+from bayesian_fields_core.job.pipeline import load_models, run_job
 from bayesian_fields_core.params import PipelineParams
-from bayesian_fields_core.pipeline import load_models, run_job
 
 from .conftest import N_FRAMES
 
@@ -48,7 +48,7 @@ def _run_args(scene_dir: Path, profile_yaml: Path, cache: Path) -> list[str]:
 def _bfields(args: list[str], numba_cache: Path) -> subprocess.CompletedProcess[str]:
     env = {**os.environ, "NUMBA_CACHE_DIR": str(numba_cache), "COLUMNS": "200"}
     return subprocess.run(
-        [sys.executable, "-m", "bayesian_fields_core.cli", *args],
+        [sys.executable, "-m", "bayesian_fields_core.cli.main", *args],
         env=env,
         capture_output=True,
         text=True,

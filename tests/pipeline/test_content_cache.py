@@ -17,9 +17,9 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from bayesian_fields_core.cli import local_context, main
+from bayesian_fields_core.cli.main import local_context, main
+from bayesian_fields_core.job.pipeline import run_job
 from bayesian_fields_core.params import PipelineParams
-from bayesian_fields_core.pipeline import run_job
 
 from .conftest import N_FRAMES, OTHER_TASKS, TASKS, counting_models
 

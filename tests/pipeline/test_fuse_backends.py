@@ -16,10 +16,10 @@ import numpy as np
 import pytest
 from scipy.special import logit
 
-from bayesian_fields_core.artifacts import ACCEPTED_KEY, FUSION_KEY
+from bayesian_fields_core.job.artifacts import ACCEPTED_KEY, FUSION_KEY
+from bayesian_fields_core.job.pipeline import run_stage
+from bayesian_fields_core.job.store import LocalStore, get_arrays
 from bayesian_fields_core.params import PipelineParams
-from bayesian_fields_core.pipeline import run_stage
-from bayesian_fields_core.store import LocalStore, get_arrays
 
 from .conftest import counting_models, make_ctx
 

@@ -10,11 +10,11 @@ from typing import Any
 import numpy as np
 import pytest
 
-from bayesian_fields_core.artifacts import PRIMITIVES_KEY
+from bayesian_fields_core.job.artifacts import PRIMITIVES_KEY
+from bayesian_fields_core.job.pipeline import run_stage
+from bayesian_fields_core.job.store import get_arrays
 from bayesian_fields_core.params import PipelineParams
-from bayesian_fields_core.pipeline import run_stage
 from bayesian_fields_core.stages.cluster import build_primitives, load_primitives
-from bayesian_fields_core.store import get_arrays
 
 from .conftest import counting_models, make_ctx
 

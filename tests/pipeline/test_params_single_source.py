@@ -19,9 +19,9 @@ from typing import Any
 import pytest
 
 import bayesian_fields_core
+from bayesian_fields_core.cli.params_table import markdown_table
 from bayesian_fields_core.fusion.likelihood import LikelihoodParams, resolve_likelihood
 from bayesian_fields_core.params import PipelineParams, default
-from bayesian_fields_core.params_doc import markdown_table
 
 PACKAGE = Path(bayesian_fields_core.__file__).parent
 README = PACKAGE.parent / "README.md"

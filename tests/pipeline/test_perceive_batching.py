@@ -7,8 +7,8 @@ from typing import Any
 
 import numpy as np
 
+from bayesian_fields_core.job.pipeline import run_stage
 from bayesian_fields_core.params import PipelineParams
-from bayesian_fields_core.pipeline import run_stage
 
 from .conftest import N_FRAMES, counting_models, make_ctx
 

@@ -13,14 +13,15 @@ from typing import Any
 import numpy as np
 import pytest
 
-from bayesian_fields_core.artifacts import ACCEPTED_KEY, FUSION_KEY
 from bayesian_fields_core.errors import CancelledError
+from bayesian_fields_core.job.artifacts import ACCEPTED_KEY, FUSION_KEY
+from bayesian_fields_core.job.markers import is_done
+from bayesian_fields_core.job.pipeline import run_job, run_stage
+from bayesian_fields_core.job.stage_table import STAGES
+from bayesian_fields_core.job.store import LocalStore, get_arrays
 from bayesian_fields_core.params import PipelineParams
-from bayesian_fields_core.pipeline import run_job, run_stage
 from bayesian_fields_core.results.reader import read_result
 from bayesian_fields_core.scene.loader import load_scene
-from bayesian_fields_core.stages.markers import STAGES, is_done
-from bayesian_fields_core.store import LocalStore, get_arrays
 
 from .conftest import N_FRAMES, OTHER_TASKS, TASKS, counting_models, make_ctx
 

@@ -8,10 +8,11 @@ from pathlib import Path
 import pytest
 
 from bayesian_fields_core.errors import InputError
-from bayesian_fields_core.pipeline import run_job
+from bayesian_fields_core.job.markers import read_marker
+from bayesian_fields_core.job.pipeline import run_job
+from bayesian_fields_core.job.stage_table import STAGES
+from bayesian_fields_core.job.store import LocalStore
 from bayesian_fields_core.results.reader import read_result
-from bayesian_fields_core.stages.markers import STAGES, read_marker
-from bayesian_fields_core.store import LocalStore
 
 from .conftest import counting_models, make_ctx
 

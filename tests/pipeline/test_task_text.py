@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from bayesian_fields_core.errors import InputError
-from bayesian_fields_core.tasks import load_tasks, normalise_tasks
+from bayesian_fields_core.job.task_list import load_tasks, normalise_tasks
 
 
 @pytest.mark.parametrize(

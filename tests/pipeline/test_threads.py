@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bayesian_fields_core.threads import loaded_openblas, single_blas_thread, torch_threads
+from bayesian_fields_core.compute.threads import loaded_openblas, single_blas_thread, torch_threads
 
 
 def test_one_thread_inside_and_restored_after() -> None:

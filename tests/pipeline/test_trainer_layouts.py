@@ -13,13 +13,13 @@ import pytest
 from scipy.optimize import linear_sum_assignment
 
 from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.job.pipeline import run_job
+from bayesian_fields_core.job.store import LocalStore
 from bayesian_fields_core.params import PipelineParams
-from bayesian_fields_core.pipeline import run_job
 from bayesian_fields_core.results.reader import read_result
 from bayesian_fields_core.scene.loader import load_scene
 from bayesian_fields_core.scene.ply import read_ply
 from bayesian_fields_core.scene.similarity import Similarity
-from bayesian_fields_core.store import LocalStore
 from tests.scene.trainer_layouts import (
     SourceScene,
     gsplat_output,
@@ -138,7 +138,7 @@ def test_cli_splat_transform_and_source_path(
     JSON summary carries both frames; the CLI follows a 3DGS cfg_args source_path."""
     import json
 
-    from bayesian_fields_core.cli import main
+    from bayesian_fields_core.cli.main import main
 
     source = load_scene(scene_dir)
     src = SourceScene(source.gaussians, source.frames)

@@ -18,7 +18,7 @@ import torch
 import yaml
 from PIL import Image
 
-from bayesian_fields_core.perception.registry import build_encoder, load_profile
+from bayesian_fields_core.perception.profiles import build_encoder, load_profile
 
 from .conftest import MISSING
 
@@ -196,7 +196,7 @@ def test_bfields_run_completes_with_each_reference_profile(
 ) -> None:
     out = tmp_path / "out"
     cmd = [
-        sys.executable, "-m", "bayesian_fields_core.cli", "run", str(SAMPLE),
+        sys.executable, "-m", "bayesian_fields_core.cli.main", "run", str(SAMPLE),
         "--profile", str(reference_dir / "profiles" / f"{profile}.yaml"),
         "--out", str(out), "--cache-dir", str(tmp_path / "cache"),
         "--param", "max_frames=2", "--param", "crop_batch_size=16", "-q", "--json",

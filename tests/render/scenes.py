@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from bayesian_fields_core.render.sh import C0
+from bayesian_fields_core.geometry.spherical_harmonics import C0
 from bayesian_fields_core.scene.types import Gaussians
 
 

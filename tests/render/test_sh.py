@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from bayesian_fields_core.geometry.spherical_harmonics import C0, C1, sh_basis
 from bayesian_fields_core.render import render
-from bayesian_fields_core.render.sh import C0, C1, sh_basis
 from tests.render.scenes import make_gaussians, pinhole
 
 

@@ -8,10 +8,10 @@ from pathlib import Path
 
 import numpy as np
 
+from bayesian_fields_core.job.store import LocalStore
 from bayesian_fields_core.results.export import put_ply, put_task_plys, task_recolour
 from bayesian_fields_core.scene.ply import write_ply
 from bayesian_fields_core.scene.types import Gaussians
-from bayesian_fields_core.store import LocalStore
 
 
 def _splat(n: int, degree_terms: int, rng: np.random.Generator) -> Gaussians:

@@ -14,13 +14,14 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from bayesian_fields_core.objects.obb import minimum_obb
+from bayesian_fields_core.geometry.obb import minimum_obb
+from bayesian_fields_core.geometry.spherical_harmonics import SH_C0
+from bayesian_fields_core.job.store import LocalStore
 from bayesian_fields_core.results import FORMAT_VERSION, Result, SelectedObject, read_result, write_result
-from bayesian_fields_core.results.export import BACKGROUND_GREY, SH_C0
-from bayesian_fields_core.results.previews import best_view, rank_colour
+from bayesian_fields_core.results.colours import BACKGROUND_GREY, rank_colour
+from bayesian_fields_core.results.previews import best_view
 from bayesian_fields_core.scene.loader import load_scene
 from bayesian_fields_core.scene.ply import read_ply
-from bayesian_fields_core.store import LocalStore
 
 SAMPLE = Path(__file__).resolve().parents[2] / "samples" / "tabletop"
 CONE, CUBE = 9, None  # gt instance of "get the orange cone"; the cube's id is looked up below

@@ -10,7 +10,9 @@ import numpy as np
 import pytest
 
 from bayesian_fields_core.errors import InputError
-from bayesian_fields_core.objects.obb import minimum_obb
+from bayesian_fields_core.geometry.obb import minimum_obb
+from bayesian_fields_core.geometry.spherical_harmonics import SH_C0
+from bayesian_fields_core.job.store import LocalStore
 from bayesian_fields_core.results import (
     FORMAT_VERSION,
     NotFound,
@@ -20,7 +22,7 @@ from bayesian_fields_core.results import (
     result_sizes,
     write_result,
 )
-from bayesian_fields_core.results.export import BACKGROUND_GREY, SH_C0, object_palette
+from bayesian_fields_core.results.colours import BACKGROUND_GREY, object_palette
 from bayesian_fields_core.results.format import (
     compress,
     decode_ids,
@@ -30,7 +32,6 @@ from bayesian_fields_core.results.format import (
 )
 from bayesian_fields_core.scene.ply import read_ply
 from bayesian_fields_core.scene.types import Gaussians
-from bayesian_fields_core.store import LocalStore
 
 N, NUM_OBJECTS, TASKS = 2000, 6, ["get dish soap", "move hats and gloves"]
 

@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from bayesian_fields_core.checks.alignment import assess_alignment, check_alignment, geometric_alignment
+from bayesian_fields_core.checks.alignment_render import reduced_camera, weighted_zncc
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.params import PipelineParams
-from bayesian_fields_core.scene.alignment import assess_alignment, check_alignment, geometric_alignment
-from bayesian_fields_core.scene.alignment_render import reduced_camera, weighted_zncc
 from bayesian_fields_core.scene.loader import load_scene
 from bayesian_fields_core.scene.types import Scene
 from tests.scene_transforms import copy_scene, flip_camera_convention, move_splat, shuffle_images

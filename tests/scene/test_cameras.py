@@ -11,8 +11,8 @@ import pytest
 from PIL import Image
 
 from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.geometry.transforms import quat_to_rotmat, rotmat_to_quat
 from bayesian_fields_core.scene.colmap import read_colmap, write_colmap_binary, write_colmap_text
-from bayesian_fields_core.scene.geometry import quat_to_rotmat, rotmat_to_quat
 from bayesian_fields_core.scene.inria import read_cameras_json, write_cameras_json
 from bayesian_fields_core.scene.nerfstudio import read_transforms, write_transforms
 

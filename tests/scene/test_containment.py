@@ -15,6 +15,7 @@ from pathlib import Path
 import pytest
 from PIL import Image
 
+from bayesian_fields_core.checks.upload import validate_scene_folder
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.scene.colmap import read_colmap, write_colmap_binary, write_colmap_text
 from bayesian_fields_core.scene.files import resolve_inside
@@ -22,7 +23,6 @@ from bayesian_fields_core.scene.inria import read_cameras_json, write_cameras_js
 from bayesian_fields_core.scene.loader import load_scene
 from bayesian_fields_core.scene.nerfstudio import read_transforms, write_transforms
 from bayesian_fields_core.scene.ply import write_ply
-from bayesian_fields_core.scene.validate import validate_scene_folder
 
 from .conftest import random_gaussians
 

@@ -13,14 +13,14 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from bayesian_fields_core.checks.upload import validate_scene_folder
 from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.job.task_list import load_tasks
 from bayesian_fields_core.scene.colmap import read_colmap, write_colmap_binary
 from bayesian_fields_core.scene.inria import read_cameras_json
 from bayesian_fields_core.scene.nerfstudio import read_transforms, write_transforms
 from bayesian_fields_core.scene.ply import read_ply, write_ply
 from bayesian_fields_core.scene.sanity import LOG_SCALE_RANGE, MAX_ABS_POSITION
-from bayesian_fields_core.scene.validate import validate_scene_folder
-from bayesian_fields_core.tasks import load_tasks
 
 from .conftest import random_gaussians
 

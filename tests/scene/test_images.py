@@ -7,7 +7,7 @@ import pytest
 from PIL import Image
 
 from bayesian_fields_core.errors import InputError
-from bayesian_fields_core.scene.geometry import intrinsics
+from bayesian_fields_core.geometry.transforms import intrinsics
 from bayesian_fields_core.scene.images import (
     check_image,
     distort_normalized,

@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from bayesian_fields_core.checks.upload import validate_scene_folder
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.scene.inria_output import read_cfg_args
 from bayesian_fields_core.scene.loader import find_splat, load_scene, resolve_layout
 from bayesian_fields_core.scene.ply import write_ply
 from bayesian_fields_core.scene.similarity import Similarity
 from bayesian_fields_core.scene.types import Frame, Scene
-from bayesian_fields_core.scene.validate import validate_scene_folder
 
 from .trainer_layouts import (
     SourceScene,

@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from bayesian_fields_core.checks.upload import validate_scene_folder
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.scene.colmap import write_colmap_binary, write_colmap_text
 from bayesian_fields_core.scene.inria import write_cameras_json
 from bayesian_fields_core.scene.loader import find_cameras, find_splat, load_scene
 from bayesian_fields_core.scene.nerfstudio import write_transforms
 from bayesian_fields_core.scene.ply import write_ply
-from bayesian_fields_core.scene.validate import validate_scene_folder
 
 from .conftest import random_gaussians
 

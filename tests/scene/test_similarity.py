@@ -9,7 +9,7 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from bayesian_fields_core.errors import InputError
-from bayesian_fields_core.objects.obb import minimum_obb
+from bayesian_fields_core.geometry.obb import minimum_obb
 from bayesian_fields_core.render import GaussianRenderer
 from bayesian_fields_core.render.projection import covariance_3d
 from bayesian_fields_core.render.sh import sh_to_rgb

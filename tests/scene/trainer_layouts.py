@@ -29,8 +29,8 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
+from bayesian_fields_core.geometry.transforms import OPENGL_TO_OPENCV, invert_rigid
 from bayesian_fields_core.scene.colmap import write_colmap_binary
-from bayesian_fields_core.scene.geometry import OPENGL_TO_OPENCV, invert_rigid
 from bayesian_fields_core.scene.inria import write_cameras_json
 from bayesian_fields_core.scene.nerfstudio import write_transforms
 from bayesian_fields_core.scene.similarity import Similarity

@@ -14,12 +14,11 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
+from bayesian_fields_core.geometry.spherical_harmonics import SH_C0
 from bayesian_fields_core.render import render
 from bayesian_fields_core.scene.nerfstudio import write_transforms
 from bayesian_fields_core.scene.ply import write_ply
 from bayesian_fields_core.scene.types import Frame, Gaussians
-
-SH_C0 = 0.28209479177387814
 
 
 def blob_gaussians(n_per_blob: int = 400, seed: int = 0) -> Gaussians:

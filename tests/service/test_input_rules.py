@@ -10,7 +10,7 @@ import httpx
 import pytest
 
 from bayesian_fields_core.errors import InputError
-from services.common.jobs import JobRecord, JobState
+from bayesian_fields_service.common.jobs import JobRecord, JobState
 from tests.integration.fixtures.s3_server import S3Server
 
 pytestmark = pytest.mark.integration
@@ -158,7 +158,7 @@ def test_parameters_must_be_finite_bounded_and_fit_the_scene(
 
 
 def test_cli_params_get_the_same_bounds() -> None:
-    from bayesian_fields_core.cli import build_params
+    from bayesian_fields_core.cli.main import build_params
 
     for item, fragment in [("top_k=1000000000000000000", "top_k"), ("s=.nan", "s"), ("prior=.inf", "prior")]:
         with pytest.raises(InputError) as err:

@@ -10,7 +10,7 @@ import httpx
 import pytest
 import redis
 
-from services.common.jobs import JobState, JobStore
+from bayesian_fields_service.common.jobs import JobState, JobStore
 from tests.integration.fixtures.s3_server import S3Server
 
 pytestmark = pytest.mark.integration

@@ -176,7 +176,7 @@ def test_cli_batch_submits_scenes_x_task_lists(
     tmp_path,
     capsys: pytest.CaptureFixture[str],  # noqa: ANN001
 ) -> None:
-    from services.client import batch
+    from bayesian_fields_service.client import batch
 
     (tmp_path / "tasks.txt").write_text("red blob\nblue blob\n")
     manifest = tmp_path / "batch.yaml"
@@ -204,6 +204,6 @@ def test_cli_batch_submits_scenes_x_task_lists(
                 client.delete(f"/v1/jobs/{j['id']}")
     bad = tmp_path / "bad.yaml"
     bad.write_text("scenes: []\n")
-    from services.client.commands import _run
+    from bayesian_fields_service.client.commands import _run
 
     assert _run(batch, manifest=bad, server=api.base_url, api_key=api.keys["tenant-a"], wait=False) == 2

@@ -16,7 +16,7 @@ import httpx
 import pytest
 import redis
 
-from services.common.jobs import JobRecord, JobStore, new_id
+from bayesian_fields_service.common.jobs import JobRecord, JobStore, new_id
 from tests.integration.fixtures.redis_server import RedisServer
 from tests.integration.fixtures.s3_server import S3Server
 from tests.integration.fixtures.services import ApiServer, WorkerPool, build_service_env

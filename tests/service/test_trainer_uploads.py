@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from bayesian_fields_core.scene.layout import resolve_layout
-from services.client import BFieldsClient
+from bayesian_fields_service.client import BFieldsClient
 from tests.integration.fixtures.services import ApiServer
 from tests.scene.trainer_layouts import SourceScene, inria_output, small_source_scene, splatfacto_output
 

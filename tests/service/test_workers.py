@@ -15,12 +15,12 @@ import httpx
 import numpy as np
 import pytest
 
-from bayesian_fields_core.context import JobContext
+from bayesian_fields_core.job.context import JobContext
+from bayesian_fields_core.job.pipeline import load_models, run_job
+from bayesian_fields_core.job.store import LocalStore
 from bayesian_fields_core.params import PipelineParams
-from bayesian_fields_core.pipeline import load_models, run_job
 from bayesian_fields_core.results.reader import read_result
-from bayesian_fields_core.store import LocalStore
-from services.client import BFieldsClient, fetch, status, submit
+from bayesian_fields_service.client import BFieldsClient, fetch, status, submit
 from tests.integration.fixtures.redis_server import RedisServer
 from tests.integration.fixtures.services import ApiServer, WorkerPool, build_service_env
 from tests.scene_transforms import copy_scene, move_splat

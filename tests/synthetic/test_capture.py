@@ -9,13 +9,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bayesian_fields_core.eval.synthetic.builder import SyntheticScene, build_scene
-from bayesian_fields_core.eval.synthetic.cameras import capture_frames, look_at, pinhole
+from bayesian_fields_core.eval.synthetic.builder import build_scene
+from bayesian_fields_core.eval.synthetic.cameras import capture_frames
 from bayesian_fields_core.eval.synthetic.generate import to_uint8
 from bayesian_fields_core.eval.synthetic.id_images import IdImageRenderer
+from bayesian_fields_core.eval.synthetic.pieces import SyntheticScene
 from bayesian_fields_core.eval.synthetic.spec import CAPTURE_FIELDS, SceneSpec, suite_specs
 from bayesian_fields_core.eval.synthetic.tasks import make_tasks
 from bayesian_fields_core.eval.vocabulary import COLOURS
+from bayesian_fields_core.geometry.transforms import look_at, pinhole
 from bayesian_fields_core.perception.classical import ClassicalSegmenter
 from bayesian_fields_core.render import GaussianRenderer
 from bayesian_fields_core.scene.types import Gaussians

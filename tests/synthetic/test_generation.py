@@ -22,10 +22,10 @@ from bayesian_fields_core.eval.synthetic import (
     suite_specs,
 )
 from bayesian_fields_core.eval.synthetic.id_images import IdImageRenderer
+from bayesian_fields_core.job.task_list import load_tasks
 from bayesian_fields_core.scene.colmap import read_colmap
 from bayesian_fields_core.scene.images import load_image
 from bayesian_fields_core.scene.loader import load_scene
-from bayesian_fields_core.tasks import load_tasks
 
 from .conftest import SMALL
 

@@ -147,7 +147,7 @@ def _view_job(api: ApiServer, job_id: str, tmp_path: Path) -> None:
     pytest.importorskip("viser")
     from argparse import Namespace
 
-    from bayesian_fields_core.viewer.command import _fetch_job
+    from bayesian_fields_core.cli.view_command import _fetch_job
     from bayesian_fields_core.viewer.data import load_view
 
     args = Namespace(

@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bayesian_fields_core.cli import main
-from bayesian_fields_core.results.previews import DIM, TINT, rank_colour
+from bayesian_fields_core.cli.main import main
+from bayesian_fields_core.results.colours import DIM, TINT, rank_colour
 from tests.ui.browser import pixels
 
 pytest.importorskip("viser", reason="the viewer needs the 'view' extra (viser)")

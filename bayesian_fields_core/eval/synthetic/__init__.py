@@ -10,8 +10,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from bayesian_fields_core.eval.synthetic.builder import Instance, SyntheticScene, build_scene
+from bayesian_fields_core.eval.synthetic.builder import build_scene
 from bayesian_fields_core.eval.synthetic.ground_truth import GroundTruth, GTObject, GTTask, load_ground_truth
+from bayesian_fields_core.eval.synthetic.pieces import Instance, SyntheticScene
 from bayesian_fields_core.eval.synthetic.spec import SceneSpec, suite_specs
 
 
@@ -25,7 +26,7 @@ def generate_scene(out_dir: str | Path, spec: SceneSpec | None = None, *, device
 def load_clio_boxes(folder: str | Path) -> list:
     """The scene's GT as `eval.clio.GTObject`s (task, oriented box), one per (task, object)."""
     from bayesian_fields_core.eval.clio import GTObject as ClioGT
-    from bayesian_fields_core.objects.obb import OrientedBox
+    from bayesian_fields_core.geometry.obb import OrientedBox
 
     gt = load_ground_truth(folder)
     return [

@@ -8,56 +8,15 @@ contain all of their Gaussians' centres by construction.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from bayesian_fields_core.eval.synthetic import capture
-from bayesian_fields_core.eval.synthetic.capture import Label
+from bayesian_fields_core.eval.synthetic.pieces import Instance, Label, Piece, SyntheticScene, yaw
 from bayesian_fields_core.eval.synthetic.spec import SceneSpec
 from bayesian_fields_core.eval.vocabulary import COLOURS, KINDS, NEUTRALS, Part, object_name, sample_part
+from bayesian_fields_core.geometry.spherical_harmonics import SH_C0
 from bayesian_fields_core.scene.types import Gaussians, sh_coefficient_count
-
-SH_C0 = 0.28209479177387814  # degree-0 SH basis constant: colour = 0.5 + SH_C0 * f_dc
-
-
-@dataclass(frozen=True)
-class Instance:
-    """One ground-truth instance: an object (possibly compound) or a room structure.
-
-    center/rotation/extents are its oriented box (rotation columns are the box axes, extents are
-    full side lengths), fitted to its Gaussians' centres in the instance's own frame.
-    """
-
-    id: int
-    name: str
-    kind: str
-    colour: str | None
-    category: str  # "object" or "background"
-    center: np.ndarray
-    rotation: np.ndarray
-    extents: np.ndarray
-    n_gaussians: int
-    label: str | None = None  # colour of its label patch (capture.add_labels), None without one
-
-
-@dataclass
-class SyntheticScene:
-    """Gaussians with their per-Gaussian instance ids and the instances' descriptions."""
-
-    spec: SceneSpec
-    gaussians: Gaussians
-    instance_ids: np.ndarray  # (N,) int32
-    instances: list[Instance]
-    table_top_center: np.ndarray  # (3,) the point cameras look at
-    labels: list[Label] = field(default_factory=list)
-    label_gaussians: np.ndarray | None = None  # (N,) bool: the label patches' Gaussians
-
-
-def _yaw(angle: float) -> np.ndarray:
-    c, s = np.cos(angle), np.sin(angle)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 def _tangent_frames(normals: np.ndarray) -> np.ndarray:
@@ -134,22 +93,6 @@ def paint_label(
     gaussians.sh[rows, 1:4, :] = f_rest
 
 
-@dataclass
-class _Piece:
-    """Sampled surface of one instance before it becomes Gaussians."""
-
-    name: str
-    kind: str
-    colour: str | None
-    category: str
-    points: np.ndarray
-    normals: np.ndarray
-    rgb: np.ndarray
-    density: float
-    frame_rotation: np.ndarray  # the instance frame used for its oriented box
-    origin: np.ndarray = field(default_factory=lambda: np.zeros(3))  # its local frame's origin
-
-
 def _sample_parts(
     rng: np.random.Generator, parts: list[Part], density: float, main_rgb: tuple[float, float, float]
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -163,13 +106,13 @@ def _sample_parts(
     return np.concatenate(pts), np.concatenate(nrm), np.concatenate(rgb)
 
 
-def _room_pieces(spec: SceneSpec, rng: np.random.Generator) -> list[_Piece]:
+def _room_pieces(spec: SceneSpec, rng: np.random.Generator) -> list[Piece]:
     """Floor, four walls and a table (top + legs) as background instances."""
     half = spec.room_size / 2
-    pieces: list[_Piece] = []
+    pieces: list[Piece] = []
     floor = Part("rect", {"hx": half, "hy": half}, colour="floor")
     p, n, c = _sample_parts(rng, [floor], spec.room_density, NEUTRALS["floor"])
-    pieces.append(_Piece("floor", "floor", None, "background", p, n, c, spec.room_density, np.eye(3)))
+    pieces.append(Piece("floor", "floor", None, "background", p, n, c, spec.room_density, np.eye(3)))
     for angle in np.arange(4) * np.pi / 2:
         d = np.array([np.cos(angle), np.sin(angle), 0.0])
         t = np.array([np.sin(angle), -np.cos(angle), 0.0])
@@ -182,7 +125,7 @@ def _room_pieces(spec: SceneSpec, rng: np.random.Generator) -> list[_Piece]:
             colour="wall",
         )
         p, n, c = _sample_parts(rng, [wall], spec.room_density, NEUTRALS["wall"])
-        pieces.append(_Piece("wall", "wall", None, "background", p, n, c, spec.room_density, np.eye(3)))
+        pieces.append(Piece("wall", "wall", None, "background", p, n, c, spec.room_density, np.eye(3)))
     hx, hy = spec.table_size[0] / 2, spec.table_size[1] / 2
     thick, leg = 0.02, 0.025
     parts = [
@@ -198,7 +141,7 @@ def _room_pieces(spec: SceneSpec, rng: np.random.Generator) -> list[_Piece]:
         centre = (sx * (hx - 0.06), sy * (hy - 0.06), leg_h)
         parts.append(Part("box", {"hx": leg, "hy": leg, "hz": leg_h}, translation=centre, colour="wood"))
     p, n, c = _sample_parts(rng, parts, spec.table_density, NEUTRALS["wood"])
-    pieces.append(_Piece("table", "table", None, "background", p, n, c, spec.table_density, np.eye(3)))
+    pieces.append(Piece("table", "table", None, "background", p, n, c, spec.table_density, np.eye(3)))
     return pieces
 
 
@@ -257,11 +200,11 @@ def _place(
     return None
 
 
-def _object_pieces(spec: SceneSpec, rng: np.random.Generator) -> list[_Piece]:
+def _object_pieces(spec: SceneSpec, rng: np.random.Generator) -> list[Piece]:
     """Sample each object in its local frame, then place it in its group without overlaps."""
     centres = _group_centres(spec, rng)
     placed: list[tuple[np.ndarray, float]] = []
-    pieces: list[_Piece] = []
+    pieces: list[Piece] = []
     for i, (colour, kind) in enumerate(choose_objects(spec, rng)):
         parts = KINDS[kind](float(rng.uniform(*spec.size_range)))
         pts, nrm, rgb = _sample_parts(rng, parts, spec.object_density, COLOURS[colour])
@@ -272,10 +215,10 @@ def _object_pieces(spec: SceneSpec, rng: np.random.Generator) -> list[_Piece]:
                 f"spec {spec.name!r}: cannot place object {i} ({colour} {kind}); lower n_objects or widen group_radius"
             )
         placed.append((xy, radius))
-        rot = _yaw(float(rng.uniform(0.0, 2 * np.pi)))
+        rot = yaw(float(rng.uniform(0.0, 2 * np.pi)))
         offset = np.array([xy[0], xy[1], spec.table_height])
         pieces.append(
-            _Piece(
+            Piece(
                 object_name(colour, kind),
                 kind,
                 colour,

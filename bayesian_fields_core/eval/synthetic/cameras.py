@@ -6,36 +6,12 @@ written as COLMAP text and as nerfstudio transforms and read back identically.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 
+from bayesian_fields_core.eval.synthetic.pieces import SyntheticScene
 from bayesian_fields_core.eval.synthetic.spec import SceneSpec
-from bayesian_fields_core.scene.geometry import intrinsics, rigid
+from bayesian_fields_core.geometry.transforms import look_at, pinhole
 from bayesian_fields_core.scene.types import Frame
-
-if TYPE_CHECKING:
-    from bayesian_fields_core.eval.synthetic.builder import SyntheticScene
-
-
-def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = np.array([0.0, 0.0, 1.0])) -> np.ndarray:
-    """World-to-camera (4, 4) for a camera at eye looking at target, x right, y down, z forward."""
-    forward = target - eye
-    forward = forward / np.linalg.norm(forward)
-    right = np.cross(forward, up)
-    norm = np.linalg.norm(right)
-    if norm < 1e-9:
-        raise ValueError("look_at: viewing direction is parallel to the up vector")
-    right /= norm
-    down = np.cross(forward, right)
-    c2w_rot = np.stack([right, down, forward], axis=1)
-    return rigid(c2w_rot.T, -c2w_rot.T @ eye)
-
-
-def pinhole(width: int, height: int, fov_deg: float) -> np.ndarray:
-    """Intrinsics with square pixels, principal point at the centre, given horizontal FOV."""
-    f = 0.5 * width / np.tan(np.deg2rad(fov_deg) / 2)
-    return intrinsics(f, f, width / 2, height / 2)
 
 
 def orbit_frames(
@@ -72,7 +48,7 @@ def capture_frames(spec: SceneSpec, scene: SyntheticScene, prefix: str = "frame"
     Each draws from its own seeded stream ([seed, 1] as before for the path, [seed, 4] for the
     cuts), so a default spec's cameras are the same as before the capture effects existed.
     """
-    from bayesian_fields_core.eval.synthetic import capture
+    from bayesian_fields_core.eval.synthetic import capture  # noqa: PLC0415
 
     rng = np.random.default_rng([spec.seed, 1])
     if spec.trajectory == "walk":

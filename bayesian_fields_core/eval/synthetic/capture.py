@@ -19,29 +19,15 @@ and each draws from its own seeded stream, so default scenes are bit-identical t
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import TYPE_CHECKING
-
 import numpy as np
 
-from bayesian_fields_core.eval.synthetic.cameras import look_at, pinhole
+from bayesian_fields_core.eval.synthetic.pieces import Piece, SyntheticScene
 from bayesian_fields_core.eval.synthetic.spec import SceneSpec
 from bayesian_fields_core.eval.vocabulary import COLOURS, LABELLED_KINDS, NEUTRALS, Part, sample_part
+from bayesian_fields_core.geometry.transforms import look_at, pinhole
 from bayesian_fields_core.scene.types import Frame
 
-if TYPE_CHECKING:
-    from bayesian_fields_core.eval.synthetic.builder import SyntheticScene, _Piece
-
 _LABEL_OFFSET = 0.002  # the label floats this far (m) in front of the surface, so it is never hidden
-
-
-@dataclass(frozen=True)
-class Label:
-    """A label patch of `colour` on instance `instance_id`, facing `normal` (world, unit)."""
-
-    instance_id: int
-    colour: str
-    normal: np.ndarray
 
 
 def _neutral_rgb(rng: np.random.Generator) -> np.ndarray:
@@ -59,18 +45,16 @@ def _box_piece(
     rgb: np.ndarray,
     density: float,
     rng: np.random.Generator,
-) -> _Piece:
-    from bayesian_fields_core.eval.synthetic.builder import _Piece, _yaw
-
+) -> Piece:
     part = Part("box", {"hx": half[0], "hy": half[1], "hz": half[2]}, translation=(0.0, 0.0, half[2]))
     pts, nrm = sample_part(rng, part, density)
-    rot = _yaw(yaw)
+    rot = yaw(yaw)
     offset = np.array([centre_xy[0], centre_xy[1], base_z])
     rgbs = np.broadcast_to(rgb, pts.shape).copy()
-    return _Piece(name, name, None, "background", pts @ rot.T + offset, nrm @ rot.T, rgbs, density, rot)
+    return Piece(name, name, None, "background", pts @ rot.T + offset, nrm @ rot.T, rgbs, density, rot)
 
 
-def occluder_pieces(spec: SceneSpec, rng: np.random.Generator) -> list[_Piece]:
+def occluder_pieces(spec: SceneSpec, rng: np.random.Generator) -> list[Piece]:
     """`spec.n_occluders` furniture pieces standing just outside the table's edge.
 
     Alternately a tall post (a shelf upright or floor lamp, taller than the cameras) and a
@@ -101,8 +85,8 @@ def occluder_pieces(spec: SceneSpec, rng: np.random.Generator) -> list[_Piece]:
 
 
 def clutter_pieces(
-    spec: SceneSpec, rng: np.random.Generator, objects: list[_Piece], tries: int = 300
-) -> list[_Piece]:
+    spec: SceneSpec, rng: np.random.Generator, objects: list[Piece], tries: int = 300
+) -> list[Piece]:
     """`spec.n_clutter` small neutral boxes on the table, near the objects but not inside them.
 
     Placed close to objects (within 0.12 m of a footprint), they touch them in the images, so a
@@ -112,7 +96,7 @@ def clutter_pieces(
     footprints = [
         (p.points[:, :2].mean(axis=0), float(np.ptp(p.points[:, :2], axis=0).max() / 2)) for p in objects
     ]
-    pieces: list[_Piece] = []
+    pieces: list[Piece] = []
     for _ in range(spec.n_clutter):
         half = np.array([rng.uniform(0.012, 0.03), rng.uniform(0.012, 0.03), rng.uniform(0.008, 0.03)])
         reach = float(np.hypot(half[0], half[1]))
@@ -141,7 +125,7 @@ def clutter_pieces(
     return pieces
 
 
-def apply_texture(spec: SceneSpec, pieces: list[_Piece], rng: np.random.Generator) -> None:
+def apply_texture(spec: SceneSpec, pieces: list[Piece], rng: np.random.Generator) -> None:
     """Stripes on objects (horizontal bands, random phase and tilt) and a checker on the room.
 
     Multiplies each piece's RGB in place by 1 or (1 - texture_contrast): a segmenter that cuts at
@@ -169,7 +153,7 @@ def stripes(points: np.ndarray, period: float, rng: np.random.Generator) -> np.n
 
 
 def add_labels(
-    spec: SceneSpec, pieces: list[_Piece], rng: np.random.Generator, first_object: int
+    spec: SceneSpec, pieces: list[Piece], rng: np.random.Generator, first_object: int
 ) -> list[tuple[int, str, np.ndarray, np.ndarray]]:
     """Give `spec.n_labelled` objects a label patch on their local +y side.
 
@@ -241,8 +225,7 @@ def label_sh(
     object's colour pushed away from the label's, which still reads as the object.
     object_rgb, label_rgb: (n, 3) shaded colours; returns f_dc (n, 3) and f_rest (n, 3, 3).
     """
-    from bayesian_fields_core.eval.synthetic.builder import SH_C0
-    from bayesian_fields_core.render.sh import C1
+    from bayesian_fields_core.geometry.spherical_harmonics import C1, SH_C0
 
     cos_h = float(np.cos(np.deg2rad(half_angle_deg)))
     a = 1.0 / (1.0 - cos_h)

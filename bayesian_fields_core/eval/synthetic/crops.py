@@ -17,7 +17,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from bayesian_fields_core.eval.synthetic.builder import build_scene, paint_label, surfels_to_gaussians
-from bayesian_fields_core.eval.synthetic.cameras import look_at, pinhole
 from bayesian_fields_core.eval.synthetic.capture import label_part, stripes
 from bayesian_fields_core.eval.synthetic.generate import to_uint8
 from bayesian_fields_core.eval.synthetic.id_images import IdImageRenderer
@@ -30,6 +29,7 @@ from bayesian_fields_core.eval.vocabulary import (
     label_colours,
     sample_part,
 )
+from bayesian_fields_core.geometry.transforms import look_at, pinhole
 from bayesian_fields_core.perception.crops import mask_crops
 from bayesian_fields_core.render import GaussianRenderer
 

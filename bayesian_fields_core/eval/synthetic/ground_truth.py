@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from bayesian_fields_core.errors import InputError
-from bayesian_fields_core.eval.synthetic.builder import Instance, SyntheticScene
+from bayesian_fields_core.eval.synthetic.pieces import Instance, SyntheticScene
 from bayesian_fields_core.eval.synthetic.tasks import TaskSpec
 
 GT_JSON = "gt.json"

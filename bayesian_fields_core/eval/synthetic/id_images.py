@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from bayesian_fields_core.eval.synthetic.builder import SH_C0
+from bayesian_fields_core.geometry.spherical_harmonics import SH_C0
 from bayesian_fields_core.render import GaussianRenderer
 from bayesian_fields_core.scene.types import Gaussians
 

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bayesian_fields_core.eval.synthetic.builder import Instance
+from bayesian_fields_core.eval.synthetic.pieces import Instance
 from bayesian_fields_core.eval.synthetic.spec import SceneSpec
 from bayesian_fields_core.eval.vocabulary import COLOURS, COMPOUND_KINDS, plural
 

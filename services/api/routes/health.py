@@ -11,11 +11,10 @@ from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, generate_l
 from prometheus_client.core import GaugeMetricFamily, HistogramMetricFamily
 from prometheus_client.registry import Collector
 
-from services.common.jobs import STAGES, JobState
-from services.worker.metrics import JOB_KEY, STAGE_KEY, read_histogram
-
-from ..schemas import Health
-from ..state import AppState, get_state
+from bayesian_fields_service.api.schemas import Health
+from bayesian_fields_service.api.state import AppState, get_state
+from bayesian_fields_service.common.jobs import STAGES, JobState
+from bayesian_fields_service.worker.metrics import JOB_KEY, STAGE_KEY, read_histogram
 
 router = APIRouter(tags=["health"])
 

@@ -11,12 +11,11 @@ from fastapi.responses import FileResponse
 from pydantic import ValidationError
 
 from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.job.store import ArtifactNotFound, LocalStore, get_json, validate_key
+from bayesian_fields_core.job.task_list import normalise_tasks
 from bayesian_fields_core.params import PipelineParams
-from bayesian_fields_core.store import ArtifactNotFound, LocalStore, get_json, validate_key
-from bayesian_fields_core.tasks import normalise_tasks
-from services.common.jobs import BatchRecord, JobRecord, JobState, new_id
-
-from ..schemas import (
+from bayesian_fields_service.api.routes.scenes import _load_scene
+from bayesian_fields_service.api.schemas import (
     Artifact,
     BatchJob,
     BatchRequest,
@@ -27,8 +26,16 @@ from ..schemas import (
     JobResult,
     Problem,
 )
-from ..state import BODY_ERRORS, ERRORS, AppState, State, Tenant, check_id, not_found
-from .scenes import _load_scene
+from bayesian_fields_service.api.state import (
+    BODY_ERRORS,
+    ERRORS,
+    AppState,
+    State,
+    Tenant,
+    check_id,
+    not_found,
+)
+from bayesian_fields_service.common.jobs import BatchRecord, JobRecord, JobState, new_id
 
 log = logging.getLogger(__name__)
 router = APIRouter(prefix="/v1", tags=["jobs"])

@@ -10,20 +10,17 @@ from fastapi import APIRouter, Body, HTTPException, Query, Request, Response, st
 from fastapi.concurrency import run_in_threadpool
 
 from bayesian_fields_core.errors import InputError
-from bayesian_fields_core.store import ArtifactNotFound, get_json, put_json
-from services.common.jobs import JobState, new_id, utcnow
-from services.common.sanitize import scrub
-
-from ..archives import ArchiveLimits
-from ..multipart import clean_filename, receive_multipart
-from ..scene_intake import (
+from bayesian_fields_core.job.store import ArtifactNotFound, get_json, put_json
+from bayesian_fields_service.api.archives import ArchiveLimits
+from bayesian_fields_service.api.multipart import clean_filename, receive_multipart
+from bayesian_fields_service.api.scene_intake import (
     UploadedFile,
     alignment_wanted,
     assemble_scene,
     upload_scene_folder,
     validate_scene,
 )
-from ..schemas import (
+from bayesian_fields_service.api.schemas import (
     CompleteRequest,
     PresignedUpload,
     Problem,
@@ -33,8 +30,18 @@ from ..schemas import (
     UploadPlan,
     UploadRequest,
 )
-from ..state import BODY_ERRORS, ERRORS, AppState, State, Tenant, check_id, not_found
-from ..sweeper import upload_workdir
+from bayesian_fields_service.api.state import (
+    BODY_ERRORS,
+    ERRORS,
+    AppState,
+    State,
+    Tenant,
+    check_id,
+    not_found,
+)
+from bayesian_fields_service.api.sweeper import upload_workdir
+from bayesian_fields_service.common.jobs import JobState, new_id, utcnow
+from bayesian_fields_service.common.sanitize import scrub
 
 router = APIRouter(prefix="/v1/scenes", tags=["scenes"])
 
@@ -172,7 +179,7 @@ async def upload_scene(request: Request, tenant: Tenant, state: State) -> SceneR
 )
 def start_upload(body: UploadRequest, tenant: Tenant, state: State) -> UploadPlan:
     """Returns presigned multipart PUT URLs per file; then call POST /v1/scenes/{id}/complete."""
-    from services.common.s3_store import plan_parts
+    from bayesian_fields_service.common.s3_store import plan_parts
 
     if not state.can_presign():
         raise HTTPException(status.HTTP_501_NOT_IMPLEMENTED, "the storage backend cannot presign URLs")

@@ -1,0 +1,7 @@
+"""`python -m bayesian_fields_core.cli`: the same as the `bfields` script."""
+
+import sys
+
+from bayesian_fields_core.cli.main import main
+
+sys.exit(main())

@@ -1,0 +1,103 @@
+"""`bfields calibrate` as a library call: fit the likelihoods' mu0 / mu1 / s for one CLIP model.
+
+`calibrate(CalibrationRequest(...))` is the one typed entry point (the CLI only builds the
+request from its flags). Two sources of scores:
+- a file of (score, label) pairs the operator collected (CSV with a header `score,label`, or
+  JSON: a list of {"score", "label"} or {"positive": [...], "negative": [...]});
+- scenes with ground truth (the synthetic suite's `gt.json`, `calibration.ground_truth`): every
+  mask is scored against every task; a (mask, task) pair is positive when most of the mask's
+  visible Gaussians belong to a GT object of that task, and negative when the task has no GT
+  object in the scene (the paper's recipe: mu0 from tasks without a relevant object, mu1 and s
+  from known positives).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from bayesian_fields_core.calibration.model import Calibration, fit_calibration, save_calibration
+from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.eval.calibration.ground_truth import Negatives
+
+
+class CalibrationRequest(BaseModel):
+    """What to calibrate from and where to write it. Exactly one of `scores` / `scenes`."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    out: Path = Field(description="Calibration JSON to write.")
+    scores: Path | None = Field(None, description="CSV/JSON of (score, label) pairs; label 1 = relevant.")
+    scenes: tuple[Path, ...] = Field((), description="Synthetic scene folders with gt.json.")
+    profile: str | None = Field(None, description="Model profile YAML (default: the bundled one).")
+    negatives: Negatives = Field("absent", description="With scenes: which pairs are negatives.")
+    max_frames: int | None = Field(None, ge=1, description="With scenes: at most this many frames per scene.")
+    model_id: str | None = Field(None, description="Model id recorded in the file (default: the encoder's).")
+
+    def check(self) -> None:
+        """Refuse a request without exactly one source, or a score file without a model id.
+
+        (Not a pydantic validator: those would wrap the `InputError` into a ValidationError.)"""
+        if (self.scores is None) == (not self.scenes):
+            raise InputError("give either a score file or scenes with ground truth", source="calibrate")
+        if self.scores is not None and not self.model_id:
+            # A calibration is only used with the CLIP it was fitted for; without an id no profile
+            # would ever accept the file.
+            raise InputError(
+                "--scores needs --model-id (the encoder's model id, e.g. tiny-clip@1d545f781fac)"
+            )
+
+
+def read_score_file(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """(positive scores, negative scores) from a CSV or JSON score file."""
+    if not path.is_file():
+        raise InputError("file not found", source=str(path))
+    text = path.read_text(encoding="utf-8")
+    pos: list[float] = []
+    neg: list[float] = []
+    try:
+        if path.suffix == ".json":
+            data = json.loads(text)
+            if isinstance(data, dict):
+                pos = [float(v) for v in data.get("positive", [])]
+                neg = [float(v) for v in data.get("negative", [])]
+            else:
+                for row in data:
+                    (pos if int(row["label"]) else neg).append(float(row["score"]))
+        else:
+            reader = csv.DictReader(text.splitlines())
+            if reader.fieldnames is None or not {"score", "label"} <= set(reader.fieldnames):
+                raise InputError("CSV needs a header with 'score' and 'label' columns", source=str(path))
+            for row in reader:
+                (pos if int(row["label"]) else neg).append(float(row["score"]))
+    except (KeyError, ValueError, TypeError, json.JSONDecodeError) as exc:
+        if isinstance(exc, InputError):
+            raise
+        raise InputError(f"cannot read scores: {exc}", source=str(path)) from None
+    if not pos or not neg:
+        raise InputError(
+            f"need both positive and negative scores (got {len(pos)} and {len(neg)})", source=str(path)
+        )
+    return np.asarray(pos), np.asarray(neg)
+
+
+def calibrate(request: CalibrationRequest) -> Calibration:
+    """Fit and write the calibration `request` describes; returns it."""
+    request.check()
+    if request.scores is not None:
+        pos, neg = read_score_file(request.scores)
+        model_id = str(request.model_id)
+    else:
+        from bayesian_fields_core.eval.calibration.ground_truth import collect_scores
+
+        pos, neg, encoder_id = collect_scores(
+            list(request.scenes), request.profile, max_frames=request.max_frames, negatives=request.negatives
+        )
+        model_id = request.model_id or encoder_id
+    cal = fit_calibration(pos, neg, model_id)
+    save_calibration(request.out, cal)
+    return cal

@@ -1,0 +1,142 @@
+"""Labelled CLIP scores from scenes with ground truth, for `bfields calibrate --scene`.
+
+The likelihoods of METHOD step 3 need, per CLIP model, the mean score of irrelevant
+(mask, task) pairs (mu0) and the mean and spread of relevant ones (mu1, s). A synthetic scene
+knows which Gaussians belong to which task's objects, so every mask the real perception stage
+produces can be labelled through the Gaussians it sees:
+
+- positive: at least `positive_overlap` of the mask's visible Gaussians belong to the task's
+  GT objects (the mask shows a relevant object, not just a sliver of one);
+- negative, with `negatives="absent"` (the paper's recipe for mu0, Sec. 5): any mask scored
+  against a task that has no object in the scene; with `negatives="unrelated"`: a mask none of
+  whose Gaussians belongs to the task's objects (many more pairs, mostly easy background ones);
+- anything in between is ambiguous and left out.
+
+The masks and their Gaussians come from the pipeline's own `perceive` and `fuse` stages, so the
+scores are exactly those the fusion will see with that model profile.
+"""
+
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.eval.synthetic import load_ground_truth
+from bayesian_fields_core.job.context import JobContext
+from bayesian_fields_core.job.pipeline import load_models, run_stage
+from bayesian_fields_core.job.store import LocalStore, get_arrays
+from bayesian_fields_core.params import PipelineParams
+
+Negatives = Literal["absent", "unrelated"]
+
+POSITIVE_OVERLAP = 0.5
+"""Share of a mask's visible Gaussians inside a task's GT objects that makes a positive pair."""
+
+
+def label_masks(
+    gaussian_ids: np.ndarray,
+    mask_ids: np.ndarray,
+    n_masks: int,
+    relevant: np.ndarray,
+    positive_overlap: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(positive, negative) bool arrays of shape (M, T) for one frame.
+
+    `relevant` (N, T) bool says which Gaussians belong to a GT object of each task. The share of
+    a mask's Gaussians that are relevant is a bincount per task, vectorized over masks.
+    """
+    n_tasks = relevant.shape[1]
+    seen = np.bincount(mask_ids, minlength=n_masks).astype(np.float64)
+    hits = np.zeros((n_masks, n_tasks))
+    np.add.at(hits, mask_ids, relevant[gaussian_ids].astype(np.float64))
+    share = np.divide(hits, seen[:, None], out=np.zeros_like(hits), where=seen[:, None] > 0)
+    observed = seen[:, None] > 0
+    return observed & (share >= positive_overlap), observed & (hits == 0)
+
+
+def scene_scores(
+    scene_dir: Path,
+    models: Any,
+    work_dir: Path,
+    positive_overlap: float,
+    max_frames: int | None = None,
+    negatives: Negatives = "absent",
+) -> tuple[np.ndarray, np.ndarray]:
+    """(positive scores, negative scores) of one scene."""
+    gt = load_ground_truth(scene_dir)
+    tasks = gt.task_texts
+    if not tasks:
+        raise InputError("ground truth lists no tasks", source=str(scene_dir / "gt.json"))
+    absent = np.array([not task.objects for task in gt.tasks])
+    relevant = np.zeros((len(gt.instance_ids), len(tasks)), dtype=bool)
+    for t, task in enumerate(gt.tasks):
+        ids = [o.instance_id for o in task.objects]
+        relevant[:, t] = np.isin(gt.instance_ids, ids)
+
+    cache = LocalStore(work_dir / "cache")
+    ctx = JobContext(
+        store=LocalStore(work_dir / "job"),
+        job_prefix="",
+        tasks=tasks,
+        params=PipelineParams(max_frames=max_frames),
+        models=models,
+        scene_store=cache,
+        scene_prefix="scene/",
+        scene_dir=scene_dir,
+    )
+    run_stage("perceive", ctx)
+    run_stage("fuse", ctx)  # computes and caches the per-frame mask-to-Gaussian associations
+    text = models.encoder.encode_texts(tasks).astype(np.float32)
+    text /= np.linalg.norm(text, axis=1, keepdims=True)
+
+    pos: list[np.ndarray] = []
+    neg: list[np.ndarray] = []
+    for index, _frame in ctx.selected_frames():
+        embeddings = get_arrays(cache, ctx.perception_key(index))["embeddings"]
+        if embeddings.shape[0] == 0:
+            continue
+        vis = get_arrays(cache, ctx.visibility_key(index))
+        emb = embeddings.astype(np.float32)
+        emb /= np.maximum(np.linalg.norm(emb, axis=1, keepdims=True), 1e-12)
+        scores = emb @ text.T
+        is_pos, is_neg = label_masks(
+            vis["gaussian_ids"].astype(np.int64),
+            vis["mask_ids"].astype(np.int64),
+            emb.shape[0],
+            relevant,
+            positive_overlap,
+        )
+        if negatives == "absent":
+            seen = np.bincount(vis["mask_ids"].astype(np.int64), minlength=emb.shape[0]) > 0
+            is_neg = seen[:, None] & absent[None, :]
+        pos.append(scores[is_pos])
+        neg.append(scores[is_neg])
+    return np.concatenate(pos or [np.zeros(0)]), np.concatenate(neg or [np.zeros(0)])
+
+
+def collect_scores(
+    scene_dirs: list[Path],
+    profile: str | None,
+    *,
+    positive_overlap: float = POSITIVE_OVERLAP,
+    max_frames: int | None = None,
+    negatives: Negatives = "absent",
+) -> tuple[np.ndarray, np.ndarray, str]:
+    """(positive scores, negative scores, encoder model id) pooled over scenes with ground truth."""
+    if not 0.0 < positive_overlap <= 1.0:
+        raise InputError(f"positive_overlap must be in (0, 1], got {positive_overlap}")
+    models = load_models(profile)
+    pos: list[np.ndarray] = []
+    neg: list[np.ndarray] = []
+    with tempfile.TemporaryDirectory(prefix="bfields-calibrate-") as tmp:
+        for n, scene_dir in enumerate(scene_dirs):
+            p, q = scene_scores(
+                Path(scene_dir), models, Path(tmp) / str(n), positive_overlap, max_frames, negatives
+            )
+            pos.append(p)
+            neg.append(q)
+    return np.concatenate(pos), np.concatenate(neg), str(models.encoder.model_id)

@@ -1,0 +1,7 @@
+"""The job runtime: the stage table, the context a stage runs in, the pipeline that runs the
+stages in order and resumes finished ones, the artifact store, artifact names, completion markers,
+content keys of the caches and their index, and where a job's scene folder comes from.
+
+It sits below `stages/`: a stage imports the context and the store; the runtime finds the stage
+functions through the table (`stage_table.StageSpec.function`), never by importing a stage.
+"""

@@ -1,0 +1,151 @@
+"""The stage table: every fact about a stage, written once.
+
+The pipeline runs the stages in table order; the worker makes one Celery task per row, named
+and routed from it; job progress and the CLI's bars weigh and label stages from it; and the
+content keys of the per-frame caches (`cache_keys`) take their parameters from it. Adding a
+stage is adding a row here and its module under `stages/`.
+
+A row names its function by import path (``module:function``) and the runtime imports it on
+first use. That keeps the job runtime below the stages it runs: stages import the runtime's
+context and store, and nothing in `job/` imports a stage (`tests/test_layers.py`).
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, Literal
+
+from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.job.artifacts import PERCEPTION_CACHE_DIR, VISIBILITY_CACHE_DIR
+from bayesian_fields_core.params import PipelineParams
+
+StageFunction = Callable[..., dict[str, Any]]
+"""`run(ctx: JobContext) -> report`; the context is not named here, since it imports the table."""
+Queue = Literal["gpu", "cpu"]
+
+
+@dataclass(frozen=True)
+class CacheSpec:
+    """A stage's task-independent per-frame cache and what its content key is made of.
+
+    folder: where under the cache root its entries live (``perception/``, ``visibility/``).
+    params: the `PipelineParams` fields whose values enter the key: a change to any of them
+        must miss the cache, and a field that is not here must not change what is cached.
+    inputs: the other contents the key hashes, in words (images, cameras, splat, models).
+    """
+
+    folder: str
+    params: tuple[str, ...]
+    inputs: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class StageSpec:
+    """One stage: name, function, worker queue, progress weight and its cache (if any)."""
+
+    name: str
+    function: str
+    """``module:function`` of `run(ctx) -> report`, imported when the stage first runs."""
+    queue: Queue
+    """The worker pool role: "gpu" (segmentation, CLIP, rendering) or "cpu"."""
+    weight: float
+    """Share of a job's progress bar; the weights of the table add up to 1."""
+    cache: CacheSpec | None = None
+
+    @property
+    def task_name(self) -> str:
+        """The Celery task name of this stage (what the API enqueues by name)."""
+        return f"bfields.stage.{self.name}"
+
+    def load(self) -> StageFunction:
+        module, _, attribute = self.function.partition(":")
+        return getattr(importlib.import_module(module), attribute)
+
+
+PERCEPTION_CACHE = CacheSpec(
+    folder=PERCEPTION_CACHE_DIR,
+    params=(),
+    inputs=("image bytes", "image size", "K and distortion when the loader undistorts", "model fingerprint"),
+)
+VISIBILITY_CACHE = CacheSpec(
+    folder=VISIBILITY_CACHE_DIR,
+    params=("depth_source", "depth_tolerance", "depth_tolerance_relative"),
+    inputs=(
+        "perception key of the frame",
+        "splat digest (means, scales, rotations, opacities)",
+        "camera K, pose and size",
+        "input depth file and scale when depth_source is 'input'",
+    ),
+)
+
+STAGE_TABLE: tuple[StageSpec, ...] = (
+    StageSpec("perceive", "bayesian_fields_core.stages.perceive:run", "gpu", 0.6, PERCEPTION_CACHE),
+    StageSpec("fuse", "bayesian_fields_core.stages.fuse:run", "gpu", 0.25, VISIBILITY_CACHE),
+    StageSpec("cluster", "bayesian_fields_core.stages.cluster:run", "cpu", 0.15),
+)
+
+STAGES: tuple[str, ...] = tuple(spec.name for spec in STAGE_TABLE)
+"""Stage names in the order they run."""
+
+NOT_IN_ANY_CACHE_KEY: dict[str, str] = {
+    # Which frames are read: they choose cache entries, they never change one.
+    "frame_stride": "selects frames",
+    "max_frames": "selects frames",
+    # Checks that refuse a scene before any stage computes: they change no output.
+    "alignment_check": "check before perception",
+    "alignment_min_frustum_share": "check before perception",
+    "alignment_max_extent_ratio": "check before perception",
+    "alignment_min_score": "check before perception",
+    "alignment_frames": "check before perception",
+    "alignment_max_side": "check before perception",
+    # How fast, not what: batching, prefetching, the backend and device.
+    "crop_batch_size": "runtime",
+    "prefetch_frames": "runtime",
+    "fusion_backend": "runtime",
+    "device": "runtime",
+    # Read after the caches, by the fusion update (its output is per job, never cached).
+    "mu0": "fusion update",
+    "mu1": "fusion update",
+    "s": "fusion update",
+    "s_eps": "fusion update",
+    "prior": "fusion update",
+    "fusion": "fusion update",
+    "outlier_rejection": "fusion update",
+    "view_correlation": "fusion update",
+    # The cluster stage and the result: per job.
+    "null_mode": "cluster",
+    "edge_padding": "cluster",
+    "identical_tolerance": "cluster",
+    "aib_px": "cluster",
+    "aib_delta": "cluster",
+    "prune_threshold": "cluster",
+    "top_k": "cluster",
+    "min_object_gaussians": "cluster",
+    "selection_score": "cluster",
+    "answer_min_peak": "cluster",
+    "knn_filter": "cluster",
+    "knn_k": "cluster",
+    "knn_std_ratio": "cluster",
+    "export_ply": "result files",
+    "store_primitive_ids": "result files",
+    "previews": "result files",
+    "preview_max_side": "result files",
+}
+"""Every `PipelineParams` field that enters no cache key, with why. A field is either here or in
+a `CacheSpec.params`; `tests/pipeline/test_stage_table.py` fails on a field in neither, so a new
+parameter that changes what a cache holds cannot silently reuse stale entries."""
+
+
+def stage(name: str) -> StageSpec:
+    """The table row of stage `name` (InputError naming the known stages otherwise)."""
+    for spec in STAGE_TABLE:
+        if spec.name == name:
+            return spec
+    raise InputError(f"unknown stage {name!r}; stages are {', '.join(STAGES)}", source="stage")
+
+
+def cache_parameters(spec: CacheSpec, params: PipelineParams) -> dict[str, Any]:
+    """The values of `spec.params` in `params`: what a cache key hashes of the parameters."""
+    return {name: getattr(params, name) for name in spec.params}

@@ -13,6 +13,7 @@ from importlib.metadata import entry_points
 from pathlib import Path
 from typing import Any
 
+from bayesian_fields_core.cli.arguments import int_at_least
 from bayesian_fields_core.cli.cache_command import DEFAULT_CACHE_DIR
 from bayesian_fields_core.errors import BayesianFieldsError, InputError, InvariantError
 from bayesian_fields_core.job.artifacts import RESULT_PREFIX
@@ -278,22 +279,11 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     return 0
 
 
-def _non_negative_int(text: str) -> int:
-    """argparse type: an integer >= 0 (a clear usage error otherwise)."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
-    return value
-
-
 def _suite_count(text: str) -> int:
     """argparse type: how many suite scenes, 3 (the fewest that make a suite) to 5 (all of them)."""
     from bayesian_fields_core.eval.synthetic.spec import SUITE_SIZE
 
-    value = _non_negative_int(text)
+    value = int_at_least(0)(text)
     if not 3 <= value <= SUITE_SIZE:
         raise argparse.ArgumentTypeError(f"must be 3 to {SUITE_SIZE}, got {value}")
     return value
@@ -420,7 +410,7 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--markdown", action="store_true", help="print the table as Markdown")
     ev.add_argument(
         "--lerf-views",
-        type=_non_negative_int,
+        type=int_at_least(0),
         default=4,
         help="views per scene for the LeRF-protocol table (rendered masks; 0 = skip it)",
     )

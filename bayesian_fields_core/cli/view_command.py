@@ -11,22 +11,13 @@ import webbrowser
 from importlib.metadata import entry_points
 from pathlib import Path
 
+from bayesian_fields_core.cli.arguments import int_at_least
 from bayesian_fields_core.cli.cache_command import DEFAULT_CACHE_DIR
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.viewer.data import DEFAULT_MAX_GAUSSIANS
 
 JOB_DOWNLOAD_GROUP = "bayesian_fields.job_download"
 """Entry point: `download(job_id, out, *, server, api_key)`, lent by the service client."""
-
-
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
-    return value
 
 
 def add_view_parser(sub: argparse._SubParsersAction) -> None:
@@ -42,7 +33,7 @@ def add_view_parser(sub: argparse._SubParsersAction) -> None:
     view.add_argument("--host", default="127.0.0.1")
     view.add_argument("--port", type=int, default=8080)
     view.add_argument(
-        "--max-gaussians", type=_positive_int, default=DEFAULT_MAX_GAUSSIANS,
+        "--max-gaussians", type=int_at_least(1), default=DEFAULT_MAX_GAUSSIANS,
         help=f"cap on Gaussians sent to the browser (default {DEFAULT_MAX_GAUSSIANS:,}; selected objects are always kept)",
     )  # fmt: skip
     view.add_argument("--no-browser", action="store_true", help="do not open a browser")

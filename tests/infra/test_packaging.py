@@ -12,7 +12,10 @@ from importlib.metadata import entry_points
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
-FOLDERS = {"bayesian_fields_core": ROOT / "bayesian_fields_core", "bayesian_fields_service": ROOT / "services"}
+FOLDERS = {
+    "bayesian_fields_core": ROOT / "bayesian_fields_core",
+    "bayesian_fields_service": ROOT / "services",
+}
 
 
 def packages_on_disk() -> set[str]:

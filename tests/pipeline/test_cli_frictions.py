@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from bayesian_fields_core.cli.main import main
 from bayesian_fields_core.cli import params_table
+from bayesian_fields_core.cli.main import main
 from bayesian_fields_core.job.context import JobContext
 from bayesian_fields_core.job.markers import is_done
 from bayesian_fields_core.job.pipeline import run_job

@@ -12,7 +12,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from bayesian_fields_core.eval.synthetic import capture
-from bayesian_fields_core.eval.synthetic.pieces import Instance, Label, Piece, SyntheticScene, yaw
+from bayesian_fields_core.eval.synthetic.pieces import Instance, Label, Piece, SyntheticScene, yaw_rotation
 from bayesian_fields_core.eval.synthetic.spec import SceneSpec
 from bayesian_fields_core.eval.vocabulary import COLOURS, KINDS, NEUTRALS, Part, object_name, sample_part
 from bayesian_fields_core.geometry.spherical_harmonics import SH_C0
@@ -215,7 +215,7 @@ def _object_pieces(spec: SceneSpec, rng: np.random.Generator) -> list[Piece]:
                 f"spec {spec.name!r}: cannot place object {i} ({colour} {kind}); lower n_objects or widen group_radius"
             )
         placed.append((xy, radius))
-        rot = yaw(float(rng.uniform(0.0, 2 * np.pi)))
+        rot = yaw_rotation(float(rng.uniform(0.0, 2 * np.pi)))
         offset = np.array([xy[0], xy[1], spec.table_height])
         pieces.append(
             Piece(

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from bayesian_fields_core.eval.synthetic.pieces import Piece, SyntheticScene
+from bayesian_fields_core.eval.synthetic.pieces import Piece, SyntheticScene, yaw_rotation
 from bayesian_fields_core.eval.synthetic.spec import SceneSpec
 from bayesian_fields_core.eval.vocabulary import COLOURS, LABELLED_KINDS, NEUTRALS, Part, sample_part
 from bayesian_fields_core.geometry.transforms import look_at, pinhole
@@ -48,7 +48,7 @@ def _box_piece(
 ) -> Piece:
     part = Part("box", {"hx": half[0], "hy": half[1], "hz": half[2]}, translation=(0.0, 0.0, half[2]))
     pts, nrm = sample_part(rng, part, density)
-    rot = yaw(yaw)
+    rot = yaw_rotation(yaw)
     offset = np.array([centre_xy[0], centre_xy[1], base_z])
     rgbs = np.broadcast_to(rgb, pts.shape).copy()
     return Piece(name, name, None, "background", pts @ rot.T + offset, nrm @ rot.T, rgbs, density, rot)

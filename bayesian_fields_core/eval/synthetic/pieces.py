@@ -56,7 +56,7 @@ class SyntheticScene:
     label_gaussians: np.ndarray | None = None  # (N,) bool: the label patches' Gaussians
 
 
-def yaw(angle: float) -> np.ndarray:
+def yaw_rotation(angle: float) -> np.ndarray:
     """(3, 3) rotation by `angle` radians about the world z axis (objects stand upright)."""
     c, s = np.cos(angle), np.sin(angle)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])

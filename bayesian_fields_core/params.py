@@ -115,7 +115,7 @@ class PipelineParams(BaseModel):
             "rho: correlation of one Gaussian's score errors across its views. 0 = the paper (views "
             "independent, evidence grows with every view); rho > 0 divides a Gaussian's summed "
             "evidence by 1 + (n - 1) rho for its n accepted views (equicorrelated Gaussian "
-            "likelihood; 1 = all views one measurement). README: Correlated views."
+            "likelihood; 1 = all views one measurement). Docs: The capture suite, Correlated views."
         ),
     )
     depth_source: Literal["median", "expected", "input"] = Field(
@@ -199,7 +199,7 @@ class PipelineParams(BaseModel):
             "A task whose best object's best single view scores below this margin gets no object "
             "(an empty selection with the reason: 'not found', format 1.3). The margin is "
             "(phi - mu0) / (mu1 - mu0): 0 at the irrelevant mean, 1 at the relevant one. None = "
-            "always answer. Chosen on the synthetic suite's present and absent tasks (README: "
+            "always answer. Chosen on the synthetic suite's present and absent tasks (docs: "
             "Not found answers)."
         ),
     )

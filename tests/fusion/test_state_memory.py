@@ -1,5 +1,6 @@
 """The fusion state's memory: the fuse stage writes the (N, T) probabilities block by block and a
-local reader decompresses in place, so neither holds the state twice (README, scaling section).
+local reader decompresses in place, so neither holds the state twice (docs: Performance and
+scaling, the fusion state).
 
 At 5M Gaussians x 100 tasks the float32 log-odds are 2 GB; writing the artifact the old way
 (probabilities computed whole, then the compressed archive built in a BytesIO and copied out by

@@ -164,35 +164,38 @@ def test_bundled_default_profile_builds() -> None:
     assert len(registry.profile_fingerprint(prof)) == 16
 
 
-def _readme() -> str:
-    return (REPO / "README.md").read_text(encoding="utf-8")
+def _docs() -> str:
+    """Every page of the documentation site (`docs/`, build helpers aside), one after another."""
+    pages = sorted(p for p in (REPO / "docs").rglob("*.md") if "_build" not in p.parts)
+    return "\n".join(p.read_text(encoding="utf-8") for p in pages)
 
 
-def test_readme_profile_examples_load() -> None:
-    """Every profile in the README (YAML blocks and inline sections) is valid for the typed kinds."""
+def test_docs_profile_examples_load() -> None:
+    """Every profile in the docs (YAML blocks and inline sections) is valid for the typed kinds."""
     import re
 
-    blocks = [yaml.safe_load(b) for b in re.findall(r"```yaml\n(.*?)```", _readme(), re.S)]
+    blocks = [yaml.safe_load(b) for b in re.findall(r"```yaml\n(.*?)```", _docs(), re.S)]
     profiles = [b for b in blocks if isinstance(b, dict) and "encoder" in b]
     assert len(profiles) >= 2
     for doc in profiles:
         registry.load_profile(doc, base_dir="/models")
     enc = {"kind": "hf_clip", "path": "x"}
-    sections = [yaml.safe_load(s) for s in re.findall(r"`((?:segmenter|encoder): \{.*?\})`", _readme())]
+    sections = [yaml.safe_load(s) for s in re.findall(r"`((?:segmenter|encoder): \{.*?\})`", _docs())]
     assert {next(iter(s)) for s in sections} == {"segmenter", "encoder"}
     for section in sections:
         registry.load_profile({"encoder": enc, **section})
 
 
-def test_readme_kind_table_lists_every_kind_and_param() -> None:
-    """The README's kind table names each registered kind and each of its params."""
+def test_docs_kind_table_lists_every_kind_and_param() -> None:
+    """The kind table of the docs' model profiles page names each registered kind and each of its
+    params."""
     import re
 
     from bayesian_fields_core.perception.kind_base import ENCODERS, SEGMENTERS
 
     rows = {
         line.split("|")[1].strip(): line
-        for line in _readme().splitlines()
+        for line in _docs().splitlines()
         if line.startswith("| segmenter `") or line.startswith("| encoder `")
     }
     for section, kinds in (("segmenter", SEGMENTERS), ("encoder", ENCODERS)):
@@ -202,4 +205,4 @@ def test_readme_kind_table_lists_every_kind_and_param() -> None:
             row = rows[f"{section} `{name}`"]
             params = kinds.get(name).model_fields["params"].annotation.model_fields
             missing = [p for p in params if not re.search(rf"`(params\.)?{p}`", row)]
-            assert name == "classical" or not missing, f"README row {section} {name} lacks {missing}"
+            assert name == "classical" or not missing, f"docs row {section} {name} lacks {missing}"

@@ -40,9 +40,10 @@ def test_read_result_takes_a_plain_path_and_reports_carry_iso_times(
         assert (finished - started).total_seconds() == pytest.approx(report["seconds"], abs=0.01)
 
 
-def _readme_layout() -> set[str]:
-    """The paths of README's "What lands where" block under `out/demo/` (numbers as NN...)."""
-    text = (Path(__file__).resolve().parents[2] / "README.md").read_text()
+def _documented_layout() -> set[str]:
+    """The paths of the "What lands where" block of the docs' getting-started page under
+    `out/demo/` (numbers as NN...)."""
+    text = (Path(__file__).resolve().parents[2] / "docs" / "getting-started.md").read_text()
     block = text[text.index("What lands where:") :].split("```")[1]
     paths, folder = set(), ""
     for line in block.splitlines():
@@ -61,7 +62,7 @@ def _readme_layout() -> set[str]:
     return paths
 
 
-def test_readme_lists_every_file_a_run_writes(scene_dir: Path, profile: dict, tmp_path: Path) -> None:
+def test_docs_list_every_file_a_run_writes(scene_dir: Path, profile: dict, tmp_path: Path) -> None:
     import re
 
     ctx = make_ctx(scene_dir, tmp_path / "run", tmp_path / "cache", counting_models(profile))
@@ -73,4 +74,4 @@ def test_readme_lists_every_file_a_run_writes(scene_dir: Path, profile: dict, tm
         if p.is_file()
     }
     written = {re.sub(r"^stages/\w+\.json$", "stages/<stage>.json", p) for p in written}
-    assert written - _readme_layout() == set()
+    assert written - _documented_layout() == set()

@@ -1,7 +1,8 @@
 """Worker disk over real HTTP and real Celery workers (prefork pool on the GPU queue, solo on the
 CPU queue, one shared cache folder): N jobs over three scenes leave one scene copy per scene in
 the cache, never more than the bound, no partial copies, and nothing in the old per-stage temp
-folder. BFIELDS_DISK_JOBS=100 turns it into the disk measurement of the README (printed)."""
+folder. BFIELDS_DISK_JOBS=100 turns it into the disk measurement of the docs (Operations, worker
+disk; printed)."""
 
 from __future__ import annotations
 

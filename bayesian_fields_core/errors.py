@@ -7,6 +7,7 @@ import struct
 import tarfile
 import zipfile
 import zlib
+from typing import Literal
 
 
 class BayesianFieldsError(Exception):
@@ -101,7 +102,7 @@ class input_boundary:  # noqa: N801 - used as a context manager, reads like a st
     def __enter__(self) -> input_boundary:
         return self
 
-    def __exit__(self, exc_type, exc, tb) -> bool:
+    def __exit__(self, exc_type, exc, tb) -> Literal[False]:
         if exc is None or isinstance(exc, InputError) or not isinstance(exc, self.families):
             return False
         raise InputError(f"{self.what} ({describe_failure(exc)})", source=self.source) from exc

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 PAPER_MU0 = 0.20
 """Mean cosine score of irrelevant (task, segment) pairs in the paper (Sec. 4.2, FastSAM segments);
@@ -18,6 +18,9 @@ PAPER_MU1 = 0.27
 """Mean score of relevant pairs in the paper (tuned); the fallback for `mu1`."""
 PAPER_S = 0.035
 """Std shared by both likelihoods in the paper (from COCO positives); the fallback for `s`."""
+FORMER_FUSION_BACKENDS = {"torch": "auto", "numpy": "cpu"}
+"""`fusion_backend` values of the numpy/torch twins, mapped to the device that now runs the one
+implementation where each ran ('torch' ran on the render device, 'numpy' on the host)."""
 
 
 class PipelineParams(BaseModel):
@@ -92,12 +95,20 @@ class PipelineParams(BaseModel):
     crop_batch_size: int = Field(
         64,
         ge=1,
-        description="Mask crops per encoder call, pooled across consecutive frames (bounds model memory).",
+        le=4096,
+        description=(
+            "Mask crops per encoder call, pooled across consecutive frames (bounds model memory; "
+            "at most 4096: a batch of 4096 224-px crops is already ~2.5 GB of float32 input)."
+        ),
     )
     prefetch_frames: int = Field(
         2,
         ge=0,
-        description="Frames each perception step (decode, segment, crop) may run ahead of encoding; 0 = no threads.",
+        le=64,
+        description=(
+            "Frames each perception step (decode, segment, crop) may run ahead of encoding; 0 = no "
+            "threads. At most 64: each frame ahead holds its decoded image and masks in memory."
+        ),
     )
 
     # --- fusion (steps 4-5) ----------------------------------------------------------------------
@@ -122,22 +133,53 @@ class PipelineParams(BaseModel):
         "median",
         description="Depth image for visibility: rendered median or expected depth, or the input depth maps.",
     )
-    fusion_backend: Literal["auto", "numpy", "torch"] = Field(
+    fusion_backend: Literal["auto", "cpu"] = Field(
         "auto",
         description=(
-            "Where projection, depth test and log-odds update run: 'numpy' on the host, 'torch' on "
-            "the render device (depth stays on the GPU); 'auto' = torch when that device is CUDA."
+            "Device of projection, depth test and the fusion state (one torch implementation): "
+            "'auto' = the render device (depth stays on the GPU); 'cpu' = the host. The former "
+            "'torch' and 'numpy' are read as 'auto' and 'cpu'."
         ),
     )
-    depth_tolerance: float = Field(
-        0.05,
+
+    @field_validator("fusion_backend", mode="before")
+    @classmethod
+    def _former_fusion_backends(cls, value: Any) -> Any:
+        """Job records and parameter files written before fusion had one implementation name
+        its two backends; both now run the same ops, on the render device or on the host."""
+        return FORMER_FUSION_BACKENDS.get(value, value) if isinstance(value, str) else value
+
+    scene_scale: float | None = Field(
+        None,
+        gt=0,
+        le=1e9,
+        description=(
+            "The length every relative length below is a fraction of, in the cameras' (capture) "
+            "units. None: derived from the inputs, the median over frames of the median camera "
+            "depth of the Gaussian centres in view (scene/scale.py), so the same capture in other "
+            "units, rotated or moved gives the same objects. Set it (e.g. 1.0 on a metric capture) "
+            "to make the *_scene lengths absolute."
+        ),
+    )
+    depth_tolerance: float | None = Field(
+        None,
         ge=0,
         le=1e6,
         description=(
-            "Absolute visibility tolerance on centre depth, in the cameras' (capture) frame units: "
-            "metres for a metric capture; for a non-metric COLMAP scene, COLMAP's units (scale it "
-            "with the scene, e.g. ~1% of the camera-to-scene distance). The loader maps a "
-            "nerfstudio/gsplat splat into that frame, so their internal scaling never applies."
+            "Absolute visibility tolerance on centre depth, in the cameras' (capture) units. "
+            "None (default): depth_tolerance_scene x the scene scale. The loader maps a "
+            "nerfstudio/gsplat splat into the cameras' frame, so their internal scaling never applies."
+        ),
+    )
+    depth_tolerance_scene: float = Field(
+        0.02704166,
+        ge=0,
+        le=10,
+        description=(
+            "Visibility tolerance on centre depth as a fraction of the scene scale (used when "
+            "depth_tolerance is None): ~2.7% of the distance the cameras see the scene from. "
+            "The value is the former absolute 0.05 over the bundled sample's scale 1.849, so the "
+            "sample keeps its results exactly."
         ),
     )
     depth_tolerance_relative: float = Field(
@@ -151,8 +193,20 @@ class PipelineParams(BaseModel):
     null_mode: Literal["product", "one_minus_max"] = Field(
         "product", description="Null task: prod(1-p_y) (default) or 1-max p_y."
     )
-    edge_padding: float = Field(
-        0.0, ge=0, le=100, description="Grow primitive boxes by this many metres before overlap tests."
+    edge_padding: float | None = Field(
+        None,
+        ge=0,
+        le=1e6,
+        description=(
+            "Absolute growth of primitive boxes before overlap tests, in capture units. None "
+            "(default): edge_padding_scene x the scene scale."
+        ),
+    )
+    edge_padding_scene: float = Field(
+        0.0,
+        ge=0,
+        le=10,
+        description="Growth of primitive boxes before overlap tests, as a fraction of the scene scale.",
     )
     identical_tolerance: float = Field(
         1e-6, ge=0, le=1, description="Max abs difference for 'identical' p(y|x) vectors."

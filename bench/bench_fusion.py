@@ -1,4 +1,4 @@
-"""Benchmark per-frame fusion: visibility + likelihoods + Bayes update + primitives (CPU, numpy).
+"""Benchmark per-frame fusion: visibility + likelihoods + Bayes update + primitives (torch ops).
 
 Synthetic but shaped like a real capture: Gaussians on the walls of a 6 x 4 x 3 m room (plus a
 share floating inside, which the depth test must reject), cameras inside looking around, a depth
@@ -7,7 +7,11 @@ Voronoi label images with ~100 exclusive masks (some pixels unlabelled), and cos
 from the paper's score statistics (negatives ~ N(0.20, 0.015), one relevant task at +0.07 for
 10 % of the masks)
 so OR-phi accepts a realistic share of masks.
+The fusion ops run on `--device` (default cpu) with the intra-op threads the fuse stage gives
+them there (`fusion.tensors.fusion_threads`: one on the CPU) unless `--threads` is given; the
+primitive builder runs on the host, as in the fuse stage.
 Usage: python bench/bench_fusion.py [--gaussians 400000] [--frames 300] [--tasks 26] [--masks 100]
+                                    [--device cpu|cuda] [--threads N]
 Target: median < 0.5 s per frame at the defaults. Process-CPU time is printed beside the wall
 time: on a shared machine the wall time includes waiting for a core.
 """
@@ -20,10 +24,12 @@ import statistics
 import time
 
 import numpy as np
+import torch
 
 from bayesian_fields_core.fusion.bayes import bayes_update, init_logodds, probabilities
 from bayesian_fields_core.fusion.likelihood import LikelihoodParams, log_likelihood_ratio
-from bayesian_fields_core.fusion.visibility import mask_associations
+from bayesian_fields_core.fusion.tensors import fusion_threads, to_numpy
+from bayesian_fields_core.fusion.visibility import centre_columns, mask_associations
 from bayesian_fields_core.objects.primitives import PrimitiveBuilder
 
 ROOM_LO = np.array([-3.0, -2.0, -1.5])
@@ -101,13 +107,19 @@ def main() -> None:
     ap.add_argument("--width", type=int, default=640)
     ap.add_argument("--height", type=int, default=480)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--device", default="cpu", help="torch device of the fusion ops")
+    ap.add_argument("--threads", type=int, help="torch intra-op threads (default: the fuse stage's)")
     args = ap.parse_args()
+    threads = args.threads or fusion_threads(args.device)
+    if threads:
+        torch.set_num_threads(threads)
 
     rng = np.random.default_rng(args.seed)
     params = LikelihoodParams()
     means = room_gaussians(args.gaussians, rng)
     K = np.array([[0.8 * args.width, 0, args.width / 2], [0, 0.8 * args.width, args.height / 2], [0, 0, 1.0]])
-    logodds = init_logodds(args.gaussians, args.tasks)
+    centres = centre_columns(means, args.device)  # once per job, as the fuse stage does
+    logodds = init_logodds(args.gaussians, args.tasks, device=args.device)
     builder = PrimitiveBuilder(args.gaussians)
 
     parts: dict[str, list[float]] = {"visibility": [], "bayes": [], "primitives": [], "total": []}
@@ -124,26 +136,29 @@ def main() -> None:
 
         c0 = time.process_time()
         t0 = time.perf_counter()
-        gids, mids = mask_associations(means, K, w2c, args.width, args.height, depth, labels)
+        gids, mids = mask_associations(
+            centres, K, w2c, args.width, args.height, depth, labels, depth_tolerance=0.05
+        )
         t1 = time.perf_counter()
-        accepted = bayes_update(logodds, gids, mids, log_likelihood_ratio(phi, params))
+        accepted = to_numpy(bayes_update(logodds, gids, mids, log_likelihood_ratio(phi, params)))
         t2 = time.perf_counter()
-        builder.add_frame(gids, mids, accepted)
+        builder.add_frame(to_numpy(gids), to_numpy(mids), accepted)
         t3 = time.perf_counter()
         cpu.append(time.process_time() - c0)
         for key, value in zip(parts, (t1 - t0, t2 - t1, t3 - t2, t3 - t0), strict=True):
             parts[key].append(value)
-        pairs.append(gids.size)
+        pairs.append(int(gids.shape[0]))
         accepted_share.append(float(accepted.mean()))
 
     t0 = time.perf_counter()
-    probs = probabilities(logodds)
+    probs = probabilities(to_numpy(logodds))
     ids = builder.primitive_ids
     t_final = time.perf_counter() - t0
 
     print(
         f"fusion bench: {args.gaussians:,} Gaussians, {args.frames} frames {args.width}x{args.height}, "
-        f"~{args.masks} masks/frame, {args.tasks} tasks"
+        f"~{args.masks} masks/frame, {args.tasks} tasks; torch on {args.device}, "
+        f"{torch.get_num_threads()} intra-op thread(s)"
     )
     print(
         f"  visible (Gaussian, mask) pairs per frame: median {statistics.median(pairs):,.0f}; "

@@ -126,7 +126,7 @@ def context(work: Path, job: Path, n_tasks: int, n_frames: int) -> JobContext:
     tasks = bs.task_texts(n_tasks)
     encoder = bs.FixedTextEncoder(tasks, np.load(work / f"texts-{n_tasks}.npy", allow_pickle=False))
     params = PipelineParams(
-        depth_source="input", export_ply=False, previews=False, max_frames=n_frames, fusion_backend="numpy"
+        depth_source="input", export_ply=False, previews=False, max_frames=n_frames, fusion_backend="cpu"
     )
     return JobContext(
         store=LocalStore(job),

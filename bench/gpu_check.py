@@ -1,16 +1,21 @@
-"""Per-stage figures of the scale scene on one device: render, fuse, perceive, cluster, total.
+"""Per-stage figures of the scale scene on one device: render, fuse, perceive, cluster, total;
+and the fidelity of our torch rasteriser against gsplat on the same splat and cameras.
 
 Run by bench/gpu_check.sh (which installs what it needs and builds the reference models). On a
 GPU: gsplat renders (median depth from its own traversal), fusion runs as torch ops on the GPU,
 perception uses the reference FastSAM-x (fp16, imgsz 1024) and CLIP ViT-B/16 (fp16) on frames
-rendered from the scene, crops batched across frames. With --cpu the same code runs at a smoke
-size on the CPU, so a typo costs no GPU time.
+rendered from the scene, crops batched across frames. Then `--fidelity-frames` frames are rendered
+by our torch rasteriser and by gsplat, and RGB PSNR, expected / median depth agreement, the
+Jaccard of the (Gaussian, mask) associations and the agreement of the fused log-odds are printed
+(gpu_check_fidelity.py). With --cpu the same code runs at a smoke size on the CPU, so a typo
+costs no GPU time; gsplat cannot run there, so the comparison says it is skipped and runs with our
+renderer on both sides (which must agree perfectly), exercising its code.
 
 What is real: the scene folder, the renderer, the fuse and cluster stages (`run_stage`), the
 perceive stage with the reference architectures (random weights). What is synthetic: the
 perception cache that fuse/cluster read for the full frame count (bench_scale.py's ideal
 segmenter, so the cluster stage sees realistic masks) and the task-text embeddings.
-Usage: python bench/gpu_check.py --models DIR [--cpu] [--gaussians N] [--frames F]
+Usage: python bench/gpu_check.py --models DIR [--cpu] [--gaussians N] [--frames F] [--fidelity-frames F]
 """
 
 from __future__ import annotations
@@ -30,13 +35,16 @@ from PIL import Image
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_scale  # noqa: E402 - sibling benchmark module, not a package
+import gpu_check_fidelity  # noqa: E402 - sibling module, not a package
 
+from bayesian_fields_core.fusion.state import FusionSettings  # noqa: E402
 from bayesian_fields_core.job.context import JobContext  # noqa: E402
 from bayesian_fields_core.job.pipeline import load_models, run_stage  # noqa: E402
 from bayesian_fields_core.job.store import LocalStore  # noqa: E402
 from bayesian_fields_core.params import PipelineParams  # noqa: E402
 from bayesian_fields_core.render import GaussianRenderer  # noqa: E402
 from bayesian_fields_core.scene.loader import load_scene  # noqa: E402
+from bayesian_fields_core.stages.fuse import frame_scores, likelihood_params  # noqa: E402
 
 
 def sync(device: str) -> None:
@@ -89,6 +97,41 @@ def reference_profile(models: Path, gpu: bool, device: str) -> dict:
     return prof
 
 
+def renderer_fidelity(ctx: JobContext, scene, device: str, gpu: bool, n: int) -> dict:  # noqa: ANN001
+    """Our torch rasteriser against gsplat on the first `n` frames of the fuse job (its masks and
+    scores); on the CPU, our rasteriser on both sides. Prints the figures and returns them."""
+    ours = GaussianRenderer(scene.gaussians, device=device, backend="torch")
+    if gpu:
+        other = GaussianRenderer(scene.gaussians, device=device, backend="gsplat")
+        print(f"  fidelity: torch rasteriser vs gsplat, {n} frames (reference: torch)")
+    else:
+        other = ours
+        print(f"  fidelity: gsplat comparison skipped (no CUDA in the CPU smoke); the comparison ran with "
+              f"the torch rasteriser on both sides, {n} frames (must agree exactly)")  # fmt: skip
+    p = ctx.params
+    text = ctx.models.encoder.encode_texts(ctx.tasks).astype(np.float32)
+    settings = FusionSettings(
+        likelihood_params(ctx), "bayes", p.prior, p.outlier_rejection, p.view_correlation
+    )
+    t = time.perf_counter()
+    fid = gpu_check_fidelity.compare_renderers(
+        ctx.selected_frames()[:n],
+        ours,
+        other,
+        scene.gaussians.means,
+        lambda index: frame_scores(ctx, index, text),
+        settings,
+        num_tasks=len(ctx.tasks),
+        depth_tolerance=p.depth_tolerance,
+        relative_tolerance=p.depth_tolerance_relative,
+        device=device,
+    )
+    for line in gpu_check_fidelity.report_lines(fid):
+        print(line)
+    print(f"  fidelity took {time.perf_counter() - t:.1f} s")
+    return {"compared_with": "gsplat" if gpu else "torch (smoke)", **fid.as_dict()}
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--models", type=Path, required=True, help="make_reference_models.py output")
@@ -96,6 +139,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--gaussians", type=int)
     parser.add_argument("--frames", type=int)
     parser.add_argument("--perceive-frames", type=int)
+    parser.add_argument("--fidelity-frames", type=int, help="frames rendered by both rasterisers")
     parser.add_argument("--workdir", type=Path, default=Path("/tmp/bfields-gpu-check"))
     args = parser.parse_args(argv)
     gpu = not args.cpu
@@ -158,11 +202,13 @@ def main(argv: list[str] | None = None) -> int:
     sync(device)
     fuse_s = time.perf_counter() - t
     print(f"  fuse     {1000 * fuse_s / n_f:9.1f} ms/frame  (render + associations + update; "
-          f"backend {fuse['fusion_backend']}, {fuse['masks'] / n_f:.0f} masks/frame)")  # fmt: skip
+          f"fusion on {fuse['fusion_device']}, {fuse['masks'] / n_f:.0f} masks/frame)")  # fmt: skip
     t = time.perf_counter()
     cluster = run_stage("cluster", ctx, force=True)
     cluster_s = time.perf_counter() - t
     print(f"  cluster  {cluster_s:9.2f} s        ({cluster['counts']['primitives']:,} primitives)")
+
+    fidelity = renderer_fidelity(ctx, scene, device, gpu, args.fidelity_frames or (10 if gpu else 2))
 
     prof = reference_profile(args.models, gpu, device)
     models = load_models(prof)
@@ -198,6 +244,7 @@ def main(argv: list[str] | None = None) -> int:
                 "total_s": total,
                 "device": device,
                 "backend": backend,
+                "fidelity": fidelity,
             }
         )  # fmt: skip
     )

@@ -1,11 +1,17 @@
 #!/usr/bin/env bash
 # One-command check of the GPU path on the scale scene: installs what it needs, builds the
-# reference models, prints render / fuse / perceive ms per frame, cluster s and the total.
+# reference models, prints render / fuse / perceive ms per frame, cluster s and the total, and the
+# fidelity of our torch rasteriser against gsplat on the same splat and cameras (RGB PSNR, expected
+# and median depth agreement, Jaccard of the mask-to-Gaussian associations, fused log-odds
+# agreement), so one short GPU run answers both speed and fidelity.
 #
 #   bench/gpu_check.sh          on a GPU machine: 400k Gaussians, 300 frames at 640x480, 26 tasks;
-#                               gsplat, FastSAM-x + CLIP ViT-B/16 at fp16
+#                               gsplat, FastSAM-x + CLIP ViT-B/16 at fp16; fidelity on 10 frames
 #   bench/gpu_check.sh --cpu    smoke mode: the same code at a small size on the CPU (run it
-#                               before spending GPU time: it catches typos and broken installs)
+#                               before spending GPU time: it catches typos and broken installs);
+#                               gsplat cannot run there, so the fidelity comparison says it is
+#                               skipped and runs with the torch rasteriser on both sides
+# Extra arguments go to bench/gpu_check.py (e.g. --fidelity-frames 20).
 #
 # Environment: BFIELDS_REFERENCE_VENV (default /tmp/venv-tv), GPU_CHECK_WORK (default
 # /tmp/bfields-gpu-check), GPU_CHECK_TIMEOUT (seconds for the whole run, default 540).

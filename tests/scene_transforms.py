@@ -17,7 +17,9 @@ from pathlib import Path
 import numpy as np
 
 from bayesian_fields_core.geometry.transforms import OPENGL_TO_OPENCV, quat_to_rotmat, rotmat_to_quat
+from bayesian_fields_core.scene.nerfstudio import read_transforms, write_transforms
 from bayesian_fields_core.scene.ply import read_ply, write_ply
+from bayesian_fields_core.scene.similarity import Similarity
 from bayesian_fields_core.scene.types import Gaussians
 
 
@@ -93,3 +95,24 @@ def shuffle_images(folder: Path, *, shift: int | None = None) -> Path:
     for i, p in enumerate(images):
         p.write_bytes(data[(i + k) % len(images)])
     return folder
+
+
+def similar_scene(src: Path, dst: Path, sim: Similarity) -> Path:
+    """A copy of the scene folder `src` with the whole scene moved by `sim`: the splat (positions,
+    rotations, log-scales and SH bands, `Similarity.gaussians`) and the cameras together, so the
+    photos still match. What a user gets from the same capture in other units, axes or origin
+    (COLMAP's frame is arbitrary). Cameras stay rigid: a camera point x_c maps to s x_c, i.e.
+    world_to_camera' = [R_wc R^T | s t_wc - R_wc R^T t]. Returns `dst`."""
+    copy_scene(src, dst)
+    path = splat_path(dst)
+    write_ply(path, sim.gaussians(read_ply(path)))
+    frames = read_transforms(dst / "transforms.json")
+    rt = sim.rotation.T
+    for frame in frames:
+        w2c = np.asarray(frame.world_to_camera, dtype=np.float64)
+        moved = np.eye(4)
+        moved[:3, :3] = w2c[:3, :3] @ rt
+        moved[:3, 3] = sim.scale * w2c[:3, 3] - w2c[:3, :3] @ rt @ sim.translation
+        frame.world_to_camera = moved
+    write_transforms(dst / "transforms.json", frames)
+    return dst

@@ -42,10 +42,12 @@ from PIL import Image
 from scipy import ndimage
 
 from bayesian_fields_core.checks.alignment_reports import FrameScore, RenderReport, spread_indices
+from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.geometry.transforms import OPENGL_TO_OPENCV
 from bayesian_fields_core.params import PipelineParams
 from bayesian_fields_core.render import GaussianRenderer
 from bayesian_fields_core.scene.images import load_image
+from bayesian_fields_core.scene.scale import scene_lengths
 from bayesian_fields_core.scene.types import Frame, Scene
 
 BAND_SIGMAS = (1.5, 4.5)
@@ -116,11 +118,22 @@ def _render(
     return band_pass(np.clip(rgb, 0.0, 1.0)), ndimage.gaussian_filter(alpha, BAND_SIGMAS[0])
 
 
+def _near_plane(scene: Scene, params: PipelineParams) -> float | None:
+    """The run's renderer near plane (a fraction of the scene scale), so the check renders what
+    the pipeline will; None (the renderer's own) when no camera sees the splat: the scale is
+    undefined then and the check's scores say why better than the scale's error would."""
+    try:
+        derived = None if params.scene_scale is not None else scene.scale()
+        return scene_lengths(params, derived).render_near
+    except InputError:
+        return None
+
+
 def rendered_alignment(scene: Scene, params: PipelineParams, *, device: str = "cpu") -> RenderReport:
     """Score `params.alignment_frames` frames of the scene (see the module docstring)."""
     t0 = time.perf_counter()
     frames = [scene.frames[i] for i in spread_indices(len(scene.frames), params.alignment_frames)]
-    renderer = GaussianRenderer(scene.gaussians, device=device)
+    renderer = GaussianRenderer(scene.gaussians, device=device, near_plane=_near_plane(scene, params))
     max_side = params.alignment_max_side
     sizes = [reduced_camera(f, max_side)[1:] for f in frames]
     photos = [_photo(f, w, h) for f, (w, h) in zip(frames, sizes, strict=True)]

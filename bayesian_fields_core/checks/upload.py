@@ -2,7 +2,10 @@
 
 A job that fails on frame 900 because one JPEG is truncated wastes GPU time; so at upload we read
 the full splat (values included: NaNs are caught here) and decode every image and depth map,
-checking each against its camera's size. Costs about one splat load plus one decode per image.
+checking each against its camera's size. The splat is streamed in chunks (`scene.ply_scan`), so
+the memory this takes is bounded whatever the file's size; only a sample of its Gaussians is kept
+(for the geometric alignment check and the warnings' extent). Costs one read of the splat (two
+when its extent is non-zero) plus one decode per image.
 """
 
 from __future__ import annotations
@@ -12,9 +15,11 @@ from pathlib import Path
 from typing import Any
 
 from bayesian_fields_core.errors import InputError, input_boundary
+from bayesian_fields_core.scene.formats import check_splat_header, read_splat
 from bayesian_fields_core.scene.images import check_image, load_depth
 from bayesian_fields_core.scene.loader import frames_of_layout, resolve_layout
-from bayesian_fields_core.scene.ply import DEFAULT_MAX_GAUSSIANS, read_ply, read_ply_header
+from bayesian_fields_core.scene.ply import DEFAULT_MAX_GAUSSIANS, read_ply_header
+from bayesian_fields_core.scene.ply_scan import SplatScan, sample_index, scan_ply
 from bayesian_fields_core.scene.sanity import splat_warnings
 from bayesian_fields_core.scene.types import Scene
 
@@ -48,11 +53,11 @@ def validate_scene_folder(
 def _validate(folder: Path, max_gaussians: int, max_frames: int | None, alignment: bool) -> dict[str, Any]:
     layout = resolve_layout(folder, allow_source_path=False)
     splat, kind, camera_path = layout.splat, layout.camera_kind, layout.camera_path
-    read_ply_header(splat, max_gaussians=max_gaussians)
+    splat_format = check_splat_header(splat, max_gaussians=max_gaussians)
     frames = frames_of_layout(layout)
     if max_frames is not None and len(frames) > max_frames:
         raise InputError(f"{len(frames)} frames; at most {max_frames} are allowed", source=str(camera_path))
-    gaussians = read_ply(splat, max_gaussians=max_gaussians)
+    scan = _scan_splat(splat, splat_format, max_gaussians)
     for frame in frames:
         check_image(frame)
         load_depth(frame)
@@ -62,9 +67,8 @@ def _validate(folder: Path, max_gaussians: int, max_frames: int | None, alignmen
         from bayesian_fields_core.checks.alignment import check_alignment
         from bayesian_fields_core.params import PipelineParams
 
-        captured = (
-            gaussians if layout.splat_to_capture is None else layout.splat_to_capture.gaussians(gaussians)
-        )
+        sample = scan.sample  # the Gaussians the geometric check would sample from the whole splat
+        captured = sample if layout.splat_to_capture is None else layout.splat_to_capture.gaussians(sample)
         report = check_alignment(Scene(captured, frames, root=folder), PipelineParams(), rendered=False)
         if report is not None:
             extra["alignment"] = {
@@ -73,8 +77,9 @@ def _validate(folder: Path, max_gaussians: int, max_frames: int | None, alignmen
             }
     return {
         "splat": splat.relative_to(folder).as_posix(),
-        "gaussians": len(gaussians),
-        "sh_degree": gaussians.sh_degree,
+        "gaussians": scan.count,
+        "sh_degree": scan.sh_degree,
+        "splat_format": splat_format,
         "camera_format": kind,
         "camera_file": camera_path.relative_to(folder).as_posix(),
         "frames": len(frames),
@@ -87,5 +92,20 @@ def _validate(folder: Path, max_gaussians: int, max_frames: int | None, alignmen
         if layout.splat_to_capture is None
         else layout.splat_to_capture.matrix.tolist(),
         **extra,
-        "warnings": splat_warnings(gaussians),
+        "warnings": scan.warnings,
     }
+
+
+def _scan_splat(splat: Path, splat_format: str, max_gaussians: int) -> SplatScan:
+    """The splat's count, SH degree, fixed-seed sample and warnings. An INRIA-layout PLY (the
+    large ones) is streamed in bounded memory (`scene.ply_scan`); the compressed formats are
+    read whole: they are several times smaller than the PLY they decode to."""
+    from bayesian_fields_core.checks.alignment import GEOMETRY_MAX_GAUSSIANS
+
+    if splat_format == "ply":
+        names = {name for name, _ in read_ply_header(splat, max_gaussians=max_gaussians).properties}
+        if "f_dc_0" in names:
+            return scan_ply(splat, sample_size=GEOMETRY_MAX_GAUSSIANS, max_gaussians=max_gaussians)
+    gaussians = read_splat(splat, max_gaussians=max_gaussians)
+    sample = gaussians.subset(sample_index(len(gaussians), GEOMETRY_MAX_GAUSSIANS))
+    return SplatScan(len(gaussians), gaussians.sh_degree, sample, splat_warnings(gaussians))

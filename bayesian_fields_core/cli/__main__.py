@@ -4,5 +4,5 @@ import sys
 
 from bayesian_fields_core.cli.main import main
 
-if __name__ == "__main__":
+if __name__ == "__main__":  # importing the module (e.g. walking the package) must not run the CLI
     sys.exit(main())

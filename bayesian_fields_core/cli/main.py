@@ -11,12 +11,17 @@ import argparse
 import sys
 from importlib.metadata import entry_points
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypedDict, Unpack
 
 from bayesian_fields_core.cli.arguments import int_at_least
 from bayesian_fields_core.cli.cache_command import DEFAULT_CACHE_DIR
 from bayesian_fields_core.errors import BayesianFieldsError, InputError, InvariantError
 from bayesian_fields_core.job.artifacts import RESULT_PREFIX
+
+if TYPE_CHECKING:
+    from bayesian_fields_core.job.context import CancelFn, JobContext, Models, ProgressFn
+    from bayesian_fields_core.job.scene_source import SceneSource
+    from bayesian_fields_core.params import PipelineParams
 
 CLI_PLUGIN_GROUP = "bayesian_fields.cli"
 """Entry points here are called with the subparsers and may add verbs."""
@@ -40,7 +45,7 @@ def _parse_param_overrides(items: list[str]) -> dict[str, Any]:
     return out
 
 
-def build_params(params_file: str | None, overrides: list[str]) -> Any:
+def build_params(params_file: str | None, overrides: list[str]) -> PipelineParams:
     """PipelineParams from an optional YAML file plus --param overrides, validated."""
     import yaml
     from pydantic import ValidationError
@@ -111,15 +116,27 @@ def _resolve_tasks(args: argparse.Namespace, scene_dir: Path) -> list[str]:
     raise InputError("no tasks given: pass --tasks FILE or --task TEXT (or put a tasks.yaml in the scene)")
 
 
+class LocalContextOptions(TypedDict, total=False):
+    """The `JobContext` fields `local_context` passes through (the others it sets itself)."""
+
+    scene_prefix: str
+    work_dir: Path | None
+    allow_source_path: bool
+    splat_transform: Path | None
+    progress: ProgressFn
+    should_cancel: CancelFn
+    scene_source: SceneSource | None
+
+
 def local_context(
     scene_dir: Path,
     out: Path,
     cache_dir: Path,
     tasks: list[str],
-    params: Any,
-    models: Any,
-    **options: Any,
-) -> Any:
+    params: PipelineParams,
+    models: Models,
+    **options: Unpack[LocalContextOptions],
+) -> JobContext:
     """The `JobContext` of `bfields run`: the job in `out`, the caches in `cache_dir`.
 
     Cache keys are content digests, so one cache serves every scene wherever its folder is; the
@@ -150,6 +167,8 @@ def cmd_run(args: argparse.Namespace) -> int:
 
     console = stderr_console()
     scene_dir = Path(args.scene)
+    if scene_dir.is_file() and scene_dir.name in ("config.yml", "cfg.yml"):
+        scene_dir = scene_dir.parent  # a trainer's config names its run folder
     if not scene_dir.is_dir():
         raise InputError("not a folder", source=str(scene_dir))
     tasks = _resolve_tasks(args, scene_dir)

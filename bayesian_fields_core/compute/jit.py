@@ -4,7 +4,7 @@ pair sweeps whose output size is unknown up front)."""
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any, TypeVar
+from typing import Any, TypeVar, cast
 
 from numba import njit
 
@@ -27,7 +27,7 @@ def compiled(fn: _F) -> _F:
             raise
         kernel = njit(nogil=True)(fn)
     KERNELS.append(kernel)
-    return kernel
+    return cast(_F, kernel)  # a numba Dispatcher, called like the function it wraps
 
 
 def is_cached(kernel: Any) -> bool | None:

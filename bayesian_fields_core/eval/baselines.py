@@ -127,7 +127,7 @@ def _finish(
     means: np.ndarray, object_ids: np.ndarray, table: np.ndarray, sizes: np.ndarray, ctx: JobContext
 ) -> ObjectMap:
     """Selection and boxes for a baseline that produced objects directly."""
-    from bayesian_fields_core.geometry.obb import minimum_obb
+    from bayesian_fields_core.geometry.obb import OrientedBox, minimum_obb
     from bayesian_fields_core.objects.select import top_k
 
     selection = (
@@ -138,7 +138,7 @@ def _finish(
     centroids = np.zeros((len(table), 3))
     np.add.at(centroids, object_ids[object_ids >= 0], means[object_ids >= 0])
     centroids /= np.maximum(sizes, 1)[:, None]
-    boxes = [None] * len(table)
+    boxes: list[OrientedBox | None] = [None] * len(table)
     for obj in np.unique(selection[selection >= 0]):
         boxes[obj] = minimum_obb(means[object_ids == obj].astype(np.float64))
     return ObjectMap(

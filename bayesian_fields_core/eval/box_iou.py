@@ -41,7 +41,7 @@ def _chebyshev_centre(halfspaces: np.ndarray) -> tuple[np.ndarray, float]:
         bounds=[(None, None)] * 3 + [(0.0, None)],
         method="highs",
     )
-    if res.status != 0:
+    if res.status != 0 or res.x is None:
         return np.zeros(3), -1.0
     return res.x[:3], float(res.x[3])
 

@@ -71,11 +71,11 @@ def classify_task(
         ((iou[g, e], g, e) for g in range(iou.shape[0]) for e in range(iou.shape[1])), reverse=True
     )
     used: set[int] = set()
-    for value, g, e in pairs:
-        if value <= 0 or g in matched or e in used:
+    for value, g, a in pairs:
+        if value <= 0 or g in matched or a in used:
             continue
-        matched[g] = e
-        used.add(e)
+        matched[g] = a
+        used.add(a)
     causes = []
     for g, gt in enumerate(gt_boxes):
         e = matched.get(g)

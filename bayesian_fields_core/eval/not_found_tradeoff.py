@@ -134,7 +134,7 @@ def best_threshold(curve: Sequence[NotFoundStats], max_recall_lost: float = 0.05
     ok = [s for s in curve if s.recall_lost <= max_recall_lost]
     if not ok:
         return None
-    return max(ok, key=lambda s: (s.absent_share, -s.threshold))
+    return max(ok, key=lambda s: (s.absent_share, -(s.threshold or 0.0)))
 
 
 def _cells(stats: NotFoundStats) -> list[str]:
@@ -179,6 +179,6 @@ def format_curve(curve: Sequence[NotFoundStats], *, markdown: bool = False, max_
     if len(keep) < max_rows and rest:
         step = max(1, int(np.ceil(len(rest) / (max_rows - len(keep)))))
         keep += rest[::step]
-    keep.sort(key=lambda s: s.threshold)
+    keep.sort(key=lambda s: s.threshold or 0.0)  # curve points all have one
     body = [[f"{s.threshold:.4g}", *_cells(s)] for s in keep]
     return render_table(["Threshold", *_HEADER], body, markdown=markdown)

@@ -102,6 +102,7 @@ def estimates_from_selection(
     for task in tasks:
         for rank, (object_id, box) in enumerate(selection.get(task, [])):
             est = by_object.setdefault(object_id, EstimatedObject(box=box, probabilities={}))
+            assert isinstance(est.probabilities, dict)  # made just above
             est.probabilities[task] = 1.0 / (rank + 1)
     return list(by_object.values())
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 
 def render_table(header: Sequence[str], rows: Sequence[Sequence[str]], *, markdown: bool = False) -> str:
@@ -24,7 +24,7 @@ def render_table(header: Sequence[str], rows: Sequence[Sequence[str]], *, markdo
 
 
 def format_interval_table(
-    rows: dict[str, dict[str, object]], *, level: float = 0.95, markdown: bool = False
+    rows: Mapping[str, Mapping[str, object]], *, level: float = 0.95, markdown: bool = False
 ) -> str:
     """Table 1's scores with their intervals: one row per method, one "value [low, high]" cell
     per metric (strict_osr, relaxed_osr, iou), as `bootstrap.score_intervals` gives them."""

@@ -11,14 +11,18 @@ as a *margin* `(phi - mu0) / (mu1 - mu0)` of the calibrated likelihoods: 0 at th
 mean, 1 at the relevant mean, so one threshold means the same for every calibrated CLIP.
 
 Masks are exclusive, so a Gaussian occurs at most once per frame and a fancy-indexed maximum is
-exact (the same argument as `bayes.bayes_update`).
+exact (the same argument as `bayes.bayes_update`). The (N, T) state is a tensor on the fusion
+device (torch ops, as the log-odds); the per-mask margins are computed on the host in float64
+like the likelihood ratios, and `object_peak` reads the stored host copy.
 """
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
+import torch
+
+from bayesian_fields_core.fusion.bayes import accepted_pairs
+from bayesian_fields_core.fusion.tensors import as_tensor
 
 UNSEEN = -1e9
 """Margin of a Gaussian no accepted mask ever contained (far below any threshold)."""
@@ -29,43 +33,26 @@ def margin(phi: np.ndarray, mu0: float, mu1: float) -> np.ndarray:
     return ((np.asarray(phi, dtype=np.float64) - mu0) / (mu1 - mu0)).astype(np.float32)
 
 
-def init_peak(num_gaussians: int, num_tasks: int) -> np.ndarray:
-    """A fresh (N, T) float32 peak-margin state: every Gaussian unseen."""
-    return np.full((num_gaussians, num_tasks), UNSEEN, dtype=np.float32)
-
-
-def update_peak(
-    peak: np.ndarray,
-    gaussian_ids: np.ndarray,
-    mask_ids: np.ndarray,
-    margins: np.ndarray,
-    accepted: np.ndarray,
-) -> None:
-    """Raise `peak` (N, T) in place to the margins (M, T) of the accepted masks (M,) that contain
-    each Gaussian (`gaussian_ids[k]` seen through `mask_ids[k]`, each Gaussian once per frame)."""
-    if mask_ids.size == 0:
-        return
-    keep = np.asarray(accepted, dtype=bool)[mask_ids]
-    g = gaussian_ids[keep]
-    peak[g] = np.maximum(peak[g], margins[mask_ids[keep]])
-
-
-def init_peak_torch(num_gaussians: int, num_tasks: int, device: Any) -> Any:
-    import torch
-
+def init_peak(num_gaussians: int, num_tasks: int, device: torch.device | str = "cpu") -> torch.Tensor:
+    """A fresh (N, T) float32 peak-margin state on `device`: every Gaussian unseen."""
     return torch.full((num_gaussians, num_tasks), UNSEEN, dtype=torch.float32, device=device)
 
 
-def update_peak_torch(peak: Any, gaussian_ids: Any, mask_ids: Any, margins: Any, accepted: Any) -> None:
-    """`update_peak` on the device (tensors; `mask_ids` any integer dtype)."""
-    import torch
-
-    if mask_ids.numel() == 0:
-        return
-    mids = mask_ids.long()
-    keep = accepted[mids]
-    g = gaussian_ids[keep].long()
-    peak[g] = torch.maximum(peak[g], margins[mids[keep]])
+def update_peak(
+    peak: torch.Tensor,
+    gaussian_ids: np.ndarray | torch.Tensor,
+    mask_ids: np.ndarray | torch.Tensor,
+    margins: np.ndarray | torch.Tensor,
+    accepted: np.ndarray | torch.Tensor,
+) -> None:
+    """Raise `peak` (N, T) in place to the margins (M, T) of the accepted masks (M,) that contain
+    each Gaussian (`gaussian_ids[k]` seen through `mask_ids[k]`, each Gaussian once per frame).
+    Inputs are moved to the state's device; `mask_ids` may be of any integer type."""
+    device = peak.device
+    rows, masks = accepted_pairs(
+        as_tensor(gaussian_ids, device), as_tensor(mask_ids, device), as_tensor(accepted, device, torch.bool)
+    )
+    peak[rows] = torch.maximum(peak[rows], as_tensor(margins, device, torch.float32)[masks])
 
 
 def object_peak(peak: np.ndarray, members: np.ndarray, task: int) -> float:

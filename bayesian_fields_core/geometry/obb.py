@@ -49,7 +49,9 @@ from bayesian_fields_core.compute.jit import compiled
 from bayesian_fields_core.errors import InputError
 
 DEFAULT_MIN_THICKNESS = 1e-3
-"""Smallest extent (scene units, metres for metric captures) of a returned box."""
+"""Smallest extent (scene units) of a returned box when the caller gives none. The pipeline
+passes a fraction of the scene scale instead (`scene.scale.BOX_MIN_SIDE_FRACTION`), so a box's
+floor follows the scene's units."""
 
 DEFAULT_KERNEL_DIRECTIONS = 64
 """Directions of the ε-kernel: more is tighter and slower (candidates grow ~ cubically)."""

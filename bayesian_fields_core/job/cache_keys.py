@@ -20,6 +20,7 @@ from bayesian_fields_core.job.content_keys import (
 )
 from bayesian_fields_core.job.stage_table import PERCEPTION_CACHE, VISIBILITY_CACHE, cache_parameters
 from bayesian_fields_core.params import PipelineParams
+from bayesian_fields_core.scene.scale import SceneLengths
 from bayesian_fields_core.scene.types import Scene
 
 
@@ -32,9 +33,16 @@ class CacheKeys:
     """Cache keys of one job: `cache_root` + folder + models fingerprint + content digest."""
 
     def __init__(
-        self, scene: Callable[[], Scene], params: PipelineParams, models_fingerprint: str, cache_root: str
+        self,
+        scene: Callable[[], Scene],
+        params: PipelineParams,
+        models_fingerprint: str,
+        cache_root: str,
+        *,
+        lengths: Callable[[], SceneLengths] | None = None,
     ) -> None:
         self._scene = scene
+        self._lengths = lengths
         self._params = params
         self.cache_root = cache_root
         self.models_fingerprint = short_hash({"models": models_fingerprint})
@@ -69,9 +77,18 @@ class CacheKeys:
                 self.perception_key(index),
                 self.splat_digest(),
                 self._scene().frames[index],
-                cache_parameters(VISIBILITY_CACHE, self._params),
+                self._visibility_parameters(),
             )
         return f"{self.visibility_prefix}{digest}.npz"
+
+    def _visibility_parameters(self) -> dict[str, Any]:
+        """The declared parameters plus the scene scale they are fractions of: the scale depends
+        on every frame's camera (not only the keyed one's), so adding a frame that changes it
+        must miss the cache."""
+        values = cache_parameters(VISIBILITY_CACHE, self._params)
+        if self._lengths is not None:
+            values["resolved_scene_scale"] = repr(float(self._lengths().scale))
+        return values
 
     def splat_digest(self) -> str:
         """Content digest of the Gaussians as loaded (computed once)."""

@@ -18,9 +18,12 @@ from bayesian_fields_core.job.cache_keys import CacheKeys, short_hash
 from bayesian_fields_core.job.scene_source import LocalFolder, SceneSource, StoreDownload
 from bayesian_fields_core.job.store import Store
 from bayesian_fields_core.params import PipelineParams
+from bayesian_fields_core.scene.scale import SceneLengths, scene_lengths
 from bayesian_fields_core.scene.types import Frame, Scene
 
 if TYPE_CHECKING:
+    from bayesian_fields_core.calibration.model import Calibration
+    from bayesian_fields_core.checks.alignment_reports import AlignmentReport
     from bayesian_fields_core.perception.encoder import Encoder
     from bayesian_fields_core.perception.profiles import ModelProfile
     from bayesian_fields_core.perception.segmenter import Segmenter
@@ -59,7 +62,7 @@ class Models:
         self.profile_name: str = profile.name
         self._built: dict[str, Any] = {}
         self.load_seconds: dict[str, float] = {}
-        self._calibration: Any = None
+        self._calibration: Calibration | None = None
         self._calibration_loaded = False
 
     def describe(self, role: str) -> str:
@@ -103,7 +106,8 @@ class Models:
         return self.device or "cpu"
 
     @property
-    def calibration(self) -> Any:
+    def calibration(self) -> Calibration | None:
+        """The profile's score calibration (checked against the encoder), or None when it has none."""
         if not self._calibration_loaded:
             # A calibration file made for another encoder is refused: its mu0/mu1/s would be wrong.
             self._calibration = self._registry.load_profile_calibration(
@@ -159,10 +163,11 @@ class JobContext:
     should_cancel: CancelFn = _never_cancel
     cache_prefix: str | None = None
     _scene: Scene | None = field(default=None, repr=False)
-    _alignment: Any = field(default=None, repr=False)
+    _alignment: AlignmentReport | None = field(default=None, repr=False)
     _alignment_done: bool = field(default=False, repr=False)
     scene_source: SceneSource | None = None
     _keys: CacheKeys | None = field(default=None, repr=False)
+    _lengths: SceneLengths | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         if self.scene_store is None:
@@ -189,7 +194,9 @@ class JobContext:
     def keys(self) -> CacheKeys:
         """This job's cache keys (memoised digests per frame)."""
         if self._keys is None:
-            self._keys = CacheKeys(self.scene, self.params, self.models.fingerprint, self.cache_root)
+            self._keys = CacheKeys(
+                self.scene, self.params, self.models.fingerprint, self.cache_root, lengths=self.lengths
+            )
         return self._keys
 
     @property
@@ -251,7 +258,15 @@ class JobContext:
             )
         return self._scene
 
-    def alignment(self) -> Any:
+    def lengths(self) -> SceneLengths:
+        """Every length of this job in scene units: the parameters' fractions of the scene scale
+        (measured once per scene), or their absolute overrides (`scene/scale.py`)."""
+        if self._lengths is None:
+            derived = None if self.params.scene_scale is not None else self.scene().scale()
+            self._lengths = scene_lengths(self.params, derived)
+        return self._lengths
+
+    def alignment(self) -> AlignmentReport | None:
         """The scene's alignment check (geometric + rendered, `checks/alignment.py`), run once per
         context: the CLI calls it to print the score before perception, the perceive stage calls
         it again for free. Raises InputError (one line) when the splat does not line up; returns

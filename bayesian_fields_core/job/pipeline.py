@@ -13,20 +13,26 @@ from pathlib import Path
 from typing import Any
 
 from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.job.artifacts import RESULT_PREFIX
 from bayesian_fields_core.job.context import JobContext, Models
-from bayesian_fields_core.job.markers import is_done, marker_key, read_marker
+from bayesian_fields_core.job.markers import MARKER_DIR, is_done, marker_key, read_marker
 from bayesian_fields_core.job.stage_table import STAGES, stage
+from bayesian_fields_core.job.store import Store
 
 log = logging.getLogger(__name__)
 
 
 def run_stage(name: str, ctx: JobContext, *, force: bool = False) -> dict[str, Any]:
-    """Run one stage unless its marker says it already finished; returns the stage report."""
+    """Run one stage unless its marker says it already finished; returns the stage report.
+
+    The cancel check runs at the stage boundary, before the stage starts (the stages check again
+    inside their loops), so a job cancelled between two stages never starts the next."""
     spec = stage(name)
     if not force and is_done(ctx, name):
         log.info("stage %s already finished for %s; skipping", name, ctx.job_prefix or "<root>")
         ctx.progress(name, 1.0)
         return read_marker(ctx, name)
+    ctx.check_cancel()
     # The stage's clock starts here, before anything it does (model loading included): the CLI's
     # bar starts on this call, so the bar and the stage report time the same span.
     ctx.progress(name, 0.0)
@@ -34,6 +40,13 @@ def run_stage(name: str, ctx: JobContext, *, force: bool = False) -> dict[str, A
     report = spec.load()(ctx)
     log.debug("stage %s: %.2f s%s", name, time.perf_counter() - start, _step_timings(report))
     return report
+
+
+def discard_result(store: Store, job_prefix: str) -> None:
+    """Remove a job's result and its last stage's marker: a cancelled job keeps no result, even
+    when the cancel was accepted after the result was written but before the job was marked done."""
+    store.delete_prefix(job_prefix + RESULT_PREFIX)
+    store.delete(job_prefix + f"{MARKER_DIR}{STAGES[-1]}.json")
 
 
 def _step_timings(report: dict[str, Any]) -> str:

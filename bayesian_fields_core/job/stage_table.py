@@ -71,9 +71,16 @@ PERCEPTION_CACHE = CacheSpec(
 )
 VISIBILITY_CACHE = CacheSpec(
     folder=VISIBILITY_CACHE_DIR,
-    params=("depth_source", "depth_tolerance", "depth_tolerance_relative"),
+    params=(
+        "depth_source",
+        "scene_scale",
+        "depth_tolerance",
+        "depth_tolerance_scene",
+        "depth_tolerance_relative",
+    ),
     inputs=(
         "perception key of the frame",
+        "the scene scale the lengths are fractions of (it depends on every frame, not only this one)",
         "splat digest (means, scales, rotations, opacities)",
         "camera K, pose and size",
         "input depth file and scale when depth_source is 'input'",
@@ -117,6 +124,7 @@ NOT_IN_ANY_CACHE_KEY: dict[str, str] = {
     # The cluster stage and the result: per job.
     "null_mode": "cluster",
     "edge_padding": "cluster",
+    "edge_padding_scene": "cluster",
     "identical_tolerance": "cluster",
     "aib_px": "cluster",
     "aib_delta": "cluster",

@@ -220,7 +220,8 @@ def get_json(store: Store, key: str) -> Any:
 def put_arrays(store: Store, key: str, compress: bool = True, **arrays: np.ndarray) -> None:
     """Write named arrays as an .npz (compressed by default)."""
     buf = io.BytesIO()
-    (np.savez_compressed if compress else np.savez)(buf, **arrays)
+    # mypy matches **arrays against savez's `allow_pickle: bool` keyword; every value is an array
+    (np.savez_compressed if compress else np.savez)(buf, **arrays)  # type: ignore[arg-type]
     store.put_bytes(key, buf.getvalue())
 
 

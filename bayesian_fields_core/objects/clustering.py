@@ -25,6 +25,7 @@ from bayesian_fields_core.objects.probabilities import conditionals, primitive_m
 from bayesian_fields_core.objects.select import prune_mask, task_scores, top_k
 from bayesian_fields_core.objects.timing import StepTimer
 from bayesian_fields_core.params import PipelineParams
+from bayesian_fields_core.scene.scale import SceneLengths
 
 _T = TypeVar("_T")
 
@@ -37,6 +38,8 @@ class ObjectMap:
     objects are none). probabilities: (C, T+1) p(y|object), null last. relevance: (C, T)
     p(y=1|object) when the caller supplied per-primitive relevance, else None. selection: (T, k) object
     ids per task, best first, -1 padded. boxes / centroids / sizes: per object, after filtering.
+    ranking: (C, T) the score each task's objects were ranked by (mean log-odds with evidence,
+    else `task_scores`), so a report can show the number that orders the ranks.
     """
 
     object_ids: np.ndarray
@@ -50,6 +53,7 @@ class ObjectMap:
     counts: dict[str, int] = field(default_factory=dict)
     timings: dict[str, float] = field(default_factory=dict)
     cpu_timings: dict[str, float] = field(default_factory=dict)
+    ranking: np.ndarray | None = None
 
     @property
     def task_scores(self) -> np.ndarray:
@@ -71,13 +75,15 @@ class PrimitiveScores:
 @dataclass
 class Selection:
     """Surviving objects after pruning, renumbered 0..K-1: `object_ids` (N,), `probabilities`
-    (K, T+1), `relevance` (K, T) or None, `selection` (T, k) -1 padded, `clusters` before pruning."""
+    (K, T+1), `relevance` (K, T) or None, `selection` (T, k) -1 padded, `clusters` before pruning,
+    `ranking` (K, T) the score the selection ranked by."""
 
     object_ids: np.ndarray
     probabilities: np.ndarray
     relevance: np.ndarray | None
     selection: np.ndarray
     clusters: int
+    ranking: np.ndarray
 
 
 def primitive_scores(
@@ -99,9 +105,14 @@ def primitive_graph(
     pyx: np.ndarray,
     gaussian_counts: np.ndarray,
     params: PipelineParams,
+    lengths: SceneLengths | None = None,
 ) -> tuple[np.ndarray, MergedGraph]:
-    """Step 8: overlap edges (E, 2) between primitives, then identical neighbours merged."""
-    edges = overlap_edges(means, primitive_ids, padding=params.edge_padding)
+    """Step 8: overlap edges (E, 2) between primitives, then identical neighbours merged.
+
+    Boxes grow by `lengths.edge_padding` (scene units); without `lengths`, by the absolute
+    `params.edge_padding` if set, else not at all."""
+    padding = params.edge_padding if lengths is None else lengths.edge_padding
+    edges = overlap_edges(means, primitive_ids, padding=padding)
     weights = gaussian_counts if params.aib_px == "size" else None
     return edges, merge_identical(pyx, edges, atol=params.identical_tolerance, weights=weights)
 
@@ -120,11 +131,13 @@ def prune_and_select(
 
     `relevance` (P, T) prunes and ranks by its Gaussian-weighted mean over each cluster; without
     it (the Clio-style baseline has no such quantity) the conditional `cluster_pyx` (C, T+1) is
-    used. `evidence` (P, T) ranks instead when given."""
+    used. `evidence` (P, T) ranks instead when given. A task's answers are only objects at or
+    above `prune_threshold` for that task: an object kept for another task is no answer to it."""
     cluster_mean = _cluster_mean_operator(object_of_primitive, gaussian_counts, len(cluster_pyx))
     relevance_all = None if relevance is None else cluster_mean @ relevance
     ranking = cluster_pyx if relevance_all is None else _with_null_column(relevance_all)
     keep = prune_mask(ranking, params.prune_threshold)
+    relevant = ranking[:, :-1] >= params.prune_threshold  # (C, T): the per-task pruning rule
     if evidence is not None:
         ranking = _with_null_column(cluster_mean @ evidence)
     new_id = np.full(cluster_pyx.shape[0], -1, dtype=np.int64)  # pruned clusters become -1
@@ -133,8 +146,9 @@ def prune_and_select(
     probabilities = cluster_pyx[keep]
     object_ids = np.where(primitive_ids >= 0, object_of_primitive[np.maximum(primitive_ids, 0)], -1)
     sizes = np.bincount(object_ids[object_ids >= 0], minlength=len(probabilities))
+    candidates = relevant[keep] & (sizes >= params.min_object_gaussians)[:, None]
     selection = (
-        top_k(ranking[keep], sizes, params.top_k, candidates=sizes >= params.min_object_gaussians)
+        top_k(ranking[keep], sizes, params.top_k, candidates=candidates)
         if len(probabilities)
         else np.full((cluster_pyx.shape[1] - 1, params.top_k), -1, dtype=np.int64)
     )
@@ -144,6 +158,7 @@ def prune_and_select(
         relevance=None if relevance_all is None else relevance_all[keep],
         selection=selection,
         clusters=int(cluster_pyx.shape[0]),
+        ranking=ranking[keep][:, :-1],
     )
 
 
@@ -184,10 +199,16 @@ def remove_floaters(
 
 
 def object_geometry(
-    means: np.ndarray, object_ids: np.ndarray, selected: np.ndarray, num_objects: int
+    means: np.ndarray,
+    object_ids: np.ndarray,
+    selected: np.ndarray,
+    num_objects: int,
+    box_min_side: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray, list[OrientedBox | None]]:
     """Step 12b: (K,) sizes and (K, 3) centroids of every object, and the minimum oriented box
-    of each selected one (None for the others)."""
+    of each selected one (None for the others). `box_min_side`: thinnest box side in scene
+    units (`SceneLengths.box_min_side`; None: the box code's own floor)."""
+    box_options = {} if box_min_side is None else {"min_thickness": float(box_min_side)}
     inside = object_ids >= 0
     sizes = np.bincount(object_ids[inside], minlength=num_objects)
     # bincount sums each axis in Gaussian order, as np.add.at did, ~10x faster
@@ -208,7 +229,8 @@ def object_geometry(
     boxed = [obj for obj in selected if len(members[obj])]
     with single_blas_thread():  # many small products: BLAS's own threads only cost CPU here
         found = _per_object(
-            lambda m: minimum_obb(means[m].astype(np.float64)), [members[obj] for obj in boxed]
+            lambda m: minimum_obb(means[m].astype(np.float64), **box_options),
+            [members[obj] for obj in boxed],
         )
     for obj, box in zip(boxed, found, strict=True):
         boxes[obj] = box
@@ -222,17 +244,26 @@ def objects_from_primitives(
     params: PipelineParams,
     relevance: np.ndarray | None = None,
     evidence: np.ndarray | None = None,
+    lengths: SceneLengths | None = None,
+    checkpoint: Callable[[], None] | None = None,
 ) -> ObjectMap:
     """Steps 8-12 from primitives (N,) and their conditionals `pyx` (P, T+1) (shared by the
-    method and the baselines); `relevance` / `evidence` as in `prune_and_select`."""
+    method and the baselines); `relevance` / `evidence` as in `prune_and_select`; `lengths`: the
+    run's lengths in scene units (edge padding, thinnest box side), None for the absolute ones.
+
+    `checkpoint` is called between the steps (edges, AIB, select, kNN, boxes): the cluster stage
+    passes its cancel check there, so a cancelled job stops within one step."""
+    check = checkpoint or (lambda: None)
     if pyx.shape[0] == 0:
         return empty_object_map(len(means), primitive_ids, pyx.shape[1], params.top_k)
     timer = StepTimer()
     with timer("edges"):
         counts = np.bincount(primitive_ids[primitive_ids >= 0], minlength=pyx.shape[0]).astype(np.float64)
-        edges, merged = primitive_graph(means, primitive_ids, pyx, counts, params)
+        edges, merged = primitive_graph(means, primitive_ids, pyx, counts, params, lengths)
+    check()
     with timer("aib"):
         clustering = aib(merged.pyx, merged.edges, params.aib_delta, weights=merged.weights)
+    check()
     with timer("select"):
         chosen = prune_and_select(
             clustering.labels[merged.labels],
@@ -245,10 +276,14 @@ def objects_from_primitives(
         )
     object_ids, num_objects = chosen.object_ids, len(chosen.probabilities)
     selected = np.unique(chosen.selection[chosen.selection >= 0])
+    check()
     with timer("knn"):
         removed = remove_floaters(means, object_ids, selected, num_objects, params)
+    check()
     with timer("boxes"):
-        sizes, centroids, boxes = object_geometry(means, object_ids, selected, num_objects)
+        sizes, centroids, boxes = object_geometry(
+            means, object_ids, selected, num_objects, None if lengths is None else lengths.box_min_side
+        )
     return ObjectMap(
         object_ids=object_ids,
         primitive_ids=primitive_ids,
@@ -269,6 +304,7 @@ def objects_from_primitives(
         ),
         timings=timer.seconds,
         cpu_timings=timer.cpu_seconds,
+        ranking=chosen.ranking,
     )
 
 

@@ -88,11 +88,11 @@ def _sweep(other: np.ndarray, order: np.ndarray, end: np.ndarray) -> np.ndarray:
     return out[:count]
 
 
-def box_overlap_edges(
-    lo: np.ndarray, hi: np.ndarray, *, padding: float = default("edge_padding")
-) -> np.ndarray:
+def box_overlap_edges(lo: np.ndarray, hi: np.ndarray, *, padding: float | None = None) -> np.ndarray:
     """(E, 2) int64 pairs `i < j` of boxes whose closed, padded extents overlap on all axes,
-    sorted."""
+    sorted. `padding`: scene units each box grows by on every side (None: none); the cluster
+    stage passes `SceneLengths.edge_padding`, a fraction of the scene scale."""
+    padding = 0.0 if padding is None else float(padding)
     lo = np.ascontiguousarray(np.asarray(lo, dtype=np.float64) - padding)
     hi = np.ascontiguousarray(np.asarray(hi, dtype=np.float64) + padding)
     n = lo.shape[0]
@@ -105,6 +105,7 @@ def box_overlap_edges(
         candidates = int(np.maximum(end - np.arange(n) - 1, 0).sum())
         if best is None or candidates < best[0]:
             best = (candidates, axis, order, end)
+    assert best is not None  # n >= 2: every axis was swept
     _, axis, order, end = best
     a, b = (d for d in range(3) if d != axis)
     other = np.stack([lo[order, a], hi[order, a], lo[order, b], hi[order, b]], axis=1)
@@ -114,7 +115,7 @@ def box_overlap_edges(
 
 
 def overlap_edges(
-    means: np.ndarray, primitive_ids: np.ndarray, *, padding: float = default("edge_padding")
+    means: np.ndarray, primitive_ids: np.ndarray, *, padding: float | None = None
 ) -> np.ndarray:
     """(E, 2) int64 edges `i < j` between primitives whose centre boxes overlap."""
     lo, hi = primitive_boxes(means, primitive_ids)

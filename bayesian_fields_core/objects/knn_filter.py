@@ -24,7 +24,7 @@ def mean_neighbour_distance(points: np.ndarray, k: int = default("knn_k")) -> np
     if k_eff < 1:
         return np.zeros(n)
     distances, _ = cKDTree(points).query(points, k=k_eff + 1)
-    return distances[:, 1:].mean(axis=1)
+    return np.asarray(distances)[:, 1:].mean(axis=1)
 
 
 def statistical_outlier_mask(

@@ -48,7 +48,9 @@ def top_k(
     """(T, k) int64 object ids per task, best first; -1 pads when fewer objects qualify.
 
     `sizes` (C,) are the objects' Gaussian counts (tie-break); `candidates` (C,) bool restricts
-    the choice (e.g. `prune_mask`). The null column is not a task and is never ranked.
+    the choice (e.g. `prune_mask`), or (C, T) bool per task (an object below the pruning
+    threshold for a task is no answer to it, whatever it scores for the others). The null column
+    is not a task and is never ranked.
     """
     object_pyx = np.asarray(object_pyx)
     if k < 1:
@@ -57,10 +59,19 @@ def top_k(
     sizes = np.asarray(sizes)
     if sizes.shape != (num_objects,):
         raise InputError(f"expected ({num_objects},), got {sizes.shape}", source="select.sizes")
-    ids = np.arange(num_objects) if candidates is None else np.flatnonzero(candidates)
+    allowed = np.ones((num_objects, num_tasks), dtype=bool)
+    if candidates is not None:
+        candidates = np.asarray(candidates, dtype=bool)
+        if candidates.shape not in ((num_objects,), (num_objects, num_tasks)):
+            raise InputError(
+                f"expected ({num_objects},) or ({num_objects}, {num_tasks}), got {candidates.shape}",
+                source="select.candidates",
+            )
+        allowed &= candidates.reshape(num_objects, -1)
     out = np.full((num_tasks, k), -1, dtype=np.int64)
-    take = min(k, ids.size)
     for task in range(num_tasks):  # loop over tasks (tens), each a vectorised sort
+        ids = np.flatnonzero(allowed[:, task])
+        take = min(k, ids.size)
         order = np.lexsort((ids, -sizes[ids], -object_pyx[ids, task]))
         out[task, :take] = ids[order[:take]]
     return out

@@ -93,7 +93,7 @@ class ClipImagePreprocessor:
         if len(mean) != 3 or len(std) != 3 or min(std) <= 0:
             raise ModelError(f"{cfg_path}: image mean/std must be 3 values, std > 0")
         resample = int(cfg.get("resample", Image.Resampling.BICUBIC))
-        return cls(int(shortest), crop_hw, mean, std, resample, mode)  # type: ignore[arg-type]
+        return cls(int(shortest), crop_hw, mean, std, resample, mode)
 
     def _resize_one(self, image: np.ndarray) -> np.ndarray:
         ch, cw = self.crop_size
@@ -117,7 +117,7 @@ class ClipImagePreprocessor:
     def __call__(self, images: list[np.ndarray]) -> np.ndarray:
         """``B`` uint8 images of any size -> ``(B, 3, crop_h, crop_w)`` float32 pixel values."""
         batch = np.stack([self._resize_one(check_rgb(im, f"images[{i}]")) for i, im in enumerate(images)])
-        x = batch.astype(np.float32) / np.float32(255.0)
+        x: np.ndarray = batch.astype(np.float32) / np.float32(255.0)
         x = (x - np.asarray(self.mean, dtype=np.float32)) / np.asarray(self.std, dtype=np.float32)
         return np.ascontiguousarray(x.transpose(0, 3, 1, 2))
 

@@ -85,6 +85,8 @@ class HFClipEncoder:
         self.dtype = getattr(torch, dtype)
         self.device = torch.device(device)
         self.model = model.eval().to(self.device, dtype=self.dtype)
+        if model.config.projection_dim is None:
+            raise ModelError(f"{self.path}: the model's config has no projection_dim")
         self.dim = int(model.config.projection_dim)
         self.preprocess = ClipImagePreprocessor.from_folder(self.path, resize_mode)
         self.tokenizer = ClipTokenizer(self.path)

@@ -214,5 +214,7 @@ class Kinds(Generic[C]):
         return cls.model_validate({"params": {}, **value})
 
 
-SEGMENTERS: Kinds[SegmenterConfig] = Kinds("segmenter", SegmenterConfig, default="classical")
-ENCODERS: Kinds[EncoderConfig] = Kinds("encoder", EncoderConfig, default="hf_clip")
+# The abstract bases are passed for issubclass checks and their names, never instantiated (mypy
+# refuses an abstract class for type[C]: python/mypy#4717).
+SEGMENTERS: Kinds[SegmenterConfig] = Kinds("segmenter", SegmenterConfig, default="classical")  # type: ignore[type-abstract]
+ENCODERS: Kinds[EncoderConfig] = Kinds("encoder", EncoderConfig, default="hf_clip")  # type: ignore[type-abstract]

@@ -17,11 +17,15 @@ from __future__ import annotations
 import shutil
 import warnings
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import torch
 
 from bayesian_fields_core.errors import ModelError
 from bayesian_fields_core.perception.hf_clip import _embeddings
+
+if TYPE_CHECKING:
+    from transformers import CLIPModel
 
 IMAGE_MODEL = "image_encoder.onnx"
 TEXT_MODEL = "text_encoder.onnx"
@@ -37,7 +41,7 @@ _COPY = (
 
 
 class _ImageTower(torch.nn.Module):
-    def __init__(self, model: torch.nn.Module) -> None:
+    def __init__(self, model: CLIPModel) -> None:
         super().__init__()
         self.model = model
 
@@ -46,7 +50,7 @@ class _ImageTower(torch.nn.Module):
 
 
 class _TextTower(torch.nn.Module):
-    def __init__(self, model: torch.nn.Module) -> None:
+    def __init__(self, model: CLIPModel) -> None:
         super().__init__()
         self.model = model
 

@@ -88,7 +88,7 @@ class OnnxSegmenter:
         resized = np.asarray(Image.fromarray(image).resize((w, h), Image.Resampling.BILINEAR))
         x = np.ascontiguousarray((resized.astype(np.float32) / 255.0).transpose(2, 0, 1)[None])
         outputs = self._session.run(None, {self._input: x})
-        masks = np.asarray(outputs[0], dtype=np.float32)
+        masks: np.ndarray = np.asarray(outputs[0], dtype=np.float32)
         if masks.ndim == 4:
             masks = masks[0]
         if masks.ndim != 3:

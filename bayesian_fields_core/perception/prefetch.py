@@ -85,7 +85,7 @@ def pipelined(items: Iterable[Any], steps: list[Callable[[Any], Any]], depth: in
             yield item
         return
     stop = threading.Event()
-    queues = [queue.Queue(maxsize=depth) for _ in range(len(steps) + 1)]
+    queues: list[queue.Queue[Any]] = [queue.Queue(maxsize=depth) for _ in range(len(steps) + 1)]
     threads = [threading.Thread(target=_feed, args=(items, queues[0], stop), daemon=True)]
     threads += [
         threading.Thread(target=_work, args=(fn, queues[k], queues[k + 1], stop), daemon=True)

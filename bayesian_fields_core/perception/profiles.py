@@ -176,7 +176,10 @@ def load_profile_calibration(profile: ModelProfile, *, model_id: str | None = No
     if cal.path is not None:
         return load_calibration(cal.path, model_id=model_id)
     try:
-        return Calibration(model_id=cal.model_id, mu0=cal.mu0, mu1=cal.mu1, s=cal.s)
+        # validated here: an inline calibration may lack mu0 / mu1 / s
+        return Calibration.model_validate(
+            {"model_id": cal.model_id, "mu0": cal.mu0, "mu1": cal.mu1, "s": cal.s}
+        )
     except ValidationError as exc:
         raise InputError(f"invalid inline calibration: {exc}", source="profile.calibration") from exc
 

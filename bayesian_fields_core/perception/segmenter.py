@@ -18,7 +18,11 @@ class Segmenter(Protocol):
     """Class-agnostic over-segmentation of one RGB image."""
 
     name: str
-    params: dict[str, Any]
+
+    @property
+    def params(self) -> dict[str, Any]:
+        """The keyword arguments that identify this segmenter's output (read-only)."""
+        ...
 
     def segment(self, image: np.ndarray) -> np.ndarray:
         """``image (H, W, 3) uint8`` -> ``labels (H, W) int32`` (-1 = none, exclusive, 0..M-1)."""

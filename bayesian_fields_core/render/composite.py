@@ -137,7 +137,7 @@ def composite(
         # and exp() of huge negatives leaves the vectorised fast path; both are slow on CPUs.
         alpha = torch.matmul(basis_t, coef.transpose(1, 2), out=buf_a[:b])
         alpha.clamp_min_(_EXPONENT_FLOOR).exp_().clamp_max_(settings.max_alpha)
-        torch.nn.functional.threshold_(alpha, below_min_alpha, 0.0)
+        torch.threshold_(alpha, below_min_alpha, 0.0)  # = torch.nn.functional.threshold_ (stubs lack it)
 
         t_prev = trans[cur]
         done_prev = done[cur]

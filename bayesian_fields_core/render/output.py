@@ -32,7 +32,8 @@ class RenderOutput:
 class RasterSettings:
     """Rasterisation constants. The defaults are those of the reference 3DGS rasteriser.
 
-    near_plane: Gaussians whose centre is nearer than this (metres, camera z) are culled.
+    near_plane: Gaussians whose centre is nearer than this (scene units, camera z) are culled; the
+        pipeline replaces it by a fraction of the scene scale (`GaussianRenderer(near_plane=)`).
     eps2d: low-pass dilation added to the diagonal of every 2D covariance (pixels^2), so a
         Gaussian never shrinks below about a pixel and cannot alias.
     fov_clamp: the camera-space x/z and y/z used in the projection Jacobian are clamped to this

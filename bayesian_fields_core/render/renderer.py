@@ -10,6 +10,7 @@ from gsplat's own traversal too (`gsplat_median`), so no torch rasteriser runs o
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from typing import Literal
 
@@ -80,6 +81,9 @@ class GaussianRenderer:
     backend: "torch" (always available, CPU or CUDA), "gsplat" (needs gsplat and CUDA), or
     "auto" (gsplat when it is importable and CUDA is available, else torch).
     settings: rasterisation constants (near plane, tile/chunk sizes, memory cap, ...).
+    near_plane: overrides `settings.near_plane`; the pipeline passes a fraction of the scene
+        scale (`scene.scale.SceneLengths.render_near`), so the culled shell follows the scene's
+        units instead of a fixed 1 cm.
     """
 
     def __init__(
@@ -89,6 +93,7 @@ class GaussianRenderer:
         backend: Backend = "auto",
         *,
         settings: RasterSettings | None = None,
+        near_plane: float | None = None,
     ) -> None:
         _check_gaussians(gaussians)
         if backend not in ("auto", "torch", "gsplat"):
@@ -100,6 +105,12 @@ class GaussianRenderer:
             raise InputError("backend 'gsplat' needs the gsplat package and a CUDA device", source="backend")
         self.backend: str = backend
         self.settings = settings or RasterSettings()
+        if near_plane is not None:
+            if not np.isfinite(near_plane) or near_plane <= 0:
+                raise InputError(
+                    f"near plane must be a positive finite length, got {near_plane!r}", source="near_plane"
+                )
+            self.settings = dataclasses.replace(self.settings, near_plane=float(near_plane))
 
         def to_dev(a: np.ndarray) -> torch.Tensor:
             return torch.as_tensor(np.ascontiguousarray(a, dtype=np.float32), device=self.device)

@@ -25,7 +25,7 @@ from bayesian_fields_core.objects.not_found import NotFound
 from bayesian_fields_core.objects.select import task_scores
 
 FORMAT_NAME = "bayesian-fields-result"
-FORMAT_VERSION = "1.3"
+FORMAT_VERSION = "1.4"
 """MAJOR.MINOR. A reader accepts any MINOR of its MAJOR (minors only add optional fields and files);
 a new MAJOR (a changed meaning, dtype rule or layout) is refused with a clear error."""
 
@@ -54,7 +54,12 @@ class SelectedObject:
     transform); None when both frames are one. `peak` (format 1.3): the object's best single view
     for the task, as a margin between the calibrated likelihood means (0 = the irrelevant mean,
     1 = the relevant mean; `fusion.peak`), the score the "not found" rule thresholds; None when
-    the run did not record it."""
+    the run did not record it. `score` (format 1.4): the number the task's objects are ranked by
+    (`Result.ranked_by` names it; for 'evidence' the mean log-odds of the object's
+    Gaussians), so ranks follow it even where `probability` saturates; None before 1.4.
+    `world_centroid` / `world_box` (format 1.4): the same in the data's own world frame (COLMAP's,
+    undoing nerfstudio's `applied_transform`), set only when that frame differs from the cameras'
+    frame (`Result.capture_to_world`)."""
 
     object_id: int
     probability: float
@@ -65,6 +70,9 @@ class SelectedObject:
     capture_centroid: np.ndarray | None = None
     capture_box: OrientedBox | None = None
     peak: float | None = None
+    score: float | None = None
+    world_centroid: np.ndarray | None = None
+    world_box: OrientedBox | None = None
 
     def to_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {
@@ -77,10 +85,17 @@ class SelectedObject:
         }
         if self.peak is not None:
             out["peak"] = float(self.peak)
+        if self.score is not None:
+            out["score"] = float(self.score)
         if self.capture_centroid is not None and self.capture_box is not None:
             out["capture_frame"] = {
                 "centroid": np.asarray(self.capture_centroid, dtype=np.float64).tolist(),
                 "box": self.capture_box.to_dict(),
+            }
+        if self.world_centroid is not None and self.world_box is not None:
+            out["world_frame"] = {
+                "centroid": np.asarray(self.world_centroid, dtype=np.float64).tolist(),
+                "box": self.world_box.to_dict(),
             }
         return out
 
@@ -90,13 +105,8 @@ class SelectedObject:
             centroid = np.asarray(data["centroid"], dtype=np.float64)
             if centroid.shape != (3,):
                 raise InputError(f"result summary: centroid must have 3 values, got {centroid.shape}")
-            capture = data.get("capture_frame")
-            capture_centroid = capture_box = None
-            if capture is not None:
-                capture_centroid = np.asarray(capture["centroid"], dtype=np.float64)
-                if capture_centroid.shape != (3,):
-                    raise InputError("result summary: capture_frame centroid must have 3 values")
-                capture_box = OrientedBox.from_dict(capture["box"])
+            capture_centroid, capture_box = _framed(data.get("capture_frame"), "capture_frame")
+            world_centroid, world_box = _framed(data.get("world_frame"), "world_frame")
             return cls(
                 object_id=int(data["object_id"]),
                 probability=float(data["probability"]),
@@ -107,9 +117,23 @@ class SelectedObject:
                 capture_centroid=capture_centroid,
                 capture_box=capture_box,
                 peak=None if data.get("peak") is None else float(data["peak"]),
+                score=None if data.get("score") is None else float(data["score"]),
+                world_centroid=world_centroid,
+                world_box=world_box,
             )
         except KeyError as exc:
             raise InputError(f"result summary: selected object missing field {exc.args[0]!r}") from None
+
+
+def _framed(block: Any, name: str) -> tuple[np.ndarray | None, OrientedBox | None]:
+    """(centroid (3,), box) of an optional `capture_frame` / `world_frame` block, (None, None)
+    when absent (older formats, or the frame is the splat's)."""
+    if block is None:
+        return None, None
+    centroid = np.asarray(block["centroid"], dtype=np.float64)
+    if centroid.shape != (3,):
+        raise InputError(f"result summary: {name} centroid must have 3 values")
+    return centroid, OrientedBox.from_dict(block["box"])
 
 
 @dataclass
@@ -132,6 +156,13 @@ class Result:
     layout: the scene layout the loader recognised ('inria', 'nerfstudio', 'gsplat', ...), or ''.
     not_found: task -> why it has no answer (format 1.3): the task's selection is empty because
         its best object did not carry enough evidence (`objects.not_found`). Empty before 1.3.
+    capture_to_world: optional (4, 4) similarity from the cameras' frame to the data's own world
+        frame (format 1.4): nerfstudio's transforms.json poses are `applied_transform @ world`,
+        so this is its inverse; None when the camera file is in the world frame itself.
+    scene_scale: the run's scene scale and every length derived from it (format 1.4;
+        `scene.scale.SceneLengths.record`), None before 1.4.
+    ranked_by: what `SelectedObject.score` is, the run's `selection_score` (format 1.4: 'evidence', 'relevance' or
+        'conditional'; '' before 1.4).
     """
 
     tasks: list[str]
@@ -147,6 +178,9 @@ class Result:
     splat_to_capture: np.ndarray | None = None
     layout: str = ""
     not_found: dict[str, NotFound] = field(default_factory=dict)
+    capture_to_world: np.ndarray | None = None
+    scene_scale: dict[str, Any] | None = None
+    ranked_by: str = ""
     format_version: str = FORMAT_VERSION
 
     @property

@@ -80,7 +80,7 @@ def best_view(frames: list[Frame], points: np.ndarray) -> int:
     homo = np.concatenate([points, np.ones((len(points), 1))], axis=1).T  # (4, M)
     for i, frame in enumerate(frames):
         cam = (frame.world_to_camera @ homo)[:3]
-        front = cam[2] > 1e-3
+        front = cam[2] > 0  # no absolute near plane: the scene's units are arbitrary
         if not front.any():
             continue
         uv = (frame.K @ cam[:, front])[:2] / cam[2, front]
@@ -194,6 +194,7 @@ def render_previews(
     device: str = "cpu",
     settings: RasterSettings = PREVIEW_RASTER,
     threads: int | None = PREVIEW_THREADS,
+    near_plane: float | None = None,
 ) -> list[Preview]:
     """One preview per task of `result` (in task order), rendered from the scene's frames.
 
@@ -201,7 +202,8 @@ def render_previews(
     the tinted colours and the flat label colours (two renders per task before; at 400 k
     Gaussians each CPU render of a preview takes seconds). `settings` are the rasterisation
     constants (`PREVIEW_RASTER` by default); torch runs with `threads` intra-op threads meanwhile
-    (its previous setting is restored)."""
+    (its previous setting is restored). `near_plane` (scene units) overrides the settings' one:
+    the run's `SceneLengths.render_near`, so a scene in small units is not culled away."""
     if not frames:
         return []
     with torch_threads(threads):
@@ -209,7 +211,9 @@ def render_previews(
 
         ids = np.asarray(result.object_ids)
         base = base_colours(gaussians)
-        renderer = GaussianRenderer(gaussians, device=device, backend="torch", settings=settings)
+        renderer = GaussianRenderer(
+            gaussians, device=device, backend="torch", settings=settings, near_plane=near_plane
+        )
         background = np.array([0.08, 0.08, 0.1], dtype=np.float32)
         previews = []
         for t, task in enumerate(result.tasks):

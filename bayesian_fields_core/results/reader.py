@@ -80,23 +80,29 @@ def _relevance(store: Store, prefix: str, summary: dict[str, Any]) -> np.ndarray
     return None if rel is None else rel.astype(np.float32, copy=False)
 
 
-def _frames(summary: dict[str, Any], prefix: str) -> tuple[np.ndarray | None, str]:
-    """(splat -> capture 4x4 or None, layout) from the optional `frames` block (format 1.2)."""
+def _frames(summary: dict[str, Any], prefix: str) -> tuple[np.ndarray | None, np.ndarray | None, str]:
+    """(splat -> capture 4x4 or None, capture -> world 4x4 or None, layout) from the optional
+    `frames` block (format 1.2; `capture_to_world` since 1.4)."""
     frames = summary.get("frames")
     if frames is None:
-        return None, ""
+        return None, None, ""
     if not isinstance(frames, dict):
         raise InputError(f"{prefix}{SUMMARY_KEY}: frames must be an object")
-    matrix = frames.get("splat_to_capture")
+    layout = str(frames.get("layout", ""))
+    return _matrix(frames, "splat_to_capture", prefix), _matrix(frames, "capture_to_world", prefix), layout
+
+
+def _matrix(frames: dict[str, Any], name: str, prefix: str) -> np.ndarray | None:
+    matrix = frames.get(name)
     if matrix is None:
-        return None, str(frames.get("layout", ""))
+        return None
     try:
         m = np.asarray(matrix, dtype=np.float64)
     except (TypeError, ValueError):
         m = np.zeros(0)
     if m.shape != (4, 4) or not np.isfinite(m).all():
-        raise InputError(f"{prefix}{SUMMARY_KEY}: frames.splat_to_capture must be a finite 4x4 matrix")
-    return m, str(frames.get("layout", ""))
+        raise InputError(f"{prefix}{SUMMARY_KEY}: frames.{name} must be a finite 4x4 matrix")
+    return m
 
 
 def _folder_source(folder: Path, prefix: str | None) -> tuple[Store, str]:
@@ -139,7 +145,10 @@ def read_result(source: Store | str | Path, prefix: str | None = None) -> Result
         }
     except (KeyError, TypeError) as exc:
         raise InputError(f"{prefix}{SUMMARY_KEY}: malformed tasks or selections ({exc!r})") from None
-    splat_to_capture, layout = _frames(summary, prefix)
+    splat_to_capture, capture_to_world, layout = _frames(summary, prefix)
+    scene_scale = summary.get("scene_scale")
+    if scene_scale is not None and not isinstance(scene_scale, dict):
+        raise InputError(f"{prefix}{SUMMARY_KEY}: scene_scale must be an object")
     result = Result(
         tasks=tasks,
         object_ids=object_ids,
@@ -154,6 +163,9 @@ def read_result(source: Store | str | Path, prefix: str | None = None) -> Result
         splat_to_capture=splat_to_capture,
         layout=layout,
         not_found=not_found,
+        capture_to_world=capture_to_world,
+        scene_scale=scene_scale,
+        ranked_by=str(summary.get("ranked_by", "")),
         format_version=str(summary["format_version"]),
     )
     result.validate()

@@ -42,6 +42,7 @@ from bayesian_fields_core.results.previews import (
     contact_sheet,
     render_previews,
 )
+from bayesian_fields_core.scene.similarity import Similarity
 from bayesian_fields_core.scene.types import Frame, Gaussians
 
 
@@ -105,7 +106,13 @@ def write_result(
     previews: dict[str, Any] = {"tasks": [], "contact_sheet": None}
     with timer("previews"):
         if gaussians is not None and frames and preview_max_side:
-            rendered = render_previews(result, gaussians, frames, max_side=preview_max_side)
+            rendered = render_previews(
+                result,
+                _in_camera_frame(result, gaussians),
+                frames,
+                max_side=preview_max_side,
+                near_plane=_render_near(result),
+            )
             for preview in rendered:
                 put(preview.key, preview.png)
                 previews["tasks"].append(preview.entry())
@@ -116,6 +123,21 @@ def write_result(
         put_json(store, prefix + SUMMARY_KEY, _summary(result, arrays, exports, previews, scene))
         sizes[SUMMARY_KEY] = store.size(prefix + SUMMARY_KEY)
     return sizes
+
+
+def _in_camera_frame(result: Result, gaussians: Gaussians) -> Gaussians:
+    """The splat file's Gaussians mapped into the cameras' frame, where the previews' frames are
+    (an unmapped nerfstudio / gsplat splat would be rendered off to the side of its cameras)."""
+    if result.splat_to_capture is None:
+        return gaussians
+    return Similarity.from_matrix(result.splat_to_capture, source="splat_to_capture").gaussians(gaussians)
+
+
+def _render_near(result: Result) -> float | None:
+    """The run's renderer near plane (a fraction of the scene scale), None for older results."""
+    lengths = (result.scene_scale or {}).get("lengths") or {}
+    near = lengths.get("render_near")
+    return None if near is None else float(near)
 
 
 def _write_arrays(
@@ -208,11 +230,40 @@ def _summary(
         "models": result.models,
         "timings_s": {k: float(v) for k, v in result.timings_s.items()},
     }
-    if result.splat_to_capture is not None or result.layout:
-        summary["frames"] = {
-            "layout": result.layout,
-            "splat_to_capture": None
-            if result.splat_to_capture is None
-            else np.asarray(result.splat_to_capture, dtype=np.float64).tolist(),
-        }
+    if result.splat_to_capture is not None or result.layout or result.capture_to_world is not None:
+        summary["frames"] = frames_block(result)
+    if result.scene_scale is not None:
+        summary["scene_scale"] = result.scene_scale
+    if result.ranked_by:
+        summary["ranked_by"] = result.ranked_by
     return summary
+
+
+FRAME_NAMES = {
+    "splat": "the splat file's own frame: selections[].objects[].centroid / box",
+    "capture": "the cameras' frame the run computed in: capture_frame blocks (only when it is not the splat's)",
+    "world": (
+        "the data's own world frame (COLMAP's), undoing nerfstudio's applied_transform: world_frame "
+        "blocks (only when it is not the cameras' frame)"
+    ),
+}
+"""What each coordinate frame of a result is, written into summary.json's `frames.names`."""
+
+
+def frames_block(result: Result) -> dict[str, Any]:
+    """summary.json's `frames`: the layout, the transforms between the frames and their names."""
+
+    def matrix(m: np.ndarray | None) -> list[list[float]] | None:
+        return None if m is None else np.asarray(m, dtype=np.float64).tolist()
+
+    names = {"splat": FRAME_NAMES["splat"]}
+    if result.splat_to_capture is not None:
+        names["capture"] = FRAME_NAMES["capture"]
+    if result.capture_to_world is not None:
+        names["world"] = FRAME_NAMES["world"]
+    return {
+        "layout": result.layout,
+        "splat_to_capture": matrix(result.splat_to_capture),
+        "capture_to_world": matrix(result.capture_to_world),
+        "names": names,
+    }

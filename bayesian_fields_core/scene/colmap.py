@@ -4,7 +4,9 @@ COLMAP stores each image's pose as the world-to-camera rotation quaternion (qw, 
 translation, already in the OpenCV axes, so a pose maps straight to `Frame.world_to_camera`.
 Pinhole models become K; SIMPLE_RADIAL / RADIAL / OPENCV keep their coefficients in
 `Frame.distortion` for `images.load_image` to remove; fisheye and other models are refused by name
-because silently treating them as pinhole would misplace every mask. `points3D` is not needed.
+because silently treating them as pinhole would misplace every mask. `points3D` is read only for gsplat's
+world normalisation. COLMAP 3.12's `frames.*` and `rigs.*` are ignored: `images.*` still carries
+every image's pose.
 
 Frames come back sorted by image name (natural order: "img2" before "img10"), COLMAP's image ids
 being registration order rather than capture order, unless the caller gives an explicit order.
@@ -52,7 +54,9 @@ def natural_key(name: str) -> list:
     return [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", name)]
 
 
-def _camera_intrinsics(model: str, params: list[float], source: str, camera_id: int):
+def _camera_intrinsics(
+    model: str, params: list[float], source: str, camera_id: int
+) -> tuple[np.ndarray, dict[str, float] | None]:
     """(K, distortion | None) for a supported model; InputError naming anything else."""
     if model not in SUPPORTED_MODELS:
         raise InputError(
@@ -79,7 +83,7 @@ def _camera_intrinsics(model: str, params: list[float], source: str, camera_id: 
     return intrinsics(f, f, cx, cy), clean_distortion(dist, source=f"{source} camera {camera_id}")
 
 
-def _data_lines(path: Path):
+def _data_lines(path: Path) -> list[tuple[int, str]]:
     """(line number, stripped line) for every line of a text model file."""
     try:
         text = path.read_text(encoding="utf-8")
@@ -213,8 +217,12 @@ def _model_files(sparse_dir: Path) -> tuple[Path, Path, bool]:
 
 
 def _default_images_dir(sparse_dir: Path) -> Path:
-    """`<scene>/images` for the usual `<scene>/sparse/0` or `<scene>/sparse` layouts."""
-    for candidate in (sparse_dir.parent / "images", sparse_dir.parent.parent / "images"):
+    """`<scene>/images` for the usual `<scene>/sparse/0` or `<scene>/sparse` layouts, and for
+    ns-process-data's `<scene>/colmap/sparse/0`."""
+    candidates = [sparse_dir.parent / "images", sparse_dir.parent.parent / "images"]
+    if sparse_dir.parent.parent.name == "colmap":
+        candidates.append(sparse_dir.parent.parent.parent / "images")
+    for candidate in candidates:
         if candidate.is_dir():
             return candidate
     return sparse_dir.parent / "images"
@@ -304,7 +312,9 @@ def _camera_record(frame: Frame) -> tuple[str, list[float]]:
     return "OPENCV", [fx, fy, cx, cy] + [d.get(k, 0.0) for k in ("k1", "k2", "p1", "p2")]
 
 
-def _records(frames: Sequence[Frame]):
+def _records(
+    frames: Sequence[Frame],
+) -> tuple[list[tuple[int, str, int, int, tuple[float, ...]]], list[tuple[np.ndarray, np.ndarray, int, str]]]:
     """Shared cameras (identical intrinsics share an id) and per-image (qvec, tvec, cam id, name)."""
     camera_ids: dict[tuple, int] = {}
     images = []
@@ -358,3 +368,26 @@ def write_colmap_binary(sparse_dir: str | Path, frames: Sequence[Frame]) -> None
     (sparse_dir / "cameras.bin").write_bytes(cam_blob)
     (sparse_dir / "images.bin").write_bytes(img_blob)
     (sparse_dir / "points3D.bin").write_bytes(struct.pack("<Q", 0))
+
+
+def read_colmap_points(sparse_dir: str | Path) -> np.ndarray:
+    """(N, 3) float64 positions of a COLMAP model's 3D points (points3D.bin, else .txt), or an
+    empty array when the model has none. gsplat's world normalisation aligns on them."""
+    sparse_dir = Path(sparse_dir)
+    with input_boundary(str(sparse_dir), what="cannot read the COLMAP points"):
+        binary, text = sparse_dir / "points3D.bin", sparse_dir / "points3D.txt"
+        if binary.is_file():
+            reader = _Reader(binary)
+            (count,) = reader.take("Q", "point count")
+            points = np.empty((count, 3), np.float64) if count * 43 <= len(reader.data) else None
+            if points is None:
+                raise InputError(f"{count} points cannot fit in the file", source=str(binary))
+            for i in range(count):
+                values = reader.take("Q3d3BdQ", "point")
+                points[i] = values[1:4]
+                reader.skip(8 * values[-1], "point track")
+            return points
+        if text.is_file():
+            rows = [line.split() for _, line in _data_lines(text) if line and not line.startswith("#")]
+            return np.array([[float(v) for v in row[1:4]] for row in rows], dtype=np.float64).reshape(-1, 3)
+    return np.zeros((0, 3), np.float64)

@@ -6,11 +6,13 @@ preference order is documented in `scene/loader.py`.
 Strategy for frames (why the Gaussians move, not the cameras): when a trainer stored the splat in
 a frame of its own (nerfstudio dataparser, gsplat normalisation), we map the Gaussians into the
 cameras' (capture) frame with `Similarity.gaussians` (positions, quaternions, log-scales, SH bands)
-rather than moving the cameras into the splat frame. Every length the pipeline uses is then in the
-capture's units: `depth_tolerance`, `edge_padding`, the 1 mm minimum box side, and input depth
-maps, which come with the cameras and need no rescaling. A run on a transformed splat is therefore
-the run on the untransformed scene, whatever trainer made it. Results (boxes, centroids) are
-reported in the user's splat frame (mapped back with the inverse) and also in the capture frame.
+rather than moving the cameras into the splat frame. Input depth maps come with the cameras and
+need no rescaling, and every length the pipeline uses is a fraction of the scene scale measured in
+that frame (`scene/scale.py`), so a run on a transformed splat is the run on the untransformed
+scene, whatever trainer made it and whatever units the capture has. Results (boxes, centroids) are
+reported in the user's splat frame (mapped back with the inverse), in the capture frame, and in
+the data's own world frame when a transforms.json's `applied_transform` moved the cameras
+(`capture_to_world`).
 """
 
 from __future__ import annotations
@@ -23,9 +25,12 @@ import numpy as np
 
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.scene.files import resolve_inside
+from bayesian_fields_core.scene.formats import REFUSED_SUFFIXES, SOG_META, SPLAT_SUFFIXES
+from bayesian_fields_core.scene.formats.checkpoint import CKPT
 from bayesian_fields_core.scene.inria_output import CFG_ARGS, is_inria_output, read_cfg_args
 from bayesian_fields_core.scene.scene_yaml import SCENE_YAML, SceneSpecFile, read_scene_yaml
 from bayesian_fields_core.scene.similarity import Similarity
+from bayesian_fields_core.scene.trainer_runs import GSPLAT_CFG, NERFSTUDIO_CFG, gsplat_run, nerfstudio_run
 from bayesian_fields_core.scene.trainer_transforms import (
     DATAPARSER_TRANSFORMS,
     SPLAT_TRANSFORM,
@@ -34,7 +39,8 @@ from bayesian_fields_core.scene.trainer_transforms import (
 )
 
 SPLAT_NAMES = ("point_cloud.ply", "splat.ply")
-CAMERA_SOURCES = ("transforms.json", "sparse/0", "sparse", "cameras.json")
+CAMERA_SOURCES = ("transforms.json", "sparse/0", "sparse", "colmap/sparse/0", "cameras.json")
+"""`colmap/sparse/0` is where nerfstudio's ns-process-data leaves the COLMAP model."""
 INRIA_SFM_POINTS = "input.ply"
 """3DGS copies the SfM points here: never a splat in a 3DGS output folder."""
 _ITERATION = re.compile(r"iteration_(\d+)$")
@@ -65,6 +71,12 @@ class SceneLayout:
     splat_to_capture: Similarity | None = None
     transform_source: Path | None = None
     rescale_intrinsics: bool = False
+    capture_to_world: Similarity | None = None
+    metric: bool = False
+    """The cameras' units are metres (declared by scene.yaml's `metric`; never guessed)."""
+    """The cameras' frame -> the data's own world (COLMAP's): the inverse of a transforms.json's
+    `applied_transform` (nerfstudio's ns-process-data writes poses as `applied @ world`); None
+    when the camera file is in that world already (COLMAP, cameras.json, no field)."""
 
 
 def _max_numbered(paths: list[tuple[int, Path]]) -> Path | None:
@@ -91,6 +103,21 @@ def _gsplat_ply(folder: Path) -> Path | None:
     )
 
 
+def _gsplat_ckpt(folder: Path) -> tuple[int, Path] | None:
+    """(step, path) of the latest gsplat checkpoint `ckpts/ckpt_<step>[_rank<r>].pt`, rank 0."""
+    found = [
+        (int(m.group(1)), p)
+        for p in (folder / "ckpts").glob("ckpt_*.pt")
+        if (m := CKPT.match(p.name)) and (m.group(2) in (None, "0"))
+    ]
+    return max(found) if found else None
+
+
+def _is_splat_name(path: Path) -> bool:
+    name = path.name.lower()
+    return (path.is_file() and name.endswith(SPLAT_SUFFIXES + REFUSED_SUFFIXES)) or name == SOG_META
+
+
 def find_splat_file(folder: Path) -> tuple[Path, str]:
     """(splat, trainer guess) by the loader's preference order; InputError when none or ambiguous."""
     if not folder.is_dir():
@@ -100,17 +127,22 @@ def find_splat_file(folder: Path) -> tuple[Path, str]:
             return folder / name, "plain"
     if (splat := _inria_iteration(folder)) is not None:
         return splat, "inria"
+    ckpt = _gsplat_ckpt(folder)
     if (splat := _gsplat_ply(folder)) is not None:
-        return splat, "gsplat"
+        step = int(m.group(1)) if (m := _GSPLAT_PLY.match(splat.name)) else 0
+        if ckpt is None or ckpt[0] <= step:
+            return splat, "gsplat"
+    if ckpt is not None:
+        return ckpt[1], "gsplat"
     inria = is_inria_output(folder)
     plys = sorted(
-        p for p in folder.glob("*.ply") if p.is_file() and not (inria and p.name == INRIA_SFM_POINTS)
+        p for p in folder.iterdir() if _is_splat_name(p) and not (inria and p.name == INRIA_SFM_POINTS)
     )
     if len(plys) == 1:
         return plys[0], "plain"
     if len(plys) > 1:
         raise InputError(
-            f"several .ply files and none named {' or '.join(SPLAT_NAMES)}: {', '.join(p.name for p in plys)}"
+            f"several splat files and none named {' or '.join(SPLAT_NAMES)}: {', '.join(p.name for p in plys)}"
             " (name the splat in a scene.yaml)",
             source=str(folder),
         )
@@ -121,7 +153,8 @@ def find_splat_file(folder: Path) -> tuple[Path, str]:
     )
     raise InputError(
         "no splat found (point_cloud.ply, splat.ply, point_cloud/iteration_<N>/point_cloud.ply, "
-        f"ply/point_cloud_<step>.ply, a single *.ply, or scene.yaml){extra}",
+        "ply/point_cloud_<step>.ply, ckpts/ckpt_<step>.pt, a single .ply / .compressed.ply / .spz / "
+        f".sog / SOG meta.json / .splat / .glb, or scene.yaml){extra}",
         source=str(folder),
     )
 
@@ -136,7 +169,8 @@ def find_camera_file(folder: Path) -> tuple[str, Path]:
         elif any((path / f"images{ext}").is_file() for ext in (".bin", ".txt")):
             return "colmap", path
     raise InputError(
-        "no cameras found (transforms.json, sparse/0/ or sparse/ with a COLMAP model, cameras.json, or scene.yaml)",
+        "no cameras found (transforms.json, sparse/0/, sparse/ or colmap/sparse/0/ with a COLMAP model, "
+        "cameras.json, or scene.yaml)",
         source=str(folder),
     )
 
@@ -243,6 +277,7 @@ def _from_scene_yaml(folder: Path, spec: SceneSpecFile, source: str) -> SceneLay
         depth_dir=depth_dir,
         depth_scale=spec.depth_scale,
         rescale_intrinsics=kind == "inria",
+        metric=spec.metric,
     )
     if spec.splat_to_camera is not None:
         layout.splat_to_capture = Similarity.from_matrix(
@@ -254,6 +289,63 @@ def _from_scene_yaml(folder: Path, spec: SceneSpecFile, source: str) -> SceneLay
         layout.splat_to_capture, _ = _capture_transform(path, kind, cameras)
         layout.transform_source = path
     return layout
+
+
+def _nerfstudio_export(run: Path) -> Path:
+    """The splat `ns-export gaussian-splat` wrote for a run: in the run folder, else the only
+    one under its exports/ (any depth)."""
+    try:
+        return find_splat_file(run)[0]
+    except InputError:
+        pass
+    found = (
+        sorted(p for p in (run / "exports").rglob("*") if _is_splat_name(p))
+        if (run / "exports").is_dir()
+        else []
+    )
+    if len(found) == 1:
+        return found[0]
+    raise InputError(
+        "no exported splat in the nerfstudio run (or several under exports/); run "
+        f"`ns-export gaussian-splat --load-config {run / NERFSTUDIO_CFG} --output-dir {run / 'exports'}`",
+        source=str(run),
+    )
+
+
+def _trainer_run(folder: Path, allow_source_path: bool) -> SceneLayout | None:
+    """The layout of a gsplat result_dir (cfg.yml) or a nerfstudio run folder (config.yml with
+    dataparser_transforms.json), or None for any other folder (`scene.trainer_runs`)."""
+    if (folder / GSPLAT_CFG).is_file():
+        info = gsplat_run(folder, allow_outside=allow_source_path)
+        splat, _ = find_splat_file(folder)
+        return SceneLayout(
+            root=folder,
+            trainer="gsplat",
+            splat=splat,
+            camera_kind="colmap",
+            camera_path=info["sparse"],
+            images_dir=info["images"],
+            image_root=info["images"].parent,
+            splat_to_capture=info["splat_to_world"],
+            transform_source=folder / GSPLAT_CFG if info["splat_to_world"] is not None else None,
+            rescale_intrinsics=info["rescale"],
+        )
+    if (folder / NERFSTUDIO_CFG).is_file() and (folder / DATAPARSER_TRANSFORMS).is_file():
+        info = nerfstudio_run(folder, allow_outside=allow_source_path)
+        layout = SceneLayout(
+            root=folder,
+            trainer="nerfstudio",
+            splat=_nerfstudio_export(folder),
+            camera_kind=info["camera_kind"],
+            camera_path=info["camera_path"],
+        )
+        if info["camera_kind"] == "colmap":
+            layout.images_dir, layout.image_root = info["data"] / "images", info["data"]
+        transform = folder / DATAPARSER_TRANSFORMS
+        layout.splat_to_capture, _ = _capture_transform(transform, layout.camera_kind, layout.camera_path)
+        layout.transform_source = transform
+        return layout
+    return None
 
 
 def resolve_layout(
@@ -269,11 +361,15 @@ def resolve_layout(
     dropped (no "capture frame" copy of the results then).
     """
     folder = Path(folder)
+    if folder.is_file() and folder.name in (NERFSTUDIO_CFG, GSPLAT_CFG):
+        folder = folder.parent  # `bfields run .../config.yml`: the run folder
     if not folder.is_dir():
         raise InputError("scene folder does not exist", source=str(folder))
     spec_path = folder / SCENE_YAML
     if spec_path.is_file():
         layout = _from_scene_yaml(folder, read_scene_yaml(spec_path), str(spec_path))
+    elif (run_layout := _trainer_run(folder, allow_source_path)) is not None:
+        layout = run_layout
     else:
         splat, trainer = find_splat_file(folder)
         kind, camera_path = find_camera_file(folder)
@@ -300,4 +396,14 @@ def resolve_layout(
         layout.transform_source = path
     if layout.splat_to_capture is not None and layout.splat_to_capture.is_identity:
         layout.splat_to_capture = None
+    layout.capture_to_world = _capture_to_world(layout)
     return layout
+
+
+def _capture_to_world(layout: SceneLayout) -> Similarity | None:
+    """Undo a transforms.json's `applied_transform` (results are reported in the data's world
+    too); None when there is none to undo."""
+    if layout.camera_kind != "transforms":
+        return None
+    applied, _ = nerfstudio_to_transforms_frame(layout.camera_path)
+    return None if applied.is_identity else applied.inverse()

@@ -3,12 +3,16 @@
 Layout, first match wins (`scene/layout.py` decides, so loader, upload validation and client agree):
   0. `scene.yaml` in the folder names the splat, cameras, images, optional depth and an optional
      splat-to-camera similarity (`scene/scene_yaml.py`); nothing else is guessed then.
+Trainer run folders (`scene/trainer_runs.py`): a gsplat result_dir (`cfg.yml`) or a nerfstudio
+run (`config.yml` + `dataparser_transforms.json`) names its data; the rules below are then used
+for the splat only. Any format of `scene/formats/` is a splat.
 Splat:
   1. `point_cloud.ply`, 2. `splat.ply` (at the top of the folder; `splat.ply` is what
      `ns-export gaussian-splat` writes),
   3. `point_cloud/iteration_<N>/point_cloud.ply` with the largest N (an INRIA 3DGS output folder),
   4. `ply/point_cloud_<step>.ply` with the largest step (a gsplat `simple_trainer` result folder),
-  5. the only `*.ply` at the top (several -> error listing them). In a 3DGS output folder
+     or `ckpts/ckpt_<step>_rank0.pt` when its step is later,
+  5. the only splat file at the top (.ply, .spz, .sog, SOG meta.json, .splat, .glb, .gltf, .pt) (several -> error listing them). In a 3DGS output folder
      (cameras.json with cfg_args or point_cloud/), `input.ply` (the SfM points) never counts.
 Cameras:
   1. `transforms.json` (nerfstudio / Instant-NGP / Blender),
@@ -23,6 +27,9 @@ Frame transform (splat -> cameras), first found: the `splat_transform` argument 
 (nerfstudio), `splat_transform.json` at the top (`{"camera_to_splat": 4x4}` from gsplat's
 normalisation, or `{"splat_to_camera": 4x4}`). The Gaussians are mapped into the cameras' frame;
 `Scene.splat_to_capture` keeps the similarity so results can be reported in both frames.
+World frame: a transforms.json's `applied_transform` (ns-process-data's COLMAP -> nerfstudio
+rotation) is undone for reporting only: `Scene.capture_to_world` is its inverse, and results give
+centroids and boxes in that frame too (the data's own world, i.e. COLMAP's).
 The capture formats come before `cameras.json` because a 3DGS output folder copied next to its
 dataset carries both, and the capture's own file has exact intrinsics.
 """
@@ -34,6 +41,7 @@ from pathlib import Path
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.scene.colmap import read_colmap
 from bayesian_fields_core.scene.files import require_files, resolve_inside
+from bayesian_fields_core.scene.formats import read_splat
 from bayesian_fields_core.scene.inria import read_cameras_json
 from bayesian_fields_core.scene.inria_output import rescale_to_images
 from bayesian_fields_core.scene.layout import (
@@ -45,7 +53,7 @@ from bayesian_fields_core.scene.layout import (
     resolve_layout,
 )
 from bayesian_fields_core.scene.nerfstudio import read_transforms
-from bayesian_fields_core.scene.ply import DEFAULT_MAX_GAUSSIANS, read_ply
+from bayesian_fields_core.scene.ply import DEFAULT_MAX_GAUSSIANS
 from bayesian_fields_core.scene.similarity import Similarity
 from bayesian_fields_core.scene.types import Frame, Scene
 
@@ -145,7 +153,7 @@ def load_scene(
     folder = Path(folder)
     layout = resolve_layout(folder, allow_source_path=allow_source_path, splat_transform=splat_transform)
     frames = frames_of_layout(layout)
-    gaussians = read_ply(layout.splat, max_gaussians=max_gaussians)
+    gaussians = read_splat(layout.splat, max_gaussians=max_gaussians)
     if layout.splat_to_capture is not None:
         gaussians = layout.splat_to_capture.gaussians(gaussians)
     return Scene(
@@ -155,4 +163,6 @@ def load_scene(
         splat_path=layout.splat,
         layout=layout.trainer,
         splat_to_capture=layout.splat_to_capture,
+        capture_to_world=layout.capture_to_world,
+        metric=layout.metric,
     )

@@ -77,7 +77,9 @@ def _path_field(entry: dict, key: str, root: Path, where: str) -> Path | None:
     return resolve_inside(root, value, what=key, source=where)
 
 
-def _frame_camera(entry: dict, top: dict, image_path: Path, where: str):
+def _frame_camera(
+    entry: dict, top: dict, image_path: Path, where: str
+) -> tuple[np.ndarray, int, int, dict[str, float] | None]:
     """(K, width, height, distortion) of one frame from its keys over the top-level ones."""
     model = entry.get("camera_model", top.get("camera_model", "OPENCV"))
     if model not in PINHOLE_CAMERA_MODELS:

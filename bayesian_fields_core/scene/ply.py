@@ -165,6 +165,15 @@ def _parse_elements(path: Path, text: str) -> tuple[str, list[tuple[str, int, li
     return fmt, elements, comments
 
 
+def read_ply_elements(path: str | Path) -> tuple[str, list[tuple[str, int, list]], int]:
+    """(format, elements [(name, count, properties)], header length) of any PLY, unchecked
+    against the INRIA layout: the splat-format dispatcher and the compressed-PLY reader start here."""
+    path = Path(path)
+    text, header_len = _read_header_bytes(path)
+    fmt, elements, _ = _parse_elements(path, text)
+    return fmt, elements, header_len
+
+
 def _sh_degree(path: Path, names: list[str]) -> int:
     rest = sorted(int(m.group(1)) for n in names if (m := _F_REST.match(n)))
     if len(rest) not in _SH_DEGREE_BY_REST:
@@ -209,7 +218,12 @@ def _read_ply_header(path: Path, max_gaussians: int) -> PlyHeader:
         raise _fail(path, f"duplicate vertex properties: {', '.join(dupes)}")
     missing = [n for n in REQUIRED if n not in prop_names]
     if missing:
-        raise _fail(path, f"missing required vertex properties: {', '.join(missing)}")
+        raise _fail(
+            path,
+            f"missing required vertex properties: {', '.join(missing)} (not a Gaussian splat in the "
+            "INRIA, compressed or RGB layout; if splat-transform reads it, convert it: "
+            f"npx @playcanvas/splat-transform {path.name} splat.ply)",
+        )
     types = dict(props)
     sh_degree = _sh_degree(path, prop_names)
     not_float = [
@@ -315,17 +329,26 @@ def _columns(rows: np.ndarray, names: tuple[str, ...] | list[str]) -> np.ndarray
     return np.ascontiguousarray(recfunctions.structured_to_unstructured(rows[list(names)], dtype=np.float32))
 
 
-def _check_finite(path: Path, groups: dict[tuple[str, ...], np.ndarray]) -> None:
-    problems = []
-    total = 0
+def nonfinite_counts(groups: dict[tuple[str, ...], np.ndarray]) -> dict[str, int]:
+    """Non-finite values per property name (counts add up over chunks of rows)."""
+    counts: dict[str, int] = {}
     for names, values in groups.items():
         bad = (~np.isfinite(values)).reshape(values.shape[0], -1).sum(axis=0)
         for name, n in zip(names, bad, strict=True):
-            if n:
-                problems.append(f"{int(n)} in {name}")
-                total += int(n)
+            counts[name] = counts.get(name, 0) + int(n)
+    return counts
+
+
+def raise_nonfinite(path: Path, counts: dict[str, int]) -> None:
+    """InputError naming every property with non-finite values (nothing when there are none)."""
+    problems = [f"{n} in {name}" for name, n in counts.items() if n]
     if problems:
+        total = sum(counts.values())
         raise _fail(path, f"{total} non-finite values (NaN or inf): {', '.join(problems)}")
+
+
+def _check_finite(path: Path, groups: dict[tuple[str, ...], np.ndarray]) -> None:
+    raise_nonfinite(path, nonfinite_counts(groups))
 
 
 def read_ply(path: str | Path, *, max_gaussians: int = DEFAULT_MAX_GAUSSIANS) -> Gaussians:
@@ -342,8 +365,17 @@ def read_ply(path: str | Path, *, max_gaussians: int = DEFAULT_MAX_GAUSSIANS) ->
 
 def _read_ply(path: Path, max_gaussians: int) -> Gaussians:
     header = read_ply_header(path, max_gaussians=max_gaussians)
-    rows = _read_rows(header)
-    n = header.count
+    gaussians, groups = gaussians_from_rows(header, _read_rows(header))
+    _check_finite(header.path, groups)
+    return gaussians
+
+
+def gaussians_from_rows(
+    header: PlyHeader, rows: np.ndarray
+) -> tuple[Gaussians, dict[tuple[str, ...], np.ndarray]]:
+    """Gaussians from structured vertex rows (all of a file's, or one chunk of them), and the
+    column groups whose values must be finite (unchecked here)."""
+    n = rows.shape[0]
     k = sh_coefficient_count(header.sh_degree)
     rest_names = tuple(f"f_rest_{i}" for i in range(3 * (k - 1)))
 
@@ -353,10 +385,7 @@ def _read_ply(path: Path, max_gaussians: int) -> Gaussians:
     opacity = _columns(rows, OPACITY)
     scales = _columns(rows, SCALES)
     quats = _columns(rows, ROTATIONS)
-    _check_finite(
-        header.path,
-        {MEANS: means, F_DC: f_dc, rest_names: rest, OPACITY: opacity, SCALES: scales, ROTATIONS: quats},
-    )
+    groups = {MEANS: means, F_DC: f_dc, rest_names: rest, OPACITY: opacity, SCALES: scales, ROTATIONS: quats}
 
     sh = np.empty((n, k, 3), dtype=np.float32)
     sh[:, 0, :] = f_dc
@@ -367,7 +396,7 @@ def _read_ply(path: Path, max_gaussians: int) -> Gaussians:
         for name, t in header.properties
         if name not in known
     }
-    return Gaussians(
+    gaussians = Gaussians(
         means=means,
         log_scales=scales,
         quats=quats,
@@ -375,6 +404,7 @@ def _read_ply(path: Path, max_gaussians: int) -> Gaussians:
         sh=sh,
         extra=extra,
     )
+    return gaussians, groups
 
 
 def _output_layout(g: Gaussians) -> list[tuple[str, np.dtype, np.ndarray]]:
@@ -439,6 +469,7 @@ def write_ply(path: str | Path, gaussians: Gaussians, *, ascii: bool = False) ->
             return
         # %.9g round-trips float32 exactly and %.17g float64; integers stay integers.
         fmts = {"f4": "%.9g", "f8": "%.17g"}
+        assert rows.dtype.names is not None  # a structured array
         np.savetxt(
             f,
             rows,

@@ -32,19 +32,43 @@ MAX_HUGE_FRACTION = 0.01
 
 def check_splat(g: Gaussians, *, source: str) -> None:
     """Refuse the degenerate cases listed in the module docstring (raises InputError)."""
-    problems = []
+    raise_degenerate(degenerate_counts(g), source=source)
+
+
+def degenerate_counts(g: Gaussians) -> tuple[int, int, int]:
+    """(zero-length quaternions, log-scales out of range, positions too far) over `g`: counts
+    that add up over chunks, so a streamed check gives the message of a whole-file one."""
     zero_quats = int((np.linalg.norm(g.quats.astype(np.float64), axis=1) < MIN_QUATERNION_NORM).sum())
-    if zero_quats:
-        problems.append(f"{zero_quats} Gaussians have a zero-length rotation quaternion (rot_0..3)")
     lo, hi = LOG_SCALE_RANGE
     bad_scales = int(((g.log_scales < lo) | (g.log_scales > hi)).any(axis=1).sum())
+    far = int((np.abs(g.means) > MAX_ABS_POSITION).any(axis=1).sum())
+    return zero_quats, bad_scales, far
+
+
+def raise_degenerate(counts: tuple[int, int, int], *, source: str) -> None:
+    """InputError naming each degenerate case with its count (nothing when all are zero)."""
+    zero_quats, bad_scales, far = counts
+    lo, hi = LOG_SCALE_RANGE
+    problems = []
+    if zero_quats:
+        problems.append(f"{zero_quats} Gaussians have a zero-length rotation quaternion (rot_0..3)")
     if bad_scales:
         problems.append(f"{bad_scales} Gaussians have a log-scale (scale_0..2) outside [{lo:g}, {hi:g}]")
-    far = int((np.abs(g.means) > MAX_ABS_POSITION).any(axis=1).sum())
     if far:
         problems.append(f"{far} Gaussians lie beyond |x|, |y| or |z| = {MAX_ABS_POSITION:g}")
     if problems:
         raise InputError("degenerate splat: " + "; ".join(problems), source=source)
+
+
+def splat_extent(means: np.ndarray) -> float:
+    """Largest axis span of the 1st-99th percentile box of the means (floaters ignored)."""
+    lo, hi = np.percentile(means, [1.0, 99.0], axis=0)
+    return float((hi - lo).max())
+
+
+def huge_count(log_scales: np.ndarray, extent: float) -> int:
+    """How many Gaussians have a largest std wider than `extent`."""
+    return int((np.exp(log_scales.max(axis=1).astype(np.float64)) > extent).sum())
 
 
 def splat_warnings(g: Gaussians) -> list[str]:
@@ -52,17 +76,21 @@ def splat_warnings(g: Gaussians) -> list[str]:
     n = len(g)
     if n == 0:
         return []
+    extent = splat_extent(g.means)
+    return warnings_from(n, float(g.opacities.max()), extent, huge_count(g.log_scales, extent))
+
+
+def warnings_from(n: int, max_opacity: float, extent: float, huge: int) -> list[str]:
+    """The warnings of `splat_warnings` from its statistics (what a streamed scan gathers)."""
     warnings = []
-    if float(g.opacities.max()) < MIN_VISIBLE_OPACITY:
+    if max_opacity < MIN_VISIBLE_OPACITY:
         warnings.append(f"every Gaussian has opacity below {MIN_VISIBLE_OPACITY:.4f}; nothing will render")
-    lo, hi = np.percentile(g.means, [1.0, 99.0], axis=0)
-    extent = float((hi - lo).max())
     if n > 1 and extent == 0.0:
         warnings.append("all Gaussians sit at the same point; the splat has no spatial extent")
     elif extent > 0.0:
-        huge = float((np.exp(g.log_scales.max(axis=1).astype(np.float64)) > extent).mean())
-        if huge > MAX_HUGE_FRACTION:
+        share = huge / n
+        if share > MAX_HUGE_FRACTION:
             warnings.append(
-                f"{huge:.1%} of the Gaussians are wider than the whole scene ({extent:.3g} units)"
+                f"{share:.1%} of the Gaussians are wider than the whole scene ({extent:.3g} units)"
             )
     return warnings

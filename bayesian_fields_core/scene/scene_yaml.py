@@ -7,6 +7,7 @@
     depth_scale: 0.001                # metres (capture units) per stored depth unit
     splat_to_camera: [[...], ...]     # optional 4x4 similarity, splat frame -> camera frame
     transform_file: dataparser_transforms.json   # or: a transform file (see trainer_transforms.py)
+    metric: true                      # optional: the cameras' units are metres (RGB-D, ARKit, a scaled SfM)
 
 Every path is relative to the scene folder and must stay inside it (`files.resolve_inside`), so an
 uploaded scene.yaml cannot make the service open anything else.
@@ -30,7 +31,9 @@ class SceneSpecFile(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    splat: str = Field(description="Splat .ply, relative to the scene folder.")
+    splat: str = Field(
+        description="Splat file (.ply or any format of scene/formats), relative to the scene folder."
+    )
     cameras: str = Field(description="transforms.json, cameras.json or a COLMAP model folder.")
     images: str | None = Field(None, description="Image folder for COLMAP / cameras.json cameras.")
     depth: str | None = Field(None, description="Folder of depth maps named like the images.")
@@ -40,6 +43,13 @@ class SceneSpecFile(BaseModel):
     )
     transform_file: str | None = Field(
         None, description="A transform file (nerfstudio dataparser_transforms.json or a 4x4 JSON)."
+    )
+    metric: bool = Field(
+        False,
+        description=(
+            "The cameras' frame is in metres. Only then do reports say 'm'; COLMAP's units are "
+            "arbitrary, so nothing else is taken as metric."
+        ),
     )
 
 

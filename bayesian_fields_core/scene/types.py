@@ -105,6 +105,20 @@ class Scene:
     splat_path: Path | None = None
     layout: str = "plain"
     splat_to_capture: Any = None
+    capture_to_world: Any = None
+    """`Similarity` from the cameras' frame to the data's own world (COLMAP's), when the camera
+    file is in a frame of its own (nerfstudio's `applied_transform`); None: the same frame."""
+    metric: bool = False
+    """The cameras' units are known to be metres (scene.yaml `metric: true`)."""
+    _scale: float | None = field(default=None, repr=False, compare=False)
+
+    def scale(self) -> float:
+        """The scene scale (`scene.scale.derive_scene_scale`), measured once per scene."""
+        if self._scale is None:
+            from bayesian_fields_core.scene.scale import derive_scene_scale
+
+            self._scale = derive_scene_scale(self.gaussians.means, self.frames)
+        return self._scale
 
     def splat_frame_gaussians(self) -> Gaussians:
         """The Gaussians in the splat file's own frame (what exports are written in)."""

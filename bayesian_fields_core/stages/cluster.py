@@ -25,6 +25,7 @@ from bayesian_fields_core.objects.not_found import not_found_reason
 from bayesian_fields_core.objects.primitives import PrimitiveBuilder
 from bayesian_fields_core.objects.timing import StepTimer
 from bayesian_fields_core.results.format import NotFound, Result, SelectedObject
+from bayesian_fields_core.scene.scale import scene_units
 
 
 def load_primitives(ctx: JobContext) -> np.ndarray:
@@ -54,21 +55,32 @@ def build_primitives(ctx: JobContext) -> np.ndarray:
 
 
 def run(ctx: JobContext) -> dict[str, Any]:
-    from bayesian_fields_core.results.writer import write_result
-
+    """The cluster stage. The cancel check runs between every step (whichever way the primitives
+    are found), and once more after the result is written: a cancel accepted while the result was
+    being written removes it again, so a cancelled job never leaves result objects."""
     t0 = time.perf_counter()
     timer = StepTimer()
+    ctx.check_cancel()
     fused = get_arrays(ctx.store, ctx.job_key(FUSION_KEY))
     ctx.progress("cluster", 0.05)
     with timer("primitives"):
         primitive_ids = load_primitives(ctx)
+    ctx.check_cancel()
     ctx.progress("cluster", 0.3)
     with timer("probabilities"):
         scores = primitive_scores(primitive_ids, fused["probabilities"], fused["logodds"], ctx.params)
+    ctx.check_cancel()
     with timer("kernels"):  # seconds once per machine (numba compiles), said when it happens
         prepare_kernels()
     object_map = objects_from_primitives(
-        ctx.scene().gaussians.means, primitive_ids, scores.pyx, ctx.params, scores.relevance, scores.evidence
+        ctx.scene().gaussians.means,
+        primitive_ids,
+        scores.pyx,
+        ctx.params,
+        scores.relevance,
+        scores.evidence,
+        lengths=ctx.lengths(),
+        checkpoint=ctx.check_cancel,
     )
     timer.seconds.update(object_map.timings)
     timer.cpu_seconds.update(object_map.cpu_timings)
@@ -77,17 +89,8 @@ def run(ctx: JobContext) -> dict[str, Any]:
         stage_timings = _stage_timings(ctx)
         stage_timings["cluster"] = time.perf_counter() - t0
         result = build_result(ctx, object_map, stage_timings, fused.get("peak_margin"))
-    sizes = write_result(  # times its steps "write" (arrays, summary), "exports", "previews"
-        ctx.store,
-        ctx.job_key(RESULT_PREFIX),
-        result,
-        gaussians=ctx.scene().splat_frame_gaussians() if ctx.params.export_ply else None,
-        export_ply=ctx.params.export_ply,
-        frames=ctx.scene().frames,
-        preview_max_side=ctx.params.preview_max_side if ctx.params.previews else None,
-        scene=_scene_record(ctx),
-        timer=timer,
-    )
+    ctx.check_cancel()
+    sizes = _write_result_or_nothing(ctx, result, timer)
     ctx.progress("cluster", 1.0)
     report = {
         "seconds": time.perf_counter() - t0,
@@ -96,6 +99,32 @@ def run(ctx: JobContext) -> dict[str, Any]:
         "counts": object_map.counts,
     }
     return write_marker(ctx, "cluster", {**report, "result_bytes": sizes})
+
+
+def _write_result_or_nothing(ctx: JobContext, result: Result, timer: StepTimer) -> dict[str, Any]:
+    """Write the result; on a cancel during the write, or accepted by the time it ends, or on any
+    failure part-way, delete what was written (a store has no atomic rename of a folder, so
+    "all or nothing" is: write, check, else remove)."""
+    from bayesian_fields_core.results.writer import write_result
+
+    prefix = ctx.job_key(RESULT_PREFIX)
+    try:
+        sizes = write_result(  # times its steps "write" (arrays, summary), "exports", "previews"
+            ctx.store,
+            prefix,
+            result,
+            gaussians=ctx.scene().splat_frame_gaussians() if ctx.params.export_ply else None,
+            export_ply=ctx.params.export_ply,
+            frames=ctx.scene().frames,
+            preview_max_side=ctx.params.preview_max_side if ctx.params.previews else None,
+            scene=_scene_record(ctx),
+            timer=timer,
+        )
+        ctx.check_cancel()
+    except BaseException:
+        ctx.store.delete_prefix(prefix)
+        raise
+    return sizes
 
 
 def _scene_record(ctx: JobContext) -> dict[str, Any]:
@@ -116,13 +145,17 @@ def build_result(
 
     `peak` (N, T) is each Gaussian's best-view margin (`fusion.peak`); a task whose best object's
     peak is below `answer_min_peak` gets an empty selection and a `NotFound` reason
-    (`objects.not_found`). The map is computed in the cameras' frame (where the loader put the Gaussians); boxes and
-    centroids are reported in the splat file's frame and, when the loader applied a transform,
-    also in the capture frame (`SelectedObject.capture_*`).
+    (`objects.not_found`). The map is computed in the cameras' frame (where the loader put the
+    Gaussians); boxes and centroids are reported in the splat file's frame and, when the loader
+    applied a transform, also in the capture frame (`SelectedObject.capture_*`), and when the
+    camera file has an `applied_transform`, in the data's world frame (`SelectedObject.world_*`).
+    Each selected object carries the score it was ranked by (`SelectedObject.score`).
     """
     scene = ctx.scene()
     to_capture = scene.splat_to_capture
     to_splat = None if to_capture is None else to_capture.inverse()
+    to_world = scene.capture_to_world
+    ranking = object_map.ranking
     selections: dict[str, list[SelectedObject]] = {}
     not_found: dict[str, NotFound] = {}
     scores = object_map.task_scores
@@ -143,6 +176,9 @@ def build_result(
                     box=box if to_splat is None else to_splat.box(box),
                     capture_centroid=None if to_splat is None else centroid,
                     capture_box=None if to_splat is None else box,
+                    world_centroid=None if to_world is None else to_world.points(centroid),
+                    world_box=None if to_world is None else to_world.box(box),
+                    score=None if ranking is None else float(ranking[obj, t]),
                     peak=None
                     if peak is None
                     else object_peak(
@@ -173,6 +209,9 @@ def build_result(
         splat_to_capture=None if to_capture is None else to_capture.matrix,
         layout=scene.layout,
         not_found=not_found,
+        capture_to_world=None if to_world is None else to_world.matrix,
+        scene_scale={**ctx.lengths().record(), "units": scene_units(scene)},
+        ranked_by=ctx.params.selection_score,
     )
 
 

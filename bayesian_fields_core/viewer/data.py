@@ -80,6 +80,20 @@ class ViewData:
     def tasks(self) -> list[str]:
         return list(self.result.tasks)
 
+    @property
+    def unit(self) -> float:
+        """The scene's length unit for display: the run's scene scale (format 1.4), else, for an
+        older result, the median distance of the shown Gaussian centres from their median (the
+        same order of size, and it follows the scene's units alike); 1.0 for a degenerate set."""
+        value = (self.result.scene_scale or {}).get("value")
+        if value is not None and np.isfinite(value) and float(value) > 0:
+            return float(value)
+        means = np.asarray(self.gaussians.means, dtype=np.float64)
+        if len(means) == 0:
+            return 1.0
+        spread = float(np.median(np.linalg.norm(means - np.median(means, axis=0), axis=1)))
+        return spread if np.isfinite(spread) and spread > 0 else 1.0
+
     def task_colours(self, task: str) -> np.ndarray:
         """(M, 3): the task's objects tinted by rank, every other Gaussian dimmed."""
         rgb = self.base * DIM
@@ -128,7 +142,7 @@ class ViewData:
             return None
         pts = np.asarray(self.gaussians.means, dtype=np.float64)[inside]
         d = np.asarray(direction, dtype=np.float64)
-        d = d / max(np.linalg.norm(d), 1e-12)
+        d = d / max(float(np.linalg.norm(d)), 1e-12)
         rel = pts - np.asarray(origin, dtype=np.float64)
         t = rel @ d
         perp = np.linalg.norm(rel - t[:, None] * d, axis=1)

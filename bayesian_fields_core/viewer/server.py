@@ -26,11 +26,28 @@ def _hex(rgb: np.ndarray) -> str:
     return "#" + "".join(f"{int(round(float(c) * 255)):02x}" for c in rgb)
 
 
-def covariances(data: ViewData) -> np.ndarray:
-    """(M, 3, 3) world covariances R diag(s^2) R^T of the shown Gaussians."""
+def _xyz(v: Any) -> tuple[float, float, float]:
+    """Three floats, the shape viser's vector arguments are typed with."""
+    return (float(v[0]), float(v[1]), float(v[2]))
+
+
+FLOAT16_MAX = float(np.finfo(np.float16).max)
+
+
+def _score_text(data: ViewData, obj: Any) -> str:
+    """' evidence +12.3' when the ranks follow a score other than p (format 1.4), else ''."""
+    if obj.score is None or data.result.ranked_by in ("", "relevance"):
+        return ""
+    return f" {data.result.ranked_by} {obj.score:+.2f}"
+
+
+def covariances(data: ViewData, unit: float = 1.0) -> np.ndarray:
+    """(M, 3, 3) covariances R diag(s^2) R^T of the shown Gaussians, in units of `unit` (so
+    divided by unit^2), clipped to the float16 range viser packs them in."""
     rot = quat_to_rotmat(np.asarray(data.gaussians.quats, dtype=np.float64))
-    scales = np.exp(np.asarray(data.gaussians.log_scales, dtype=np.float64))
-    return np.einsum("nij,nj,nkj->nik", rot, scales**2, rot).astype(np.float32)
+    scales = np.exp(np.asarray(data.gaussians.log_scales, dtype=np.float64)) / unit
+    cov = np.einsum("nij,nj,nkj->nik", rot, scales**2, rot)
+    return np.clip(cov, -FLOAT16_MAX, FLOAT16_MAX).astype(np.float32)
 
 
 class ResultViewer:
@@ -53,12 +70,19 @@ class ResultViewer:
         self._set_up_direction()
         self.server.scene.set_background_image(np.full((8, 8, 3), 26, dtype=np.uint8))
         self.shown_colours = data.task_colours(self.task)
+        # viser sends covariances as float16 (normal range 6e-5 .. 65504): in a scene of a few
+        # units that holds millimetre splats, but the same scene in other units (COLMAP's are
+        # arbitrary) flushed its small splats to zero at scale 0.01 or overflowed large ones at
+        # scale 100. The splat goes over in units of the scene scale, and the node's scale puts
+        # it back in the scene's units, where boxes, cameras and click rays are.
+        self.splat_unit = data.unit
         self.splats = self.server.scene.add_gaussian_splats(
             "/splat",
-            centers=means,
-            covariances=covariances(data),
+            centers=means / np.float32(self.splat_unit),
+            covariances=covariances(data, self.splat_unit),
             rgbs=self.shown_colours,
             opacities=np.asarray(data.gaussians.opacities, dtype=np.float32)[:, None],
+            scale=self.splat_unit,
         )
         self._build_gui()
         self._add_cameras()
@@ -73,10 +97,10 @@ class ResultViewer:
         ups = [-np.linalg.inv(f.world_to_camera)[:3, 1] for f in self.data.frames]
         up = np.mean(ups, axis=0)
         if np.linalg.norm(up) > 1e-6:
-            self.server.scene.set_up_direction(tuple(float(x) for x in up / np.linalg.norm(up)))
+            self.server.scene.set_up_direction(_xyz(up / np.linalg.norm(up)))
             first = self.data.frames[0]
-            self.server.initial_camera.position = tuple(float(x) for x in first.camera_centre)
-            self.server.initial_camera.look_at = tuple(float(x) for x in self.centre)
+            self.server.initial_camera.position = _xyz(first.camera_centre)
+            self.server.initial_camera.look_at = _xyz(self.centre)
 
     def _add_cameras(self) -> None:
         for i, frame in enumerate(self.data.frames):
@@ -101,7 +125,8 @@ class ResultViewer:
         if not self.gui_boxes.value:
             return
         for rank, obj in enumerate(self.data.result.selections.get(self.task, [])):
-            colour = tuple(int(c * 255) for c in rank_colour(rank))
+            r, g, b = (int(c * 255) for c in rank_colour(rank))
+            colour = (r, g, b)
             wxyz = tuple(rotmat_to_quat(obj.box.rotation))
             self._boxes.append(
                 self.server.scene.add_box(
@@ -116,7 +141,7 @@ class ResultViewer:
             # a child of the box: it moves with it and is removed with it
             self.server.scene.add_label(
                 f"/boxes/{rank}/label",
-                f"#{rank + 1} object {obj.object_id}  p={obj.probability:.3f}",
+                f"#{rank + 1} object {obj.object_id} {_score_text(self.data, obj)} p={obj.probability:.3f}",
                 position=tuple(np.asarray(obj.box.extents) * 0.5),
                 anchor="bottom-left",
             )
@@ -168,7 +193,7 @@ class ResultViewer:
             raise ValueError(f"unknown task {task!r}")
         self.task = task
         if self.gui_task.value != task:
-            self.gui_task.value = task
+            self.gui_task.value = task  # type: ignore[misc]  # viser defines the setter apart from the getter; mypy sees it read-only
         self._refresh()
 
     def set_colouring(self, colouring: str) -> None:
@@ -176,7 +201,7 @@ class ResultViewer:
             raise ValueError(f"unknown colouring {colouring!r}")
         self.colouring = colouring
         if self.gui_colouring.value != colouring:
-            self.gui_colouring.value = colouring
+            self.gui_colouring.value = colouring  # type: ignore[misc]  # viser defines the setter apart from the getter; mypy sees it read-only
         self._refresh()
 
     def colours(self) -> np.ndarray:
@@ -215,7 +240,7 @@ class ResultViewer:
         objs = d.result.selections.get(self.task, [])
         rows = "".join(
             f'<div><span style="background:{_hex(rank_colour(r))};display:inline-block;width:12px;height:12px"></span>'
-            f" #{r + 1} object {o.object_id} p={o.probability:.3f} ({o.num_gaussians} G)</div>"
+            f" #{r + 1} object {o.object_id}{_score_text(d, o)} p={o.probability:.3f} ({o.num_gaussians} G)</div>"
             for r, o in enumerate(objs)
         )
         missing = d.result.not_found.get(self.task)
@@ -243,7 +268,7 @@ class ResultViewer:
     def _on_scene_click(self, event: Any) -> None:
         object_id = self.data.pick(np.asarray(event.ray_origin), np.asarray(event.ray_direction))
         if object_id is not None:
-            self.gui_object.value = object_id
+            self.gui_object.value = object_id  # type: ignore[misc]  # viser defines the setter apart from the getter; mypy sees it read-only
             self.show_object(object_id)
 
     @property

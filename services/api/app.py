@@ -99,6 +99,9 @@ def create_app(settings: ServiceSettings | None = None) -> FastAPI:
     return app
 
 
+app: FastAPI  # declared only: the module's __getattr__ below makes it on first access
+
+
 def __getattr__(name: str) -> FastAPI:
     """``app`` is built from the environment on first access (importing this module stays cheap)."""
     if name == "app":

@@ -130,7 +130,7 @@ def _zip_members(zf: zipfile.ZipFile, source: str) -> list[_Member]:
 
 
 def _tar_members(tf: tarfile.TarFile, source: str, max_members: int) -> list[_Member]:
-    members = []
+    members: list[_Member] = []
     for info in tf:  # streams through the headers; content is not read yet
         if len(members) >= max_members:
             raise InputError(f"archive has more than {max_members} members", source=source)

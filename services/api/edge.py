@@ -22,8 +22,9 @@ from urllib.parse import unquote_to_bytes
 import redis
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import JSONResponse
+from fastapi.responses import JSONResponse, Response
 from kombu.exceptions import OperationalError
+from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from bayesian_fields_service.common.sanitize import redact_locations, scrub_text
@@ -193,6 +194,14 @@ def install_handlers(app: FastAPI, retry_after_s: int) -> None:
     @app.exception_handler(InputError)
     async def _input_error(request: Request, exc: InputError) -> JSONResponse:
         return problem(422, redact_locations(str(exc)))
+
+    @app.exception_handler(StarletteHTTPException)
+    async def _http_error(request: Request, exc: StarletteHTTPException) -> Response:
+        """Every route's own error, with the same redaction as input errors: a message built from
+        a bucket key or a server path by any route never reaches the client with it."""
+        if exc.status_code in (204, 304):
+            return Response(status_code=exc.status_code, headers=exc.headers)
+        return problem(exc.status_code, redact_locations(str(exc.detail)), headers=exc.headers)
 
     async def _outage(request: Request, exc: Exception) -> JSONResponse:
         backend = "object storage" if isinstance(exc, StorageError) else "the queue (Redis)"

@@ -11,13 +11,16 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
-from typing import IO
+from typing import IO, TYPE_CHECKING
 
 from fastapi import HTTPException, Request, status
 from python_multipart import MultipartParser
 from python_multipart.multipart import parse_options_header
 
 from bayesian_fields_core.errors import InputError
+
+if TYPE_CHECKING:
+    from python_multipart.multipart import MultipartCallbacks
 
 MAX_FIELD_BYTES = 64 * 1024
 MAX_PARTS = 20_000
@@ -73,7 +76,7 @@ class _Receiver:
         self._file: ReceivedFile | None = None
         self._fh: IO[bytes] | None = None
 
-    def callbacks(self) -> dict:
+    def callbacks(self) -> MultipartCallbacks:
         return {
             "on_part_begin": self._part_begin,
             "on_header_field": lambda d, s, e: self._append("_hname", d[s:e]),

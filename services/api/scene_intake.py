@@ -19,6 +19,7 @@ from typing import Any
 
 from bayesian_fields_core.errors import InputError, input_boundary
 from bayesian_fields_core.job.store import Store
+from bayesian_fields_core.scene.formats import check_upload_name
 from bayesian_fields_core.scene.trainer_transforms import DATAPARSER_TRANSFORMS, SPLAT_TRANSFORM
 from bayesian_fields_service.api.archives import ArchiveLimits, extract_archive, is_archive_name
 
@@ -32,6 +33,12 @@ CAMERA_FILES: dict[str, str] = {
     "cameras.bin": "sparse/0/",
     "images.bin": "sparse/0/",
     "points3D.bin": "sparse/0/",
+    # COLMAP 3.12 writes rigs and frames beside the model; poses come from images.*, these are
+    # stored with it and ignored by the reader.
+    "frames.txt": "sparse/0/",
+    "rigs.txt": "sparse/0/",
+    "frames.bin": "sparse/0/",
+    "rigs.bin": "sparse/0/",
 }
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp")
 #: Optional splat-to-cameras frame files (nerfstudio's, or the generic/gsplat one), stored at the
@@ -51,8 +58,7 @@ def _one_splat(files: Sequence[UploadedFile]) -> UploadedFile:
     splats = [f for f in files if f.role == "splat"]
     if len(splats) != 1:
         raise InputError(f"expected exactly one splat file, got {len(splats)}", source="splat")
-    if not splats[0].name.lower().endswith(".ply"):
-        raise InputError(f"{splats[0].name!r} is not a .ply file", source="splat")
+    check_upload_name(splats[0].name)
     return splats[0]
 
 

@@ -7,7 +7,11 @@ loss) between those steps leaves things no API call can see or delete:
 - multipart uploads under ``tenants/<t>/scenes/<id>/staging/`` that no scene record lists in its
   ``pending_uploads`` (the record was never written);
 - scene files under ``tenants/<t>/scenes/<id>/`` with no ``scene.json`` (a single-request upload
-  killed while it copied the scene into the bucket).
+  killed while it copied the scene into the bucket);
+- whatever is left of a *deleted* scene (``tenants/<t>/tombstones/scenes/<id>`` exists: see
+  `scene_lifecycle`), ``scene.json`` included, and its multipart uploads: a delete that failed
+  half-way, or a completion that copied files after the delete listed them. These go at once,
+  whatever their age: nothing may write a tombstoned scene.
 
 The sweep removes each only when it is older than BFIELDS_ORPHAN_MAX_AGE_S (a temp folder: since
 its last write, and never while its owner process is alive; an object: since its newest write),
@@ -113,6 +117,13 @@ def sweep_bucket(store: Any, max_age_s: float, *, now: float | None = None) -> B
     now = time.time() if now is None else now
     out = BucketSweep()
     records: dict[str, dict | None] = {}
+    tombstoned: dict[str, bool] = {}
+
+    def deleted(scene_root: str) -> bool:  # tenants/<t>/scenes/<id>/ -> tenants/<t>/tombstones/...
+        if scene_root not in tombstoned:
+            tenant_root, _, scene_id = scene_root.rstrip("/").rpartition("/scenes/")
+            tombstoned[scene_root] = store.exists(f"{tenant_root}/tombstones/scenes/{scene_id}")
+        return tombstoned[scene_root]
 
     def record(scene_root: str) -> dict | None:  # scene_root = tenants/<t>/scenes/<id>/
         if scene_root not in records:
@@ -124,9 +135,16 @@ def sweep_bucket(store: Any, max_age_s: float, *, now: float | None = None) -> B
 
     for up in store.list_multipart_uploads("tenants/"):
         parts = up.key.split("/")
-        if len(parts) < 5 or parts[2] != "scenes" or _age_s(up.initiated, now) < max_age_s:
+        if len(parts) < 5 or parts[2] != "scenes":
             continue
-        rec = record("/".join(parts[:4]) + "/")
+        scene_root = "/".join(parts[:4]) + "/"
+        if deleted(scene_root):
+            store.abort_multipart_upload(up.key, up.upload_id)
+            out.aborted_uploads.append(up.key)
+            continue
+        if _age_s(up.initiated, now) < max_age_s:
+            continue
+        rec = record(scene_root)
         listed = rec is not None and any(
             p.get("upload_id") == up.upload_id for p in rec.get("pending_uploads", [])
         )
@@ -135,6 +153,12 @@ def sweep_bucket(store: Any, max_age_s: float, *, now: float | None = None) -> B
             out.aborted_uploads.append(up.key)
     for tenant_root in store.list_prefixes("tenants/"):
         for scene_root in store.list_prefixes(tenant_root + "scenes/"):
+            if deleted(scene_root):
+                store.delete_prefix(scene_root)
+                scene_id = scene_root.rstrip("/").rpartition("/")[2]
+                store.delete(f"{tenant_root}index/scenes/{scene_id}")
+                out.deleted_prefixes.append(scene_root)
+                continue
             if record(scene_root) is not None:
                 continue
             objects = store.list_objects(scene_root)

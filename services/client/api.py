@@ -26,7 +26,10 @@ from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.scene.trainer_transforms import SPLAT_TRANSFORM
 
 ProgressFn = Callable[[int], None]  # called with bytes just sent/received
-COLMAP_FILES = ("cameras.txt", "images.txt", "points3D.txt", "cameras.bin", "images.bin", "points3D.bin")
+COLMAP_FILES = (
+    "cameras.txt", "images.txt", "points3D.txt", "cameras.bin", "images.bin", "points3D.bin",
+    "frames.txt", "rigs.txt", "frames.bin", "rigs.bin",
+)  # fmt: skip
 TERMINAL = ("succeeded", "failed", "cancelled")
 
 
@@ -45,7 +48,7 @@ class _ProgressFile(io.FileIO):
         super().__init__(path, "rb")
         self._on_bytes = on_bytes
 
-    def read(self, size: int = -1) -> bytes:
+    def read(self, size: int | None = -1) -> bytes:
         data = super().read(size)
         if self._on_bytes is not None and data:
             self._on_bytes(len(data))
@@ -86,6 +89,29 @@ def scene_files(folder: Path) -> SceneUpload:
         images_root=images_dir,
         splat_to_camera=None if similarity is None else similarity.matrix.tolist(),
     )
+
+
+def uploadable_splat(splat: Path, tmp: Path) -> Path:
+    """The file to send for a splat: itself, except a gsplat checkpoint (the service opens no
+    pickle stream: it is read here with weights_only and sent as an INRIA .ply) and a SOG folder
+    (zipped into the single-file .sog, which is the same members in a zip)."""
+    name = splat.name.lower()
+    if name.endswith(".pt"):
+        from bayesian_fields_core.scene.formats import read_splat
+        from bayesian_fields_core.scene.ply import DEFAULT_MAX_GAUSSIANS, write_ply
+
+        out = tmp / (splat.stem + ".ply")
+        write_ply(out, read_splat(splat, max_gaussians=DEFAULT_MAX_GAUSSIANS))
+        return out
+    if name == "meta.json":
+        from bayesian_fields_core.scene.formats.sog import sog_members
+
+        out = tmp / ((splat.parent.name or "splat") + ".sog")
+        with zipfile.ZipFile(out, "w", zipfile.ZIP_STORED) as zf:
+            for member in sog_members(splat):
+                zf.write(splat.parent / member, member)
+        return out
+    return splat
 
 
 def zip_images(images: list[Path], root: Path, dest: Path) -> Path:
@@ -144,7 +170,8 @@ class BFieldsClient:
         files = scene_files(Path(folder))
         with tempfile.TemporaryDirectory(prefix="bfields-submit-") as tmp, ExitStack() as stack:
             archive = zip_images(files.images, files.images_root, Path(tmp) / "images.zip")
-            parts = [("splat", files.splat), *(("cameras", p) for p in files.cameras), ("images", archive)]
+            splat = uploadable_splat(files.splat, Path(tmp))
+            parts = [("splat", splat), *(("cameras", p) for p in files.cameras), ("images", archive)]
             if files.splat_to_camera is not None:
                 transform = Path(tmp) / SPLAT_TRANSFORM
                 transform.write_text(json.dumps({"splat_to_camera": files.splat_to_camera}))

@@ -19,8 +19,9 @@ Layout (keys of the tenant's store, i.e. under ``tenants/<tenant>/``):
 and in the global store ``active/<tenant>/<id>`` markers for queued/running jobs, which the
 worker's recovery scan reads to re-enqueue jobs a Redis restart dropped, and ``pending/<tenant>/<id>``
 markers for jobs stored but not yet enqueued: the API deletes it right after the enqueue, so one
-that outlives the recovery grace period is a submission that crashed half-way (recovery fails it:
-the client never got a 202 for it and will have retried).
+that outlives the recovery grace period is a submission whose API stopped half-way (recovery
+enqueues it: see `worker.recovery`; a retry with the same Idempotency-Key finds it, since
+`create` stores the key with the job).
 
 Redis also holds the per-tenant quota set (`bayesian_fields_service.common.quota`): taken before a job is
 stored, given back here on every terminal state.
@@ -28,6 +29,7 @@ stored, given back here on every terminal state.
 
 from __future__ import annotations
 
+import builtins
 import hashlib
 import re
 import secrets
@@ -38,11 +40,12 @@ from enum import StrEnum
 from typing import Any
 
 import redis
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, Field, computed_field, model_validator
 
 from bayesian_fields_core.job.stage_table import STAGE_TABLE, STAGES
 from bayesian_fields_core.job.store import ArtifactNotFound, Store, get_json, put_json
 from bayesian_fields_service.common.quota import TenantQuota
+from bayesian_fields_service.common.redis_text import text
 from bayesian_fields_service.common.sanitize import redact_locations, scrub
 from bayesian_fields_service.common.storage import tenant_store
 
@@ -100,13 +103,33 @@ class JobRecord(BaseModel):
     stage_reports: dict[str, dict[str, Any]] = Field(default_factory=dict)
     error: str | None = None
     cancel_requested: bool = False
-    attempts: int = Field(0, description="Stage task executions (retries and redeliveries included).")
+    stage_runs: int = Field(
+        0,
+        description="Stage executions started for this job: 3 on a clean run (one per stage); more "
+        "when a stage ran again (a transient-error retry, a redelivery, a crashed worker's stage). "
+        "Not a retry count.",
+    )
     created_at: datetime = Field(default_factory=utcnow)
     updated_at: datetime = Field(default_factory=utcnow)
     started_at: datetime | None = None
     finished_at: datetime | None = None
     idempotency_key: str | None = None
     batch_id: str | None = None
+
+    @model_validator(mode="before")
+    @classmethod
+    def _stage_runs_from_attempts(cls, data: Any) -> Any:
+        """Manifests written before the rename carry the count as `attempts`."""
+        if isinstance(data, dict) and "stage_runs" not in data and "attempts" in data:
+            data = {**data, "stage_runs": data["attempts"]}
+        return data
+
+    @computed_field(  # type: ignore[prop-decorator]
+        description="Deprecated: the same number as `stage_runs` (its former name), kept for clients."
+    )
+    @property
+    def attempts(self) -> int:
+        return self.stage_runs
 
     @property
     def job_prefix(self) -> str:
@@ -235,6 +258,8 @@ class JobStore:
         ts.put_bytes(f"index/jobs/{record.id}", b"")
         ts.put_bytes(_scene_index(record.scene_id, record.id), b"")
         ts.put_bytes(_state_index(record.state, record.id), b"")
+        if record.idempotency_key:  # before the enqueue: a retry after a crash finds this job
+            self.remember_idempotent(record.tenant, record.idempotency_key, record.id)
         self.touch_live(record)
 
     def mark_enqueued(self, record: JobRecord) -> None:
@@ -257,6 +282,7 @@ class JobStore:
             lambda: self.store.delete(self.pending_key(record.tenant, record.id)),
             lambda: self.redis.delete(self.live_key(record.tenant, record.id)),
             lambda: self.quota.release(record.tenant, [record.id]),
+            lambda: self._forget_idempotent(record),
         )  # fmt: skip
         for step in steps:
             try:
@@ -270,19 +296,47 @@ class JobStore:
         self.store.delete(self.pending_key(record.tenant, record.id))
         self.quota.release(record.tenant, [record.id])
 
+    def _manifest_lock(self, tenant: str, job_id: str) -> Any:
+        """The short Redis lock every manifest write holds (read, merge, write)."""
+        return self.redis.lock(f"bf:mlock:{tenant}:{job_id}", timeout=30, blocking_timeout=30)
+
     def save(self, record: JobRecord) -> JobRecord:
         """Write `record`, merged with what is stored (see `_merge`) under a short Redis lock so the
-        API's cancel and a worker's stage update never lose each other's fields."""
-        with self.redis.lock(f"bf:mlock:{record.tenant}:{record.id}", timeout=30, blocking_timeout=30):
-            old = self.load(record.tenant, record.id)
-            merged = _merge(old, record) if old is not None else record
-            merged.updated_at = utcnow()
-            self._write(merged)
-            if old is not None and old.state != merged.state:
-                # new entry first: a crash in between leaves a duplicate the listing filters out
-                ts = self.tenant(merged.tenant)
-                ts.put_bytes(_state_index(merged.state, merged.id), b"")
-                ts.delete(_state_index(old.state, merged.id))
+        API's cancel and a worker's stage update never lose each other's fields.
+
+        A job whose cancel was accepted never becomes *succeeded*: a success written after (or
+        racing with) an accepted cancel is stored as *cancelled* (`request_cancel` sets the flag
+        under the same lock, so the two are ordered). The caller removes the result
+        (`pipeline.discard_result`) when the saved state is cancelled."""
+        with self._manifest_lock(record.tenant, record.id):
+            merged = self._merge_and_write(record)
+        return self._after_write(merged)
+
+    def _merge_and_write(self, record: JobRecord) -> JobRecord:
+        old = self.load(record.tenant, record.id)
+        merged = _merge(old, record) if old is not None else record
+        if (
+            merged.state == JobState.succeeded
+            and (old is None or not old.state.terminal)
+            and (merged.cancel_requested or self.is_cancel_requested(record.tenant, record.id))
+        ):
+            merged = merged.model_copy(
+                update={
+                    "state": JobState.cancelled,
+                    "cancel_requested": True,
+                    "error": "cancelled by request",
+                }
+            )
+        merged.updated_at = utcnow()
+        self._write(merged)
+        if old is not None and old.state != merged.state:
+            # new entry first: a crash in between leaves a duplicate the listing filters out
+            ts = self.tenant(merged.tenant)
+            ts.put_bytes(_state_index(merged.state, merged.id), b"")
+            ts.delete(_state_index(old.state, merged.id))
+        return merged
+
+    def _after_write(self, merged: JobRecord) -> JobRecord:
         if merged.state.terminal:
             self.release_slot(merged)
         self.touch_live(merged)
@@ -329,7 +383,7 @@ class JobStore:
     def live_phase(self, tenant: str, job_id: str) -> str | None:
         """'waiting' / 'active' from the live hash; None when Redis does not know the job."""
         phase = self.redis.hget(self.live_key(tenant, job_id), "phase")
-        return phase.decode() if phase is not None else None
+        return text(phase) if phase is not None else None
 
     def has_live_entry(self, tenant: str, job_id: str) -> bool:
         return bool(self.redis.exists(self.live_key(tenant, job_id)))
@@ -341,26 +395,32 @@ class JobStore:
             return record
         live = self.redis.hgetall(self.live_key(tenant, job_id))
         if live:
-            state = JobState(live.get(b"state", record.state.value.encode()).decode())
+            state = JobState(text(live.get(b"state", record.state.value.encode())))
             update: dict[str, Any] = {"progress": max(record.progress, float(live.get(b"progress", 0)))}
             if not state.terminal:
                 update["state"] = state
             if live.get(b"stage"):
-                update["stage"] = live[b"stage"].decode()
+                update["stage"] = text(live[b"stage"])
             record = record.model_copy(update=update)
         return record
 
     # ---- cancellation --------------------------------------------------------------------------
     def request_cancel(self, tenant: str, job_id: str) -> JobRecord | None:
-        """Flag the job for cancellation; a job no worker has started is cancelled at once."""
-        record = self.load(tenant, job_id)
-        if record is None or record.state.terminal:
-            return record
-        self.redis.set(self.cancel_key(tenant, job_id), b"1", ex=FINISHED_HASH_TTL_S * 7)
-        update: dict[str, Any] = {"cancel_requested": True}
-        if record.state == JobState.queued:
-            update.update(state=JobState.cancelled, finished_at=utcnow(), error="cancelled by request")
-        return self.save(record.model_copy(update=update))
+        """Flag the job for cancellation; a job no worker has started is cancelled at once.
+
+        Under the manifest lock: a job that is already terminal is returned unchanged (the cancel
+        is not accepted: ``cancel_requested`` stays false), and a cancel that is accepted is seen
+        by the worker's final save, which then stores *cancelled* instead of *succeeded*."""
+        with self._manifest_lock(tenant, job_id):
+            record = self.load(tenant, job_id)
+            if record is None or record.state.terminal:
+                return record
+            self.redis.set(self.cancel_key(tenant, job_id), b"1", ex=FINISHED_HASH_TTL_S * 7)
+            update: dict[str, Any] = {"cancel_requested": True}
+            if record.state == JobState.queued:
+                update.update(state=JobState.cancelled, finished_at=utcnow(), error="cancelled by request")
+            merged = self._merge_and_write(record.model_copy(update=update))
+        return self._after_write(merged)
 
     def is_cancel_requested(self, tenant: str, job_id: str) -> bool:
         """Cheap check for workers between frames (a Redis GET)."""
@@ -408,7 +468,7 @@ class JobStore:
                 return out, (job_id if n + 1 < len(ids) else None)
         return out, None
 
-    def _indexed_ids(self, tenant: str, state: JobState | None, scene_id: str | None) -> list[str]:
+    def _indexed_ids(self, tenant: str, state: JobState | None, scene_id: str | None) -> builtins.list[str]:
         if scene_id is not None and not re.fullmatch(r"s_[0-9a-f]{22}", scene_id):
             return []  # not an id the service issues: no scene, no jobs (and no odd storage key)
         ts = self.tenant(tenant)
@@ -435,15 +495,15 @@ class JobStore:
                 ts.put_bytes(_state_index(record.state, job_id), b"")
         put_json(ts, _INDEX_DONE, {"version": 1, "built_at": utcnow().isoformat()})
 
-    def active_jobs(self) -> list[tuple[str, str]]:
+    def active_jobs(self) -> builtins.list[tuple[str, str]]:
         """(tenant, job id) of every job whose manifest was last seen queued or running."""
         return self._markers("active/")
 
-    def pending_jobs(self) -> list[tuple[str, str]]:
+    def pending_jobs(self) -> builtins.list[tuple[str, str]]:
         """(tenant, job id) of every job stored but not (yet) confirmed enqueued."""
         return self._markers("pending/")
 
-    def _markers(self, prefix: str) -> list[tuple[str, str]]:
+    def _markers(self, prefix: str) -> builtins.list[tuple[str, str]]:
         pairs = []
         for key in self.store.list(prefix):
             parts = key.split("/")
@@ -464,6 +524,12 @@ class JobStore:
 
     def remember_idempotent(self, tenant: str, key: str, job_id: str) -> None:
         put_json(self.tenant(tenant), self._idem_key(key), {"job_id": job_id})
+
+    def _forget_idempotent(self, record: JobRecord) -> None:
+        """Drop the key of a submission that was undone, so the client's retry makes a new job."""
+        key = record.idempotency_key
+        if key and self.idempotent_job(record.tenant, key) == record.id:
+            self.tenant(record.tenant).delete(self._idem_key(key))
 
     # ---- batches -------------------------------------------------------------------------------
     def save_batch(self, batch: BatchRecord) -> None:

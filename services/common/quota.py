@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Iterable, Sequence
+from typing import cast
 
 import redis
 
@@ -64,11 +65,11 @@ class TenantQuota:
         now = time.time()
         added = 0
         if active_ids:
-            added = int(self.client.zadd(key, dict.fromkeys(active_ids, now), nx=True))
+            added = int(self.client.zadd(key, dict.fromkeys(active_ids, now), nx=True) or 0)
+        # withscores=True: (member, score) pairs
+        members = cast(list[tuple[bytes, float]], self.client.zrange(key, 0, -1, withscores=True))
         stale = [
-            m.decode()
-            for m, score in self.client.zrange(key, 0, -1, withscores=True)
-            if m.decode() not in active_ids and score < now - older_than_s
+            m.decode() for m, score in members if m.decode() not in active_ids and score < now - older_than_s
         ]
         self.release(tenant, stale)
         return added, len(stale)

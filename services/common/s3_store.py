@@ -14,6 +14,8 @@ full-object checksum on ranged reads, which botocore's default validation reject
 
 from __future__ import annotations
 
+import builtins
+import functools
 import logging
 import os
 import random
@@ -24,7 +26,7 @@ from dataclasses import dataclass
 from datetime import datetime
 from io import BytesIO
 from pathlib import Path, PurePosixPath
-from typing import Any, TypeVar
+from typing import TYPE_CHECKING, Any, Literal, TypeVar
 
 import boto3
 import botocore.exceptions as bce
@@ -33,6 +35,9 @@ from botocore.config import Config
 
 from bayesian_fields_core.errors import BayesianFieldsError, InputError
 from bayesian_fields_core.job.store import ArtifactNotFound, validate_key
+
+if TYPE_CHECKING:
+    from mypy_boto3_s3.type_defs import CompletedMultipartUploadTypeDef, ObjectIdentifierTypeDef
 
 log = logging.getLogger(__name__)
 T = TypeVar("T")
@@ -115,6 +120,12 @@ def plan_parts(total_bytes: int, part_bytes: int) -> list[PartSpec]:
     return [PartSpec(i + 1, i * part_bytes, min(total_bytes, (i + 1) * part_bytes)) for i in range(n)]
 
 
+def _file_name(key: str) -> str:
+    """What a client-facing message may say about an object: its file name, never the bucket key
+    (``tenants/<tenant>/scenes/<id>/staging/...`` names the layout and other tenants' prefix)."""
+    return PurePosixPath(key).name or "object"
+
+
 def _key(key: str) -> str:
     """`validate_key`, plus what only matters on S3: 'a//b' and 'a/' would be keys distinct from
     'a/b' and 'a' there, while a folder-backed store maps them to the same file."""
@@ -149,7 +160,7 @@ class S3Store:
         endpoint_url: str | None = None,
         region: str = "us-east-1",
         credentials: S3Credentials | None = None,
-        addressing_style: str = "path",
+        addressing_style: Literal["auto", "path", "virtual"] = "path",
         multipart_threshold: int = 64 * MiB,
         multipart_chunksize: int = 16 * MiB,
         max_concurrency: int = 4,
@@ -268,7 +279,7 @@ class S3Store:
         A range past the end of the object yields b'' (as with a file), not an error."""
         _key(key)
         if start < 0 or end < 0:
-            raise InputError(f"ranged read of {key!r}: negative offsets {start}, {end}")
+            raise InputError(f"ranged read: negative offsets {start}, {end}", source=_file_name(key))
         if end <= start:
             return b""
 
@@ -381,10 +392,10 @@ class S3Store:
         """Delete every key under `prefix` with batched DeleteObjects; returns how many."""
         keys = self.list(prefix)
         for i in range(0, len(keys), _DELETE_BATCH):
-            batch = [{"Key": k} for k in keys[i : i + _DELETE_BATCH]]
+            batch: list[ObjectIdentifierTypeDef] = [{"Key": k} for k in keys[i : i + _DELETE_BATCH]]
             resp = self._retry(
-                lambda b=batch: self.client.delete_objects(
-                    Bucket=self.bucket, Delete={"Objects": b, "Quiet": True}
+                functools.partial(
+                    self.client.delete_objects, Bucket=self.bucket, Delete={"Objects": batch, "Quiet": True}
                 ),
                 prefix,
             )
@@ -462,7 +473,7 @@ class S3Store:
         }
         return self.client.generate_presigned_url("upload_part", Params=params, ExpiresIn=expires_s)
 
-    def list_parts(self, key: str, upload_id: str) -> list[dict[str, Any]]:
+    def list_parts(self, key: str, upload_id: str) -> builtins.list[dict[str, Any]]:
         """Parts uploaded so far: [{'PartNumber', 'ETag', 'Size'}], in part order."""
         _key(key)
         parts: list[dict[str, Any]] = []
@@ -480,7 +491,7 @@ class S3Store:
         return self._retry(collect, key)
 
     def complete_multipart_upload(
-        self, key: str, upload_id: str, parts: list[dict[str, Any]] | None = None
+        self, key: str, upload_id: str, parts: builtins.list[dict[str, Any]] | None = None
     ) -> None:
         """Assemble the parts into the object. `parts` = [{'PartNumber', 'ETag'}] as reported by
         the uploader; None takes the server's own list (`list_parts`)."""
@@ -488,8 +499,8 @@ class S3Store:
         if parts is None:
             parts = self.list_parts(key, upload_id)
         if not parts:
-            raise InputError(f"multipart upload of {key!r}: no parts were uploaded")
-        body = {
+            raise InputError("no parts were uploaded", source=_file_name(key))
+        body: CompletedMultipartUploadTypeDef = {
             "Parts": sorted(
                 ({"PartNumber": int(p["PartNumber"]), "ETag": str(p["ETag"])} for p in parts),
                 key=lambda p: p["PartNumber"],
@@ -501,10 +512,14 @@ class S3Store:
             )
         except bce.ClientError as exc:
             if _code(exc) in {"InvalidPart", "InvalidPartOrder", "EntityTooSmall", "NoSuchUpload"}:
-                raise InputError(f"multipart upload of {key!r} cannot be completed: {_code(exc)}") from exc
+                raise InputError(
+                    f"the upload cannot be completed: {_code(exc)} (the part numbers and ETags must be "
+                    "those the part uploads answered)",
+                    source=_file_name(key),
+                ) from exc
             raise self._translate(exc, key) from exc
 
-    def list_multipart_uploads(self, prefix: str) -> list[PendingUpload]:
+    def list_multipart_uploads(self, prefix: str) -> builtins.list[PendingUpload]:
         """Multipart uploads under `prefix` that were started and never completed or aborted
         (their parts use storage but no listing of objects shows them)."""
         _validate_prefix(prefix)

@@ -183,6 +183,11 @@ class ServiceSettings(BaseSettings):
     )
 
     # ---- misc ------------------------------------------------------------------------------------
+    test_pause_points: bool = Field(
+        False,
+        description="Testing only: let a test pause scene routes at named points (through Redis keys) "
+        "to force race interleavings. Off in every deployment; inert unless a test sets the keys.",
+    )
     log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = Field(
         "INFO",
         description="Level of the services' own loggers (bayesian_fields_service.*, bayesian_fields_core.*).",

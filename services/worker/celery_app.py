@@ -51,6 +51,9 @@ def make_celery(settings: ServiceSettings, *, include_tasks: bool = False) -> Ce
     return app
 
 
+app: Celery  # declared only: the module's __getattr__ below makes it on first access
+
+
 def __getattr__(name: str) -> Celery:
     """``bayesian_fields_service.worker.celery_app.app``: the worker's app, built from the environment on first use."""
     if name == "app":

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import redis
 
+from bayesian_fields_service.common.redis_text import text
+
 #: Upper bounds (seconds) of the duration histograms.
 BUCKETS: tuple[float, ...] = (1, 5, 15, 30, 60, 120, 300, 600, 1800, 3600, 7200, 14400)
 
@@ -40,7 +42,7 @@ def read_histogram(client: redis.Redis, key: str) -> tuple[list[tuple[str, float
     raw = client.hgetall(key)
     if not raw:
         return None
-    data = {k.decode(): float(v) for k, v in raw.items()}
+    data = {text(k): float(v) for k, v in raw.items()}
     count = data.get("count", 0.0)
     buckets = [(f"{b:g}", data.get(f"le_{b:g}", 0.0)) for b in BUCKETS] + [("+Inf", count)]
     return buckets, data.get("sum", 0.0), count

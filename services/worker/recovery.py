@@ -12,10 +12,16 @@ duplicate slip through anyway, stages are idempotent (finished markers are skipp
 by the per-stage lock, so the cost is time, never a wrong result.
 
 Two repairs ride on the same scan. A job with a *pending* marker older than `grace_s` was stored
-by an API that died (or lost Redis) before enqueueing it: the client never got a 202, so the job
-is failed, not run (running it would duplicate the client's retry), and its quota slot is given
-back. And each tenant's quota set is made to agree with the ``active/`` markers
-(`TenantQuota.repair`), so a Redis wipe or a crash never leaks or loses a slot for long.
+by an API that stopped (died, or lost Redis) between storing it and confirming its enqueue. The
+job is complete and valid (the API validated it and took its quota slot before storing it), so a
+batch service runs it: the scan enqueues it itself, as long as its manifest is still queued with
+no stage done, and drops the marker. Enqueueing is idempotent, so "sure it was never queued" is
+not needed: if the API did enqueue it before it stopped, the second message finds each stage's
+marker (skipped), its lock (waits) or the job terminal (dropped), never a second run of a stage.
+A client that retries with the same Idempotency-Key gets this job back (the key is stored with
+the job, before the enqueue); one that retries without a key asked for a second job. And each
+tenant's quota set is made to agree with the ``active/`` markers (`TenantQuota.repair`), so a
+Redis wipe or a crash never leaks or loses a slot for long.
 
 Every worker runs the scan in a daemon thread (started on `worker_ready`); a Redis lock makes
 one scan at a time do the work.
@@ -30,7 +36,7 @@ import redis
 from celery import Celery
 from celery.utils.log import get_logger
 
-from bayesian_fields_service.common.jobs import JobState, JobStore, id_age_s, utcnow
+from bayesian_fields_service.common.jobs import JobState, JobStore, id_age_s
 from bayesian_fields_service.common.settings import ServiceSettings
 from bayesian_fields_service.worker.dispatch import enqueue_stages
 
@@ -60,7 +66,7 @@ def recover_orphans(
     requeued = []
     try:
         now = time.time()
-        pending = _fail_unsubmitted(jobs, grace_s)
+        pending = _enqueue_unsubmitted(app, jobs, settings, grace_s, requeued)
         active = jobs.active_jobs()
         _repair_quotas(jobs, active, grace_s)
         for tenant, job_id in active:
@@ -103,10 +109,13 @@ def recover_orphans(
     return requeued
 
 
-def _fail_unsubmitted(jobs: JobStore, grace_s: float) -> set[tuple[str, str]]:
-    """Fail the jobs whose submission never reached the queue (pending marker past `grace_s`).
+def _enqueue_unsubmitted(
+    app: Celery, jobs: JobStore, settings: ServiceSettings, grace_s: float, requeued: list[str]
+) -> set[tuple[str, str]]:
+    """Enqueue the jobs whose submission never confirmed its enqueue (pending marker past
+    `grace_s`), appending their ids to `requeued`.
 
-    Returns the (tenant, job id) still pending but younger than `grace_s` (never re-enqueued)."""
+    Returns the (tenant, job id) still pending but younger than `grace_s` (left to the API)."""
     waiting: set[tuple[str, str]] = set()
     for tenant, job_id in jobs.pending_jobs():
         # Age from the id (it starts with its creation time): the API writes the pending marker
@@ -121,14 +130,17 @@ def _fail_unsubmitted(jobs: JobStore, grace_s: float) -> set[tuple[str, str]]:
                 jobs.store.delete(jobs.active_key(tenant, job_id))
                 jobs.quota.release(tenant, [job_id])
             continue
-        if record.state != JobState.queued or record.stages_done:
-            jobs.store.delete(jobs.pending_key(tenant, job_id))  # a worker has it: it was enqueued
-            continue
-        jobs.save(record.model_copy(update={
-            "state": JobState.failed, "finished_at": utcnow(),
-            "error": "the submission did not complete (the API stopped before enqueueing the job); "
-                     "submit it again"}))  # fmt: skip
-        log.warning("failed unsubmitted job %s/%s (stored but never enqueued)", tenant, job_id)
+        if record.state == JobState.queued and not record.stages_done:
+            jobs.touch_live(record)  # known to Redis (phase 'waiting') before its message is sent
+            enqueue_stages(
+                app, tenant, job_id, record.remaining_stages(),
+                gpu_queue=settings.gpu_queue, cpu_queue=settings.cpu_queue,
+            )  # fmt: skip
+            requeued.append(job_id)
+            log.warning(
+                "enqueued job %s/%s: stored by an API that stopped before enqueueing it", tenant, job_id
+            )
+        jobs.store.delete(jobs.pending_key(tenant, job_id))  # enqueued now, or a worker has it
     return waiting
 
 

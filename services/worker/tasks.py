@@ -38,11 +38,13 @@ from celery.utils.log import get_logger
 
 from bayesian_fields_core.errors import CancelledError, InputError, ModelError
 from bayesian_fields_core.job.context import JobContext, Models
-from bayesian_fields_core.job.pipeline import load_models, run_stage
+from bayesian_fields_core.job.pipeline import discard_result, load_models, run_stage
 from bayesian_fields_core.job.stage_table import STAGE_TABLE, STAGES, StageSpec
 from bayesian_fields_core.job.store import Store
 from bayesian_fields_core.params import PipelineParams
 from bayesian_fields_service.common.jobs import JobRecord, JobState, JobStore, overall_progress, utcnow
+from bayesian_fields_service.common.pause_points import pause
+from bayesian_fields_service.common.redis_text import text
 from bayesian_fields_service.common.settings import ServiceSettings
 from bayesian_fields_service.common.storage import build_store, tenant_store
 from bayesian_fields_service.worker.celery_app import app
@@ -53,7 +55,7 @@ from bayesian_fields_service.worker.scene_cache import SceneCache
 log = get_logger(__name__)  # a child of the 'celery' logger: lands in the worker log
 
 #: Errors worth retrying: the network or a server, never the input.
-TRANSIENT: tuple[type[BaseException], ...] = (
+TRANSIENT: tuple[type[Exception], ...] = (
     redis.ConnectionError,
     redis.TimeoutError,
     ConnectionError,
@@ -209,7 +211,7 @@ class StageLock:
         holder = self.client.get(self.key)
         if holder is None:  # expired between the two calls
             return bool(self.client.set(self.key, self.token, nx=True, ex=self.ttl_s))
-        host, _, rest = holder.decode(errors="replace").partition(":")
+        host, _, rest = text(holder, errors="replace").partition(":")
         pid, _, rest = rest.partition(":")
         started = rest.partition(":")[0]
         if host != _HOST or not pid.isdigit() or _process_start(int(pid)) == started:
@@ -274,6 +276,10 @@ def execute_stage(task: Task, stage: str, tenant: str, job_id: str, lock_waits: 
     if record.cancel_requested or rt.jobs.is_cancel_requested(tenant, job_id):
         _finish(rt, record, JobState.cancelled, "cancelled by request")
         return "cancelled"
+    if stage in record.stages_done:
+        # A duplicate message (recovery's enqueue of a job the API had enqueued after all): the
+        # stage ran and is recorded; not counted as a stage run, and the chain goes on.
+        return "skipped"
     lock = StageLock(rt.redis, stage_lock_key(tenant, job_id, stage), rt.settings.stage_lock_ttl_s)
     if not lock.acquire():
         # Another delivery of this stage is running (or its holder died on another host): try
@@ -313,7 +319,7 @@ def _run_locked(rt: _Runtime, record: JobRecord, stage: str) -> str:
                 "state": JobState.running,
                 "stage": stage,
                 "started_at": record.started_at or utcnow(),
-                "attempts": record.attempts + 1,
+                "stage_runs": record.stage_runs + 1,
                 "progress": overall_progress(record.stages_done, stage, 0.0),
             }
         )
@@ -324,6 +330,8 @@ def _run_locked(rt: _Runtime, record: JobRecord, stage: str) -> str:
     last = [0.0]
 
     def progress(name: str, fraction: float) -> None:
+        # a test can hold the stage here (e.g. cluster at 0.8: objects found, result not written)
+        pause(rt.redis, rt.settings.test_pause_points, f"progress:{name}:{fraction:g}", job_id)
         now = time.monotonic()
         if now - last[0] >= PROGRESS_INTERVAL_S or fraction >= 1.0:
             last[0] = now
@@ -361,6 +369,7 @@ def _run_locked(rt: _Runtime, record: JobRecord, stage: str) -> str:
         seconds = time.perf_counter() - t0
     except CancelledError:
         _finish(rt, record, JobState.cancelled, "cancelled by request")
+        discard_result(tenant_store(rt.store, tenant), record.job_prefix)  # a stage stopped mid-write
         return "cancelled"
     except (InputError, ModelError) as exc:
         _finish(rt, record, JobState.failed, f"{stage}: {exc}")
@@ -392,7 +401,10 @@ def _run_locked(rt: _Runtime, record: JobRecord, stage: str) -> str:
         )
     )
     if set(done) == set(STAGES):
-        _finish(rt, record, JobState.succeeded)
+        final = _finish(rt, record, JobState.succeeded)
+        if final.state == JobState.cancelled:  # a cancel accepted before the success was stored
+            discard_result(tenant_store(rt.store, tenant), record.job_prefix)
+            return "cancelled"
     return "ran"
 
 
@@ -412,7 +424,7 @@ def _make_stage_task(spec: StageSpec) -> Task:
         rt = runtime()
         try:
             outcome = execute_stage(self, stage, tenant, job_id, lock_waits)
-            if outcome != "ran":
+            if outcome not in ("ran", "skipped"):
                 self.request.chain = None  # the job ended here: do not start the next stage
             return outcome
         except TRANSIENT as exc:

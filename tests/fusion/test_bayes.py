@@ -46,18 +46,18 @@ def test_bayes_step_hand_worked() -> None:
     # Prior 0.05. Observation at phi = mu1 has l1/l0 = e^2 = 7.389056:
     # p = 7.389056 * 0.05 / (7.389056 * 0.05 + 0.95) = 0.3694528 / 1.3194528 = 0.280005.
     logodds = init_logodds(3, 2)
-    np.testing.assert_allclose(probabilities(logodds), 0.05, rtol=1e-6)
+    np.testing.assert_allclose(probabilities(logodds.numpy()), 0.05, rtol=1e-6)
     llr = log_likelihood_ratio(np.array([[0.27, 0.20]]), LikelihoodParams())  # [2, -2]
     accepted = bayes_update(logodds, np.array([1]), np.array([0], dtype=np.int32), llr)
     assert accepted.tolist() == [True]
-    p = probabilities(logodds)
+    p = probabilities(logodds.numpy())
     np.testing.assert_allclose(
         p[1], [0.280005, 0.05 * math.exp(-2) / (0.05 * math.exp(-2) + 0.95)], rtol=1e-5
     )
     np.testing.assert_allclose(p[[0, 2]], 0.05, rtol=1e-6)  # unseen Gaussians untouched
     # The opposite observation (task 0 at mu0, task 1 at mu1) brings Gaussian 1 back to the prior.
     bayes_update(logodds, np.array([1]), np.array([0]), -llr)
-    np.testing.assert_allclose(probabilities(logodds)[1], [0.05, 0.05], rtol=1e-5)
+    np.testing.assert_allclose(probabilities(logodds.numpy())[1], [0.05, 0.05], rtol=1e-5)
 
 
 def test_log_odds_equals_probability_space_recursion() -> None:
@@ -77,7 +77,7 @@ def test_log_odds_equals_probability_space_recursion() -> None:
         l1 = norm.pdf(phi, params.mu1, params.s)
         l0 = norm.pdf(phi, params.mu0, params.s)
         p = l1 * p / (l1 * p + l0 * (1 - p))  # Eq. 5 of METHOD.md
-    np.testing.assert_allclose(probabilities(logodds)[0], p, rtol=2e-4, atol=1e-6)
+    np.testing.assert_allclose(probabilities(logodds.numpy())[0], p, rtol=2e-4, atol=1e-6)
 
 
 def test_or_phi_rejects_masks_lowering_every_task() -> None:
@@ -87,16 +87,16 @@ def test_or_phi_rejects_masks_lowering_every_task() -> None:
     assert accepted_masks(llr, outlier_rejection=False).tolist() == [True, True, True]
 
     logodds = init_logodds(3, 2)
-    before = logodds.copy()
+    before = logodds.clone()
     gids, mids = np.array([0, 1, 2]), np.array([0, 1, 2])
     accepted = bayes_update(logodds, gids, mids, llr)
     assert accepted.tolist() == [False, True, True]
-    np.testing.assert_array_equal(logodds[0], before[0])
-    np.testing.assert_allclose(logodds[1:] - before[1:], llr[1:])
+    np.testing.assert_array_equal(logodds[0].numpy(), before[0].numpy())
+    np.testing.assert_allclose((logodds[1:] - before[1:]).numpy(), llr[1:])
 
     plain = init_logodds(3, 2)
     bayes_update(plain, gids, mids, llr, outlier_rejection=False)
-    np.testing.assert_allclose(plain - before, llr)
+    np.testing.assert_allclose((plain - before).numpy(), llr)
 
 
 def test_bayes_update_validates_shapes() -> None:

@@ -51,10 +51,10 @@ def test_many_agreeing_views_stop_adding_evidence() -> None:
 
 
 def test_unseen_gaussians_keep_the_prior_and_bad_rho_is_refused() -> None:
-    logodds = np.full((2, 3), logit(0.05), dtype=np.float32)
+    logodds = init_logodds(2, 3)
     logodds[1] += 4.0
     discount_correlated_views(logodds, np.array([0, 5], dtype=np.int32), 0.5)
-    assert np.allclose(logodds[0], logit(0.05))
-    assert np.allclose(logodds[1], logit(0.05) + 4.0 / 3.0)
+    assert np.allclose(logodds[0].numpy(), logit(0.05))
+    assert np.allclose(logodds[1].numpy(), logit(0.05) + 4.0 / 3.0)
     with pytest.raises(InputError, match="view_correlation"):
         discount_correlated_views(logodds, np.array([0, 5], dtype=np.int32), 1.5)

@@ -2,10 +2,13 @@
 
 import numpy as np
 import pytest
+import torch
 
 from bayesian_fields_core.errors import InvariantError
-from bayesian_fields_core.fusion.visibility import mask_associations
+from bayesian_fields_core.fusion.visibility import centre_columns, mask_associations
 
+TOL = 0.05
+"""Absolute depth tolerance (scene units; the pipeline passes a fraction of the scene scale)."""
 K = np.array([[10.0, 0.0, 4.0], [0.0, 10.0, 3.0], [0.0, 0.0, 1.0]])
 W, H = 8, 6
 
@@ -34,8 +37,10 @@ def _scene() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 def test_visibility_with_occlusion() -> None:
     means, depth, labels = _scene()
-    gids, mids = mask_associations(means, K, np.eye(4), W, H, depth, labels)
-    assert gids.dtype == np.int64 and mids.dtype == np.int32
+    gids, mids = mask_associations(
+        centre_columns(means, "cpu"), K, np.eye(4), W, H, depth, labels, depth_tolerance=TOL
+    )
+    assert gids.dtype == torch.int64 and mids.dtype == torch.int32
     assert gids.tolist() == [0, 6]
     assert mids.tolist() == [1, 0]
 
@@ -47,10 +52,22 @@ def test_relative_tolerance_grows_with_depth() -> None:
     depth = np.zeros((H, W), dtype=np.float32)
     labels = np.full((H, W), -1, dtype=np.int32)
     depth[3, 4], labels[3, 4] = 4.0, 7
-    gids, mids = mask_associations(means, K, np.eye(4), W, H, depth, labels)
+    gids, mids = mask_associations(
+        centre_columns(means, "cpu"), K, np.eye(4), W, H, depth, labels, depth_tolerance=TOL
+    )
     assert gids.tolist() == [0] and mids.tolist() == [7]
-    gids, _ = mask_associations(means, K, np.eye(4), W, H, depth, labels, relative_tolerance=0.0)
-    assert gids.size == 0
+    gids, _ = mask_associations(
+        centre_columns(means, "cpu"),
+        K,
+        np.eye(4),
+        W,
+        H,
+        depth,
+        labels,
+        depth_tolerance=TOL,
+        relative_tolerance=0.0,
+    )
+    assert gids.numel() == 0
 
 
 def test_world_to_camera_is_applied() -> None:
@@ -59,11 +76,15 @@ def test_world_to_camera_is_applied() -> None:
     w2c = np.eye(4)
     w2c[2, 3] = 1.0
     shifted = means[:1] - np.array([0.0, 0.0, 1.0], dtype=np.float32)
-    gids, mids = mask_associations(shifted, K, w2c, W, H, depth, labels)
+    gids, mids = mask_associations(
+        centre_columns(shifted, "cpu"), K, w2c, W, H, depth, labels, depth_tolerance=TOL
+    )
     assert gids.tolist() == [0] and mids.tolist() == [1]
 
 
 def test_bad_image_shape_raises() -> None:
     means, depth, labels = _scene()
     with pytest.raises(InvariantError, match="visibility.labels"):
-        mask_associations(means, K, np.eye(4), W, H, depth, labels[:, :-1])
+        mask_associations(
+            centre_columns(means, "cpu"), K, np.eye(4), W, H, depth, labels[:, :-1], depth_tolerance=TOL
+        )

@@ -71,3 +71,33 @@ def test_object_relevance_is_the_gaussian_weighted_mean() -> None:
     clusters = np.array([0, 0, 1])  # primitives 0 and 1 merged into cluster 0
     counts = np.bincount(primitive_ids).astype(np.float64)
     np.testing.assert_allclose(_cluster_mean_operator(clusters, counts, 2) @ relevance, [[0.75], [0.5]])
+
+
+def test_an_object_below_the_threshold_for_a_task_is_not_its_answer() -> None:
+    """B and C (p = 0.01 for task 1) survive pruning for task 0 but are no answers to task 1: a
+    task lists only objects at or above `prune_threshold` for it (before, top-3 listed all three)."""
+    means, ids, probs = _scene()
+    relevance, _ = primitive_relevance(ids, probs)
+    params = PipelineParams(knn_filter=False, top_k=3, min_object_gaussians=1, selection_score="relevance")
+    pyx = primitive_probabilities(ids, probs)
+    object_map = objects_from_primitives(means, ids, pyx, params, relevance)
+    assert object_map.counts["objects"] == 3  # nothing pruned: each object is relevant to some task
+    assert [int(o) for o in object_map.selection[1] if o >= 0] == [0]
+    assert sorted(int(o) for o in object_map.selection[0] if o >= 0) == [0, 1, 2]
+
+
+def test_the_ranking_score_is_recorded_and_orders_the_ranks() -> None:
+    """With 'evidence' the ranks follow the mean log-odds, not p (which is 1.0 for all three here):
+    `ObjectMap.ranking` holds that score, non-increasing down each task's list."""
+    means, ids, _ = _scene()
+    logodds = np.array([[20.0, -5.0], [40.0, -5.0], [30.0, -5.0]])[ids]
+    probs = np.ones_like(logodds)
+    relevance, _ = primitive_relevance(ids, probs)
+    evidence, _ = primitive_relevance(ids, logodds)
+    params = PipelineParams(knn_filter=False, top_k=3, min_object_gaussians=1)
+    object_map = objects_from_primitives(
+        means, ids, primitive_probabilities(ids, probs), params, relevance, evidence
+    )
+    chosen = [int(o) for o in object_map.selection[0] if o >= 0]
+    assert chosen == [1, 2, 0]
+    np.testing.assert_allclose(object_map.ranking[chosen, 0], [40.0, 30.0, 20.0])

@@ -43,7 +43,9 @@ def test_params_prints_the_table(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["params", "--json"]) == 0
     rows = json.loads(capsys.readouterr().out)
     assert [r["name"] for r in rows] == list(PipelineParams.model_fields)
-    assert {r["name"]: r["default"] for r in rows}["depth_tolerance"] == "0.05"
+    defaults = {r["name"]: r["default"] for r in rows}
+    assert defaults["depth_tolerance"] == "null"  # relative by default: a fraction of the scene scale
+    assert defaults["depth_tolerance_scene"] == "0.02704166"
 
 
 def test_generate_help_shows_the_generator_options(capsys: pytest.CaptureFixture[str]) -> None:

@@ -24,9 +24,16 @@ from bayesian_fields_core.params import PipelineParams
 from .conftest import N_FRAMES, OTHER_TASKS, TASKS, counting_models
 
 
-def _run(scene: Path, out: Path, cache: Path, profile: dict[str, Any], tasks: list[str] = TASKS):
+def _run(
+    scene: Path,
+    out: Path,
+    cache: Path,
+    profile: dict[str, Any],
+    tasks: list[str] = TASKS,
+    params: PipelineParams | None = None,
+):
     models = counting_models(profile)
-    ctx = local_context(scene, out, cache, list(tasks), PipelineParams(), models)
+    ctx = local_context(scene, out, cache, list(tasks), params or PipelineParams(), models)
     return run_job(ctx, force=True), models.counts
 
 
@@ -42,7 +49,7 @@ def primed(scene_dir: Path, profile: dict[str, Any], tmp_path_factory: pytest.Te
     assert (
         counts["segment"] == N_FRAMES and counts["encode_images"] == reports["perceive"]["encoder_calls"] > 0
     )
-    return {"scene": scene, "cache": root / "cache"}
+    return {"scene": scene, "cache": root / "cache", "scale": reports["fuse"]["scene_scale"]["value"]}
 
 
 def _assert_nothing_recomputed(reports: dict, counts: Any) -> None:
@@ -102,14 +109,33 @@ def test_one_changed_image_recomputes_one_frame(primed: dict, profile: dict, tmp
     assert reports["fuse"]["frames_rendered"] == 1  # its masks changed, so its associations did
 
 
-def test_a_dropped_frame_recomputes_nothing(primed: dict, profile: dict, tmp_path: Path) -> None:
-    scene = tmp_path / "scene"
-    shutil.copytree(primed["scene"], scene)
+def _drop_first_frame(source: Path, scene: Path) -> Path:
+    shutil.copytree(source, scene)
     doc = json.loads((scene / "transforms.json").read_text())
     doc["frames"] = doc["frames"][1:]  # the first frame removed: every other frame's index shifts
     (scene / "transforms.json").write_text(json.dumps(doc))
+    return scene
+
+
+def test_a_dropped_frame_recomputes_no_perception(primed: dict, profile: dict, tmp_path: Path) -> None:
+    """Perception is keyed on the images alone. Visibility is re-rendered: the lengths it uses
+    are fractions of the scene scale, which is measured over all frames and moved with one gone."""
+    scene = _drop_first_frame(primed["scene"], tmp_path / "scene")
     reports, counts = _run(scene, tmp_path / "out", primed["cache"], profile)
     assert reports["perceive"]["frames"] == N_FRAMES - 1
+    assert reports["perceive"]["frames_computed"] == 0 and counts["encode_images"] == 0
+    assert reports["fuse"]["scene_scale"]["value"] != primed["scale"]
+    assert reports["fuse"]["frames_rendered"] == N_FRAMES - 1
+
+
+def test_a_dropped_frame_with_the_scale_pinned_recomputes_nothing(
+    primed: dict, profile: dict, tmp_path: Path
+) -> None:
+    """With `scene_scale` set, no length depends on which frames there are: nothing is redone."""
+    pinned = PipelineParams(scene_scale=primed["scale"])
+    _run(primed["scene"], tmp_path / "first", primed["cache"], profile, params=pinned)
+    scene = _drop_first_frame(primed["scene"], tmp_path / "scene")
+    reports, counts = _run(scene, tmp_path / "out", primed["cache"], profile, params=pinned)
     assert reports["perceive"]["frames_computed"] == 0 and counts["encode_images"] == 0
     assert reports["fuse"]["frames_rendered"] == 0
 

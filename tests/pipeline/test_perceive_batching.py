@@ -22,7 +22,7 @@ def test_batched_prefetched_perception_equals_sequential(
         tmp_path / "a",
         tmp_path / "cache-a",
         seq_models,
-        params=PipelineParams(prefetch_frames=0, crop_batch_size=10_000),
+        params=PipelineParams(prefetch_frames=0, crop_batch_size=4096),
     )
     marker_seq = run_stage("perceive", seq)
     par_models = counting_models(profile)

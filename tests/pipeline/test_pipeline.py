@@ -173,11 +173,11 @@ def test_cancel_between_frames(stage: str, scene_dir: Path, profile: dict, tmp_p
     cache = tmp_path / "cache"
     if stage == "fuse":
         run_stage("perceive", make_ctx(scene_dir, tmp_path / "job", cache, counting_models(profile)))
-    cancel = _CancelAfter(2)
+    cancel = _CancelAfter(3)
     ctx = make_ctx(scene_dir, tmp_path / "job", cache, counting_models(profile), should_cancel=cancel)
     with pytest.raises(CancelledError):
         run_job(ctx)
-    assert cancel.calls == 3  # checked before each frame, stopped before the third
+    assert cancel.calls == 4  # checked at the stage boundary and before each frame: stopped before the third
     assert not is_done(ctx, stage)
     assert not is_done(ctx, "cluster")
     prefix = ctx.perception_prefix if stage == "perceive" else ctx.visibility_prefix

@@ -57,7 +57,13 @@ def context(tmp_path: Path, **params: object) -> JobContext:
 
 @pytest.mark.parametrize("name", VISIBILITY_CACHE.params)
 def test_a_declared_parameter_changes_the_visibility_key(tmp_path: Path, name: str) -> None:
-    changed = {"depth_source": "expected", "depth_tolerance": 0.123, "depth_tolerance_relative": 0.321}[name]
+    changed = {
+        "depth_source": "expected",
+        "scene_scale": 3.0,
+        "depth_tolerance": 0.123,
+        "depth_tolerance_scene": 0.05,
+        "depth_tolerance_relative": 0.321,
+    }[name]
     assert context(tmp_path).visibility_key(0) != context(tmp_path, **{name: changed}).visibility_key(0)
 
 

@@ -21,6 +21,7 @@ from bayesian_fields_core.scene.loader import load_scene
 from bayesian_fields_core.scene.ply import read_ply
 from bayesian_fields_core.scene.similarity import Similarity
 from tests.scene.trainer_layouts import (
+    NS_PROCESS_DATA_APPLIED,
     SourceScene,
     gsplat_output,
     inria_output,
@@ -82,6 +83,14 @@ def test_trainer_layout_gives_the_untransformed_result(
     transformed = scene.splat_to_capture is not None
     assert transformed == (layout != "inria")
     assert (result.splat_to_capture is not None) == transformed
+    # ns-process-data's transforms.json poses are applied_transform @ COLMAP world: results are
+    # also given in that world (the user's own COLMAP frame), and only there is one to undo.
+    to_world = None
+    if layout == "splatfacto":
+        to_world = Similarity.from_matrix(NS_PROCESS_DATA_APPLIED, source="applied").inverse()
+        np.testing.assert_allclose(result.capture_to_world, to_world.matrix, atol=1e-12)
+    else:
+        assert result.capture_to_world is None
     splat_file = read_ply(scene.splat_path)
     for task in result.tasks:
         ours = {relabel.get(o.object_id, -2): o for o in result.selections[task]}
@@ -91,6 +100,11 @@ def test_trainer_layout_gives_the_untransformed_result(
             ref = theirs[object_id]
             capture = obj.capture_centroid if transformed else obj.centroid
             np.testing.assert_allclose(capture, ref.centroid, atol=1e-3)
+            if to_world is None:
+                assert obj.world_centroid is None and obj.world_box is None
+            else:
+                np.testing.assert_allclose(obj.world_centroid, to_world.points(ref.centroid), atol=1e-3)
+                np.testing.assert_allclose(obj.world_box.center, to_world.points(obj.capture_box.center))
             # The reported centroid is in the splat file's frame: the mean of its own Gaussians there.
             members = result.object_ids == obj.object_id
             np.testing.assert_allclose(
@@ -159,4 +173,10 @@ def test_cli_splat_transform_and_source_path(
     out = inria_output(src, tmp_path / "output", tmp_path / "dataset")
     assert main(["run", str(out), "--out", str(tmp_path / "out2"), "--task", "red chair", *common]) == 0
     summary = json.loads(capsys.readouterr().out)
-    assert summary["frames"] == {"layout": "inria", "splat_to_capture": None, "centroids": "splat file frame"}
+    assert summary["frames"] == {
+        "layout": "inria",
+        "splat_to_capture": None,
+        "capture_to_world": None,
+        "centroids": "splat file frame",
+        "units": "scene units",
+    }

@@ -31,6 +31,7 @@ from bayesian_fields_core.results.format import (
     id_dtype,
 )
 from bayesian_fields_core.scene.ply import read_ply
+from bayesian_fields_core.scene.similarity import Similarity
 from bayesian_fields_core.scene.types import Gaussians
 
 N, NUM_OBJECTS, TASKS = 2000, 6, ["get dish soap", "move hats and gloves"]
@@ -213,7 +214,7 @@ def test_relevance_round_trip_and_optional(setup):
     written = write_result(store, "r", res)
     back = read_result(store, "r")
     np.testing.assert_array_equal(back.relevance, res.relevance)
-    assert back.format_version == FORMAT_VERSION == "1.3"
+    assert back.format_version == FORMAT_VERSION == "1.4"
     assert result_sizes(store, "r")["total/object_map"] == sum(
         written[k] for k in ("summary.json", "object_ids.bin", "probabilities.bin", "relevance.bin")
     )
@@ -262,3 +263,61 @@ def test_not_found_task_round_trips_with_an_empty_selection_and_its_reason(setup
     res.not_found = {TASKS[0]: missing}
     with pytest.raises(InputError, match="both answered and not found"):
         write_result(store, "r", res)
+
+
+def _with_world_frame(res: Result) -> Result:
+    """`res` as a run on a nerfstudio capture reports it (format 1.4): each answer with its ranking
+    score and its world-frame copy, the capture-to-world transform, the scene scale."""
+    to_world = Similarity(1.0, np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]]), np.array([0.5, 0, 0]))
+    for objs in res.selections.values():
+        for rank, obj in enumerate(objs):
+            obj.score = 10.0 - rank
+            obj.world_centroid = to_world.points(obj.centroid)
+            obj.world_box = to_world.box(obj.box)
+    res.capture_to_world = to_world.matrix
+    res.scene_scale = {
+        "value": 1.85,
+        "source": "derived",
+        "units": "scene units",
+        "lengths": {"depth_tolerance": 0.05},
+    }
+    res.ranked_by = "evidence"
+    return res
+
+
+def test_format_1_4_fields_round_trip_and_name_the_frames(setup):
+    store, g, res = setup
+    res = _with_world_frame(res)
+    write_result(store, "r", res, gaussians=g)
+    summary = json.loads(store.get_bytes("r/summary.json"))
+    assert summary["format_version"] == FORMAT_VERSION == "1.4"
+    assert set(summary["frames"]["names"]) == {"splat", "world"}  # no capture frame: one with the splat
+    assert summary["scene_scale"]["value"] == 1.85 and summary["ranked_by"] == "evidence"
+    back = read_result(store, "r")
+    np.testing.assert_allclose(back.capture_to_world, res.capture_to_world)
+    assert back.scene_scale == res.scene_scale and back.ranked_by == "evidence"
+    for task in TASKS:
+        for a, b in zip(back.selections[task], res.selections[task], strict=True):
+            assert a.score == b.score
+            np.testing.assert_allclose(a.world_centroid, b.world_centroid)
+            np.testing.assert_allclose(a.world_box.center, b.world_box.center)
+
+
+def test_a_1_3_result_still_reads(setup):
+    """A reader of 1.4 reads a 1.3 summary (none of the new fields): they come back empty."""
+    store, g, res = setup
+    write_result(store, "r", _with_world_frame(res))
+    summary = json.loads(store.get_bytes("r/summary.json"))
+    summary["format_version"] = "1.3"
+    for key in ("scene_scale", "ranked_by"):
+        del summary[key]
+    del summary["frames"]["capture_to_world"], summary["frames"]["names"]
+    for entry in summary["selections"]:
+        for obj in entry["objects"]:
+            del obj["score"], obj["world_frame"]
+    store.put_bytes("r/summary.json", json.dumps(summary).encode())
+    back = read_result(store, "r")
+    assert back.format_version == "1.3" and back.capture_to_world is None and back.scene_scale is None
+    assert back.ranked_by == ""
+    obj = back.selections[TASKS[0]][0]
+    assert obj.score is None and obj.world_centroid is None and obj.world_box is None

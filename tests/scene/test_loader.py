@@ -71,7 +71,7 @@ def test_splat_discovery(tmp_path):
     shutil.rmtree(tmp_path / "point_cloud")
     assert find_splat(tmp_path) == tmp_path / "scene.ply"
     write_ply(tmp_path / "other.ply", g)
-    with pytest.raises(InputError, match="several .ply files.*other.ply, scene.ply"):
+    with pytest.raises(InputError, match="several splat files.*other.ply, scene.ply"):
         find_splat(tmp_path)
     write_ply(tmp_path / "splat.ply", g)
     assert find_splat(tmp_path) == tmp_path / "splat.ply"
@@ -125,6 +125,7 @@ def test_validate_summary_and_wrong_size_image(tmp_path, frames):
         "splat": "point_cloud.ply",
         "gaussians": 100,
         "sh_degree": 1,
+        "splat_format": "ply",
         "camera_format": "colmap",
         "camera_file": "sparse/0",
         "frames": 3,

@@ -138,3 +138,42 @@ def test_view_cli_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> 
     assert "no result here" in capsys.readouterr().err
     assert main(["view", "--no-browser"]) == 2
     assert "give a result folder or --job" in capsys.readouterr().err
+
+
+def _sent_covariances(viewer) -> np.ndarray:  # noqa: ANN001
+    """(M, 6) upper-triangular covariances as the browser gets them (float16 in the splat buffer),
+    back in scene units (times the splat node's scale squared)."""
+    buffer = np.ascontiguousarray(np.asarray(viewer.splats.buffer)[:, 4:7])
+    return buffer.view(np.float16).astype(np.float64) * viewer.splat_unit**2
+
+
+@pytest.mark.parametrize("scale", [0.01, 100.0])
+def test_the_splat_keeps_its_shape_in_any_units(run_dir: Path, scale: float) -> None:
+    """viser packs covariances as float16. The sample's millimetre splats used to flush to zero
+    (degenerate ellipses) when the scene was in units 100x smaller, and large ones lost their
+    shape 100x larger; sent in units of the scene scale they are the same splats at any scale."""
+    import copy
+    import dataclasses
+
+    from bayesian_fields_core.scene.similarity import Similarity
+    from bayesian_fields_core.viewer.data import load_view
+    from bayesian_fields_core.viewer.server import ResultViewer
+
+    data = load_view(run_dir)
+    result = copy.copy(data.result)
+    result.scene_scale = {**(result.scene_scale or {}), "value": scale * data.unit}
+    moved = dataclasses.replace(
+        data, result=result, gaussians=Similarity(scale, np.eye(3), np.zeros(3)).gaussians(data.gaussians)
+    )
+    viewers = [ResultViewer(d, port=_free_port()) for d in (data, moved)]
+    try:
+        reference, sent = (_sent_covariances(v) for v in viewers)
+        assert np.isfinite(sent).all()
+        diagonal = sent[:, [0, 3, 5]]
+        assert (diagonal > 0).all()  # no splat flattened to nothing
+        # Equal up to float16 rounding: 1% or two steps of its smallest (subnormal) spacing.
+        step = 2.0**-24 * viewers[0].splat_unit ** 2
+        np.testing.assert_allclose(sent / scale**2, reference, rtol=1e-2, atol=2 * step)
+    finally:
+        for v in viewers:
+            v.stop()

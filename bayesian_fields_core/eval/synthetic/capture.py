@@ -41,14 +41,14 @@ def _box_piece(
     half: np.ndarray,
     centre_xy: np.ndarray,
     base_z: float,
-    yaw: float,
+    yaw_angle: float,
     rgb: np.ndarray,
     density: float,
     rng: np.random.Generator,
 ) -> Piece:
     part = Part("box", {"hx": half[0], "hy": half[1], "hz": half[2]}, translation=(0.0, 0.0, half[2]))
     pts, nrm = sample_part(rng, part, density)
-    rot = yaw_rotation(yaw)
+    rot = yaw_rotation(yaw_angle)
     offset = np.array([centre_xy[0], centre_xy[1], base_z])
     rgbs = np.broadcast_to(rgb, pts.shape).copy()
     return Piece(name, name, None, "background", pts @ rot.T + offset, nrm @ rot.T, rgbs, density, rot)
@@ -76,10 +76,10 @@ def occluder_pieces(spec: SceneSpec, rng: np.random.Generator) -> list[Piece]:
         to_edge = float(np.min(table_half / np.maximum(np.abs(ray), 1e-9)))
         xy = (to_edge + rng.uniform(0.1, 0.3) + half[1]) * ray
         # A panel faces the table centre (its thin axis radial); a post is turned at random.
-        yaw = float(angle + np.pi / 2) if not post else float(rng.uniform(0, np.pi))
+        heading = float(angle + np.pi / 2) if not post else float(rng.uniform(0, np.pi))
         colour = np.asarray(NEUTRALS["metal"] if post else NEUTRALS["wood"]) * rng.uniform(0.8, 1.2)
         pieces.append(
-            _box_piece("occluder", half, xy, 0.0, yaw, np.clip(colour, 0, 1), spec.table_density * 2, rng)
+            _box_piece("occluder", half, xy, 0.0, heading, np.clip(colour, 0, 1), spec.table_density * 2, rng)
         )
     return pieces
 
@@ -176,7 +176,7 @@ def add_labels(
     labelled_names = {pieces[j].name for j in order}
     order += [i for i in rest if pieces[i].name not in labelled_names]
     order += [i for i in rest if pieces[i].name in labelled_names]
-    out = []
+    out: list[tuple[int, str, np.ndarray, np.ndarray]] = []
     for index in order[: spec.n_labelled]:
         piece = pieces[index]
         size = float(np.ptp(piece.points @ piece.frame_rotation, axis=0)[2]) / (

@@ -13,6 +13,7 @@ the same kind of input at training time as in the pipeline:
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 
@@ -66,7 +67,7 @@ class _LabelPatch:
     centre: np.ndarray
     half_angle_deg: float
 
-    def seen_from(self, eye: np.ndarray) -> str | None | bool:
+    def seen_from(self, eye: np.ndarray) -> str | None | Literal[False]:
         """The label's colour when it reads clearly from `eye` (at least halfway from the object's
         colour to the label's), None when it shows the object's colour, False in between (an
         ambiguous view that training leaves out)."""
@@ -156,6 +157,7 @@ def object_crops(
             res = renderer.render(pinhole(side, side, fov), w2c, side, side, background=(0.5, 0.5, 0.5))
             labels = np.where(res.alpha > 0.5, 0, -1).astype(np.int32)
             if label is not False and (labels == 0).sum() >= min_area:
+                assert res.rgb is not None  # a colour render
                 out.append(LabelledCrop(mask_crops(to_uint8(res.rgb), labels)[0], colour, kind, label))
     return out
 
@@ -209,7 +211,9 @@ def scene_crops(
             target = scene.table_top_center + np.array([rng.uniform(-0.6, 0.6), rng.uniform(-0.4, 0.4), 0.0])
             eye = _random_eye(rng, target, rng.uniform(0.6, 1.6), (20.0, 60.0))
             w2c = look_at(eye, target)
-            rgb = to_uint8(renderer.render(K, w2c, width, height, background=spec.background).rgb)
+            colour_render = renderer.render(K, w2c, width, height, background=spec.background).rgb
+            assert colour_render is not None
+            rgb = to_uint8(colour_render)
             id_image = ids.render(K, w2c, width, height)
             present, areas = np.unique(id_image[id_image >= 0], return_counts=True)
             for inst_id in present[areas >= min_area]:

@@ -50,6 +50,7 @@ def generate_scene(out_dir: str | Path, spec: SceneSpec | None = None, *, device
             frame.K, frame.world_to_camera, frame.width, frame.height, background=spec.background
         ).rgb
         frame.image_path = out / "images" / frame.name
+        assert rgb is not None  # a colour render
         Image.fromarray(to_uint8(rgb)).save(frame.image_path, optimize=True)
     write_ply(out / "point_cloud.ply", scene.gaussians)
     write_transforms(out / "transforms.json", frames)

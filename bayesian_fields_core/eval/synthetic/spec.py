@@ -7,7 +7,7 @@ spec alone (the spec is written into ``gt.json``) and the eval suite is a list o
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Literal
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
@@ -209,7 +209,7 @@ def capture_layouts() -> list[SceneSpec]:
     """Five scenes with the effects of handheld captures (paper Fig. 3): walks at varying distance
     (close-ups, far views), border cuts, occluding furniture, labels readable from one side, with
     look-alike duplicates, striped textures and clutter. Each mixes the effects differently."""
-    common = {
+    common: dict[str, Any] = {
         "trajectory": "walk",
         "texture": "stripes",
         "sh_degree": 1,

@@ -77,7 +77,7 @@ def make_tasks(spec: SceneSpec, instances: list[Instance], rng: np.random.Genera
 
     # Absent: prefer a colour the scene never uses, so the task is unrelated to every object.
     unused = [c for c in COLOURS if c not in by_colour]
-    absent = []
+    absent: list[TaskSpec] = []
     for _ in range(spec.n_absent_tasks):
         kind = str(rng.choice(list(spec.kinds)))
         colours = unused or [c for c in COLOURS if (c, kind) not in by_pair]

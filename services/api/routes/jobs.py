@@ -15,6 +15,7 @@ from bayesian_fields_core.job.store import ArtifactNotFound, LocalStore, get_jso
 from bayesian_fields_core.job.task_list import normalise_tasks
 from bayesian_fields_core.params import PipelineParams
 from bayesian_fields_service.api.routes.scenes import _load_scene
+from bayesian_fields_service.api.scene_lifecycle import scene_lock
 from bayesian_fields_service.api.schemas import (
     Artifact,
     BatchJob,
@@ -170,15 +171,18 @@ def submit_job(
             if existing is not None and (record := state.jobs.get(tenant, existing)) is not None:
                 response.status_code = status.HTTP_200_OK
                 return JobAccepted(id=record.id, state=record.state, created=False)
-            record = _build_job(state, tenant, body.scene_id, body.tasks, body.parameters, body.model_profile,
-                                idem=idempotency_key)  # fmt: skip
-            _reserve_slots(state, tenant, [record])
-            _submit(state, [record])
+            with scene_lock(state.redis, tenant, [body.scene_id]):
+                record = _build_job(state, tenant, body.scene_id, body.tasks, body.parameters,
+                                    body.model_profile, idem=idempotency_key)  # fmt: skip
+                _reserve_slots(state, tenant, [record])
+                _submit(state, [record])
             state.jobs.remember_idempotent(tenant, idempotency_key, record.id)
     else:
-        record = _build_job(state, tenant, body.scene_id, body.tasks, body.parameters, body.model_profile)
-        _reserve_slots(state, tenant, [record])
-        _submit(state, [record])
+        # Under the scene lock: a concurrent delete either sees this job (409) or came first (404).
+        with scene_lock(state.redis, tenant, [body.scene_id]):
+            record = _build_job(state, tenant, body.scene_id, body.tasks, body.parameters, body.model_profile)
+            _reserve_slots(state, tenant, [record])
+            _submit(state, [record])
     return JobAccepted(id=record.id, state=record.state, created=True)
 
 
@@ -290,19 +294,22 @@ def submit_batch(body: BatchRequest, tenant: Tenant, state: State) -> BatchStatu
             f"{len(pairs)} jobs; at most {state.settings.max_batch_jobs} per batch (BFIELDS_MAX_BATCH_JOBS)",
         )
     batch_id = new_id("b_")
-    # Validate every job before submitting any, so a bad item never leaves half a batch queued.
-    records = [
-        _build_job(state, tenant, s, t, body.parameters, body.model_profile, batch_id=batch_id)
-        for s, t in pairs
-    ]
-    _reserve_slots(state, tenant, records)
-    batch = BatchRecord(id=batch_id, tenant=tenant, job_ids=[r.id for r in records])
-    try:
-        state.jobs.save_batch(batch)
-    except BaseException:
-        state.jobs.quota.release(tenant, [r.id for r in records])
-        raise
-    _submit(state, records)
+    for scene_id, _ in pairs:  # before any lock: an id that cannot exist is a plain 404
+        check_id("scene", scene_id, "s_")
+    with scene_lock(state.redis, tenant, [s for s, _ in pairs]):
+        # Validate every job before submitting any, so a bad item never leaves half a batch queued.
+        records = [
+            _build_job(state, tenant, s, t, body.parameters, body.model_profile, batch_id=batch_id)
+            for s, t in pairs
+        ]
+        _reserve_slots(state, tenant, records)
+        batch = BatchRecord(id=batch_id, tenant=tenant, job_ids=[r.id for r in records])
+        try:
+            state.jobs.save_batch(batch)
+        except BaseException:
+            state.jobs.quota.release(tenant, [r.id for r in records])
+            raise
+        _submit(state, records)
     return _batch_status(state, batch)
 
 

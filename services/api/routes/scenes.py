@@ -10,7 +10,7 @@ from fastapi import APIRouter, Body, HTTPException, Query, Request, Response, st
 from fastapi.concurrency import run_in_threadpool
 
 from bayesian_fields_core.errors import InputError
-from bayesian_fields_core.job.store import ArtifactNotFound, get_json, put_json
+from bayesian_fields_core.job.store import ArtifactNotFound, PrefixedStore, get_json, put_json
 from bayesian_fields_service.api.archives import ArchiveLimits
 from bayesian_fields_service.api.multipart import clean_filename, receive_multipart
 from bayesian_fields_service.api.scene_intake import (
@@ -19,6 +19,13 @@ from bayesian_fields_service.api.scene_intake import (
     assemble_scene,
     upload_scene_folder,
     validate_scene,
+)
+from bayesian_fields_service.api.scene_lifecycle import (
+    completion_claim,
+    gone,
+    is_deleted,
+    mark_deleted,
+    scene_lock,
 )
 from bayesian_fields_service.api.schemas import (
     CompleteRequest,
@@ -41,6 +48,7 @@ from bayesian_fields_service.api.state import (
 )
 from bayesian_fields_service.api.sweeper import upload_workdir
 from bayesian_fields_service.common.jobs import JobState, new_id, utcnow
+from bayesian_fields_service.common.pause_points import pause
 from bayesian_fields_service.common.sanitize import scrub
 
 router = APIRouter(prefix="/v1/scenes", tags=["scenes"])
@@ -60,12 +68,17 @@ _MULTIPART_SCHEMA = {
                             "enum": ["true", "false"],
                             "description": "false skips the geometric alignment check (default true).",
                         },
-                        "splat": {"type": "string", "format": "binary", "description": "The splat .ply."},
+                        "splat": {
+                            "type": "string",
+                            "format": "binary",
+                            "description": "The splat: .ply (INRIA, RGB-coloured or "
+                            "compressed), .spz, .sog, .splat, .glb or .gltf; not .pt checkpoints.",
+                        },
                         "cameras": {
                             "type": "array",
                             "items": {"type": "string", "format": "binary"},
                             "description": "transforms.json, cameras.json, or COLMAP cameras + images "
-                            "(.txt or .bin, points3D optional).",
+                            "(.txt or .bin; points3D, frames, rigs optional).",
                         },
                         "images": {
                             "type": "array",
@@ -92,12 +105,22 @@ def _scene_key(scene_id: str) -> str:
 
 
 def _load_scene(state: AppState, tenant: str, scene_id: str) -> SceneRecord:
+    """The scene's record; 404 when it has none or is tombstoned (deleted, objects maybe not yet
+    all removed: see `scene_lifecycle`)."""
     check_id("scene", scene_id, "s_")
+    ts = state.tenant(tenant)
     try:
         # scrub: a record stored before the edge refused lone surrogates must stay servable
-        return SceneRecord.model_validate(scrub(get_json(state.tenant(tenant), _scene_key(scene_id))))
+        record = SceneRecord.model_validate(scrub(get_json(ts, _scene_key(scene_id))))
     except ArtifactNotFound:
         raise not_found("scene", scene_id) from None
+    if is_deleted(ts, scene_id):
+        raise not_found("scene", scene_id)
+    return record
+
+
+def _pause(state: AppState, point: str, scene_id: str) -> None:
+    pause(state.redis, state.settings.test_pause_points, point, scene_id)
 
 
 def _save_scene(state: AppState, record: SceneRecord) -> None:
@@ -163,8 +186,9 @@ async def upload_scene(request: Request, tenant: Tenant, state: State) -> SceneR
             id=scene_id, tenant=tenant, name=form.fields.get("name") or None, files=n, bytes=size,
             summary=summary, created_at=now, updated_at=now,
         )  # fmt: skip
-        _save_scene(state, record)
+        # listing marker first, record last: a crash in between leaves a marker the listing skips
         state.tenant(tenant).put_bytes(f"index/scenes/{scene_id}", b"")
+        _save_scene(state, record)
         return record
     finally:
         shutil.rmtree(work, ignore_errors=True)
@@ -220,8 +244,8 @@ def start_upload(body: UploadRequest, tenant: Tenant, state: State) -> UploadPla
         id=scene_id, tenant=tenant, name=body.name, state=SceneState.uploading,
         pending_uploads=pending, created_at=now, updated_at=now,
     )  # fmt: skip
-    _save_scene(state, record)
     ts.put_bytes(f"index/scenes/{scene_id}", b"")
+    _save_scene(state, record)
     return UploadPlan(scene_id=scene_id, uploads=uploads, expires_in_s=state.settings.presign_expiry_s)
 
 
@@ -234,12 +258,25 @@ def start_upload(body: UploadRequest, tenant: Tenant, state: State) -> UploadPla
 def complete_upload(
     scene_id: str, tenant: Tenant, state: State, body: Annotated[CompleteRequest | None, Body()] = None
 ) -> SceneRecord:
+    """Assemble the parts, validate, copy the scene to ``input/``, then (under the scene lock,
+    unless a delete came first) publish the ready record. See `scene_lifecycle`."""
     record = _load_scene(state, tenant, scene_id)
     if record.state != SceneState.uploading:
         raise HTTPException(status.HTTP_409_CONFLICT, f"scene {scene_id!r} is already {record.state.value}")
+    with completion_claim(state.redis, tenant, scene_id):
+        n, size, summary = _complete_files(state, tenant, record, body)
+        return _publish(state, tenant, record, n, size, summary)
+
+
+def _complete_files(
+    state: AppState, tenant: str, record: SceneRecord, body: CompleteRequest | None
+) -> tuple[int, int, dict]:
+    """Finish the multipart uploads, fetch, validate and copy the scene into ``input/``."""
+    scene_id = record.id
     ts = state.tenant(tenant)
     work = upload_workdir("complete")
     try:
+        _pause(state, "complete:claimed", scene_id)
         files = []
         for i, up in enumerate(record.pending_uploads):
             parts = None
@@ -247,8 +284,18 @@ def complete_upload(
                 parts = [p.model_dump() for p in body.parts[up["name"]]]
             try:
                 state.store.complete_multipart_upload(ts.prefix + up["key"], up["upload_id"], parts)  # type: ignore[attr-defined]
-            except InputError as exc:
-                raise _unprocessable(exc) from None
+            except (InputError, ArtifactNotFound) as exc:
+                if is_deleted(ts, scene_id):
+                    raise gone(scene_id) from None
+                if _assembled(ts, up):  # an earlier, failed completion got this file done
+                    pass
+                elif isinstance(exc, ArtifactNotFound):  # the upload id is no longer known
+                    raise HTTPException(
+                        status.HTTP_409_CONFLICT,
+                        f"the upload of {up['name']!r} no longer exists (aborted or expired)",
+                    ) from None
+                else:
+                    raise _unprocessable(exc) from None
             actual = ts.size(up["key"])
             if actual != up["size"]:
                 raise _unprocessable(
@@ -257,20 +304,53 @@ def complete_upload(
             local = work / "parts" / f"part-{i:05d}"
             ts.get_file(up["key"], local)
             files.append(UploadedFile(up["field"], up["name"], local))
+        _pause(state, "complete:fetched", scene_id)
+        if is_deleted(ts, scene_id):  # deleted meanwhile: skip the copy (the publish step checks again)
+            raise gone(scene_id)
         try:
             alignment = body is None or body.alignment_check
-            n, size, summary = _ingest(state, tenant, scene_id, files, work, alignment=alignment)
+            return _ingest(state, tenant, scene_id, files, work, alignment=alignment)
         except InputError as exc:
             raise _unprocessable(exc) from None
+    except ArtifactNotFound:  # a staged object vanished: only a delete removes them
+        if is_deleted(ts, scene_id):
+            raise gone(scene_id) from None
+        raise
     finally:
         shutil.rmtree(work, ignore_errors=True)
+
+
+def _assembled(ts: PrefixedStore, up: dict) -> bool:
+    """Whether a file's multipart upload was already completed (by an earlier `complete` that
+    failed on another file): its object exists with the announced size. Completing is then
+    resumable instead of stuck on NoSuchUpload for good."""
+    try:
+        return ts.size(up["key"]) == up["size"]
+    except ArtifactNotFound:
+        return False
+
+
+def _publish(
+    state: AppState, tenant: str, record: SceneRecord, n: int, size: int, summary: dict
+) -> SceneRecord:
+    """Write the ready record unless the scene was deleted meanwhile (then remove the copy and
+    answer 404): the tombstone check and the write happen under the scene lock, which `delete`
+    holds while it writes the tombstone."""
+    scene_id = record.id
+    ts = state.tenant(tenant)
+    _pause(state, "complete:before_publish", scene_id)
+    with scene_lock(state.redis, tenant, [scene_id]):
+        _pause(state, "complete:publishing", scene_id)
+        if is_deleted(ts, scene_id):
+            ts.delete_prefix(f"scenes/{scene_id}/")
+            raise gone(scene_id)
+        ready = record.model_copy(
+            update={"state": SceneState.ready, "files": n, "bytes": size, "summary": summary,
+                    "pending_uploads": [], "updated_at": utcnow()}
+        )  # fmt: skip
+        _save_scene(state, ready)
     ts.delete_prefix(f"scenes/{scene_id}/staging/")
-    record = record.model_copy(
-        update={"state": SceneState.ready, "files": n, "bytes": size, "summary": summary,
-                "pending_uploads": [], "updated_at": utcnow()}
-    )  # fmt: skip
-    _save_scene(state, record)
-    return record
+    return ready
 
 
 @router.get("/{scene_id}", response_model=SceneRecord, summary="Get a scene", responses=ERRORS)
@@ -306,16 +386,25 @@ def list_scenes(
     responses={**ERRORS, 409: {"model": Problem}},
 )
 def delete_scene(scene_id: str, tenant: Tenant, state: State) -> Response:
+    """Tombstone the scene under its lock (after checking it has no active job), then remove its
+    objects. Once the tombstone is written the scene is gone for every route, and a completion
+    still running cannot publish it again (`scene_lifecycle`); what a failure here leaves behind,
+    the sweeper removes."""
     record = _load_scene(state, tenant, scene_id)
-    for job_state in (JobState.queued, JobState.running):
-        active, _ = state.jobs.list(tenant, state=job_state, scene_id=scene_id, limit=1)
-        if active:
-            raise HTTPException(
-                status.HTTP_409_CONFLICT, f"scene {scene_id!r} has {job_state.value} job {active[0].id}"
-            )
     ts = state.tenant(tenant)
+    with scene_lock(state.redis, tenant, [scene_id]):
+        if is_deleted(ts, scene_id):
+            raise not_found("scene", scene_id)
+        for job_state in (JobState.queued, JobState.running):
+            active, _ = state.jobs.list(tenant, state=job_state, scene_id=scene_id, limit=1)
+            if active:
+                raise HTTPException(
+                    status.HTTP_409_CONFLICT, f"scene {scene_id!r} has {job_state.value} job {active[0].id}"
+                )
+        mark_deleted(ts, scene_id)
+    _pause(state, "delete:tombstoned", scene_id)
+    ts.delete(f"index/scenes/{scene_id}")
     for up in record.pending_uploads:
         state.store.abort_multipart_upload(ts.prefix + up["key"], up["upload_id"])  # type: ignore[attr-defined]
-    ts.delete(f"index/scenes/{scene_id}")
     ts.delete_prefix(f"scenes/{scene_id}/")
     return Response(status_code=status.HTTP_204_NO_CONTENT)

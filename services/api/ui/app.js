@@ -91,6 +91,7 @@ async function upload(ev) {
   form.append("splat", $("splat").files[0]);
   for (const f of $("cameras").files) form.append("cameras", f);
   for (const f of $("images").files) form.append("images", f);
+  if ($("transform").files.length) form.append("transform", $("transform").files[0]);
   status.textContent = "uploading...";
   try {
     const scene = await api("/v1/scenes", { method: "POST", body: form });

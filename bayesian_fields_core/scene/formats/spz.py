@@ -1,0 +1,177 @@
+"""Niantic SPZ (`.spz`), versions 1 to 4, read with numpy (zlib for v1-3, zstandard for v4).
+
+Layout facts: v1-3 are one gzip stream holding a 16-byte header (magic "NGSP", version,
+count, SH degree, fractional bits, flags, reserved) then the attribute blocks in this order:
+positions (v1: float16 x3; v2+: 24-bit signed fixed point x3, divided by 2^fractional_bits),
+alphas (uint8, opacity = a / 255), colours (uint8 x3, DC = (c / 255 - 0.5) / 0.15), scales
+(uint8 x3, log-scale = s / 16 - 10), rotations (v1-2: uint8 x3 for x, y, z with w >= 0
+derived; v3+: 32-bit "smallest three": top 2 bits the index of the largest component in
+x, y, z, w order, then per other component from the low bits up 9 bits of magnitude (in
+units of 1/sqrt2 / 511) and a sign bit), SH (uint8, (q - 128) / 128, coefficient-major with
+the three channels innermost). v4 ("NGSP" uncompressed, 32-byte header with the stream count
+and the table-of-contents offset) stores each block as its own zstd stream, listed in the TOC
+as (compressed size, uncompressed size) uint64 pairs.
+
+Axes: SPZ stores right-up-back (RUB); a 3DGS PLY is right-down-forward, so the converters turn
+the scene 180 degrees about x on the way in. We turn it back (a proper rotation, so quaternions
+and SH bands follow), and the result matches the PLY the file was made from. Checked against
+`splat-transform`'s own SPZ -> PLY output and against gsply (which returns the stored RUB values).
+"""
+
+from __future__ import annotations
+
+import struct
+import zlib
+from pathlib import Path
+
+import numpy as np
+
+from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.scene.formats.common import gaussians, logit, require_count, rotate_axes
+from bayesian_fields_core.scene.types import Gaussians, sh_coefficient_count
+
+MAGIC = 0x5053474E  # "NGSP" little-endian
+RUB_TO_PLY = np.diag([1.0, -1.0, -1.0])
+COLOUR_SCALE = 0.15
+MAX_DECOMPRESSED = 1 << 34
+"""Largest decompressed payload accepted (16 GiB); a hostile stream stops there."""
+
+
+def _blocks(n: int, sh_dim: int, version: int) -> list[tuple[str, int]]:
+    position = 6 if version == 1 else 9
+    rotation = 4 if version >= 3 else 3
+    return [
+        ("positions", n * position),
+        ("alphas", n),
+        ("colors", n * 3),
+        ("scales", n * 3),
+        ("rotations", n * rotation),
+        ("sh", n * sh_dim * 3),
+    ]
+
+
+def _gunzip(raw: bytes, limit: int, path: Path) -> bytes:
+    """At most `limit` bytes of the gzip stream: a hostile stream never inflates past it."""
+    d = zlib.decompressobj(16 + zlib.MAX_WBITS)
+    try:
+        return d.decompress(raw, limit)
+    except zlib.error as exc:
+        raise InputError(f"corrupt SPZ gzip stream ({exc})", source=str(path)) from None
+
+
+def _header(buf: bytes, path: Path, max_gaussians: int) -> tuple[int, int, int, int]:
+    if len(buf) < 16:
+        raise InputError("SPZ header is truncated", source=str(path))
+    magic, version, n, degree, frac = struct.unpack_from("<IIIBB", buf, 0)
+    if magic != MAGIC:
+        raise InputError("not an SPZ file (bad magic)", source=str(path))
+    if version not in (1, 2, 3, 4):
+        raise InputError(f"SPZ version {version} is not supported (1 to 4)", source=str(path))
+    if degree > 3:
+        raise InputError(f"SPZ SH degree {degree} is not supported (0 to 3)", source=str(path))
+    require_count(n, max_gaussians, source=path)
+    return version, n, degree, frac
+
+
+def _v4_payload(raw: bytes, n: int, sh_dim: int, path: Path) -> dict[str, bytes]:
+    try:
+        import zstandard
+    except ImportError:  # pragma: no cover - a declared dependency
+        raise InputError(
+            "SPZ v4 needs the zstandard package; or rewrite it as v3: "
+            f"npx @playcanvas/splat-transform --spz-version 3 {path.name} out.spz",
+            source=str(path),
+        ) from None
+    if len(raw) < 32:
+        raise InputError("SPZ v4 header is truncated", source=str(path))
+    streams, toc = struct.unpack_from("<BI", raw, 15)
+    blocks = [b for b in _blocks(n, sh_dim, 4) if b[1] > 0]
+    if streams != len(blocks) or toc < 32 or toc + 16 * streams > len(raw):
+        raise InputError(f"SPZ v4 table of contents is inconsistent ({streams} streams)", source=str(path))
+    out: dict[str, bytes] = {}
+    offset = toc + 16 * streams
+    for i, (name, size) in enumerate(blocks):
+        csize, usize = struct.unpack_from("<QQ", raw, toc + 16 * i)
+        if usize != size or offset + csize > len(raw):
+            raise InputError(f"SPZ v4 stream {name!r} has the wrong size", source=str(path))
+        try:
+            data = zstandard.ZstdDecompressor().decompress(raw[offset : offset + csize], max_output_size=size)
+        except zstandard.ZstdError as exc:
+            raise InputError(f"corrupt SPZ v4 stream {name!r} ({exc})", source=str(path)) from None
+        if len(data) != size:
+            raise InputError(f"SPZ v4 stream {name!r} decompressed to the wrong size", source=str(path))
+        out[name] = data
+        offset += csize
+    return out
+
+
+def _smallest_three(packed: np.ndarray) -> np.ndarray:
+    """(N,) uint32 -> (N, 4) quaternions in x, y, z, w order."""
+    largest = (packed >> np.uint32(30)).astype(np.int64)
+    q = np.zeros((packed.shape[0], 4), np.float64)
+    comp = packed.copy()
+    total = np.zeros(packed.shape[0])
+    scale = np.sqrt(0.5) / 511.0
+    for i in (3, 2, 1, 0):
+        rows = largest != i
+        mag = (comp & np.uint32(511)).astype(np.float64) * scale
+        neg = ((comp >> np.uint32(9)) & np.uint32(1)).astype(bool)
+        value = np.where(neg, -mag, mag)
+        q[rows, i] = value[rows]
+        total[rows] += value[rows] ** 2
+        comp = np.where(rows, comp >> np.uint32(10), comp)
+    q[np.arange(len(q)), largest] = np.sqrt(np.clip(1.0 - total, 0.0, 1.0))
+    return q
+
+
+def read_spz(path: Path, max_gaussians: int) -> Gaussians:
+    """Decode an SPZ file into the PLY's frame and parameterisation (module docstring)."""
+    raw = path.read_bytes()
+    if raw[:2] == b"\x1f\x8b":
+        head = _gunzip(raw, 16, path)
+        version, n, degree, frac = _header(head, path, max_gaussians)
+        sh_dim = sh_coefficient_count(degree) - 1
+        total = 16 + sum(size for _, size in _blocks(n, sh_dim, version))
+        if total > MAX_DECOMPRESSED:
+            raise InputError(f"SPZ payload of {total} bytes is too large", source=str(path))
+        body = _gunzip(raw, total, path)
+        if len(body) < total:
+            raise InputError(f"SPZ payload is truncated ({len(body)} of {total} bytes)", source=str(path))
+        parts, offset = {}, 16
+        for name, size in _blocks(n, sh_dim, version):
+            parts[name] = body[offset : offset + size]
+            offset += size
+    else:
+        version, n, degree, frac = _header(raw, path, max_gaussians)
+        if version < 4:
+            raise InputError(f"SPZ v{version} must be gzip-compressed", source=str(path))
+        sh_dim = sh_coefficient_count(degree) - 1
+        parts = _v4_payload(raw, n, sh_dim, path)
+        parts.setdefault("sh", b"")
+    return rotate_axes(_decode(parts, n, sh_dim, version, frac), RUB_TO_PLY)
+
+
+def _decode(parts: dict[str, bytes], n: int, sh_dim: int, version: int, frac: int) -> Gaussians:
+    u8 = {k: np.frombuffer(v, np.uint8) for k, v in parts.items()}
+    if version == 1:
+        means = np.frombuffer(parts["positions"], "<f2").reshape(n, 3).astype(np.float32)
+    else:
+        p = u8["positions"].reshape(n, 3, 3).astype(np.int32)
+        fixed = p[..., 0] | (p[..., 1] << 8) | (p[..., 2] << 16)
+        fixed = np.where(fixed & 0x800000, fixed - (1 << 24), fixed)
+        means = fixed.astype(np.float64) / float(1 << frac)
+    opacity = u8["alphas"].astype(np.float32) / 255.0
+    dc = (u8["colors"].reshape(n, 3).astype(np.float32) / 255.0 - 0.5) / COLOUR_SCALE
+    log_scales = u8["scales"].reshape(n, 3).astype(np.float32) / 16.0 - 10.0
+    if version >= 3:
+        xyzw = _smallest_three(np.frombuffer(parts["rotations"], "<u4").astype(np.uint32))
+    else:
+        xyz = u8["rotations"].reshape(n, 3).astype(np.float64) / 127.5 - 1.0
+        w = np.sqrt(np.clip(1.0 - (xyz**2).sum(axis=1), 0.0, 1.0))
+        xyzw = np.concatenate([xyz, w[:, None]], axis=1)
+    quats = xyzw[:, [3, 0, 1, 2]]
+    sh = np.empty((n, sh_dim + 1, 3), np.float32)
+    sh[:, 0] = dc
+    if sh_dim:
+        sh[:, 1:] = (u8["sh"].reshape(n, sh_dim, 3).astype(np.float32) - 128.0) / 128.0
+    return gaussians(means, log_scales, quats, logit(opacity), sh)

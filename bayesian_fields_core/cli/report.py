@@ -6,7 +6,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from rich.console import Console
+from rich.console import Console, JustifyMethod
 from rich.table import Table
 
 from bayesian_fields_core.results.format import Result, SelectedObject
@@ -136,7 +136,7 @@ def answer_table(result: Result) -> Table:
     label = SCORE_LABELS.get(name, name)
     with_p = label != "p(relevant)"
     table = Table(title="Task-relevant objects", show_lines=False)
-    columns = [("task", "left"), ("rank", "right"), ("object", "right"), (f"{label} (ranks)", "right")]
+    columns: list[tuple[str, JustifyMethod]] = [("task", "left"), ("rank", "right"), ("object", "right"), (f"{label} (ranks)", "right")]
     columns += [("p(relevant)", "right")] if with_p else []
     columns += [("Gaussians", "right"), (f"centroid ({units(result)})", "left")]
     for column, justify in columns:

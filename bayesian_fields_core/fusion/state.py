@@ -96,6 +96,7 @@ class FusionState:
             )
         else:
             accepted = accepted_masks(llr, s.outlier_rejection)
+            assert self.averager is not None  # exactly one of logodds / averager exists
             self.averager.add_frame(gaussian_ids, mask_ids, phi, accepted)
         margins = as_tensor(margin(phi, s.likelihood.mu0, s.likelihood.mu1), self.device)
         update_peak(self.peak, gaussian_ids, mask_ids, margins, accepted)
@@ -111,6 +112,7 @@ class FusionState:
             if self.view_counts is not None:
                 discount_correlated_views(self.logodds, self.view_counts, s.view_correlation, s.prior)
             return FusedArrays(logodds=to_numpy(self.logodds), peak=peak)
+        assert self.averager is not None  # exactly one of logodds / averager exists
         probs = self.averager.probabilities(s.likelihood, unobserved=s.prior)
         clipped = np.clip(probs.astype(np.float64), PROBABILITY_CLIP, 1 - PROBABILITY_CLIP)
         logodds = logit(clipped).astype(np.float32)

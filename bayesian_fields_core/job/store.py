@@ -270,11 +270,16 @@ def _row_blocks(array: np.ndarray, block_bytes: int = 16 * 2**20) -> ArrayBlocks
     return ArrayBlocks(array.shape, array.dtype, blocks)
 
 
+# Bytes per block of `put_array_blocks`: large enough that zlib and the file system see big
+# writes, small enough that one block beside the caller's arrays is noise.
+ARRAY_BLOCK_BYTES = 16 * 2**20
+
+
 def put_array_blocks(
     store: Store,
     key: str,
     compress: bool = True,
-    block_bytes: int = 16 * 2**20,
+    block_bytes: int = ARRAY_BLOCK_BYTES,
     **arrays: np.ndarray | ArrayBlocks,
 ) -> None:
     """`put_arrays` for large artifacts: the .npz goes straight to a file, one block at a time.

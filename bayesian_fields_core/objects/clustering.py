@@ -17,7 +17,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from bayesian_fields_core.compute.threads import single_blas_thread
-from bayesian_fields_core.geometry.obb import OrientedBox, minimum_obb
+from bayesian_fields_core.geometry.obb import DEFAULT_MIN_THICKNESS, OrientedBox, minimum_obb
 from bayesian_fields_core.objects.aib import aib
 from bayesian_fields_core.objects.edges import MergedGraph, merge_identical, overlap_edges
 from bayesian_fields_core.objects.knn_filter import statistical_outlier_mask
@@ -208,7 +208,7 @@ def object_geometry(
     """Step 12b: (K,) sizes and (K, 3) centroids of every object, and the minimum oriented box
     of each selected one (None for the others). `box_min_side`: thinnest box side in scene
     units (`SceneLengths.box_min_side`; None: the box code's own floor)."""
-    box_options = {} if box_min_side is None else {"min_thickness": float(box_min_side)}
+    min_thickness = DEFAULT_MIN_THICKNESS if box_min_side is None else float(box_min_side)
     inside = object_ids >= 0
     sizes = np.bincount(object_ids[inside], minlength=num_objects)
     # bincount sums each axis in Gaussian order, as np.add.at did, ~10x faster
@@ -229,7 +229,7 @@ def object_geometry(
     boxed = [obj for obj in selected if len(members[obj])]
     with single_blas_thread():  # many small products: BLAS's own threads only cost CPU here
         found = _per_object(
-            lambda m: minimum_obb(means[m].astype(np.float64), **box_options),
+            lambda m: minimum_obb(means[m].astype(np.float64), min_thickness=min_thickness),
             [members[obj] for obj in boxed],
         )
     for obj, box in zip(boxed, found, strict=True):

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 
@@ -83,8 +84,8 @@ def _chunks(header: PlyHeader) -> list[tuple[int, int]]:
     return [(start, min(start + rows, header.count)) for start in range(0, header.count, rows)]
 
 
-def _read_chunk(f: object, header: PlyHeader, start: int, stop: int) -> np.ndarray:
-    rows = np.fromfile(f, dtype=header.dtype(), count=stop - start)  # type: ignore[arg-type]
+def _read_chunk(f: BinaryIO, header: PlyHeader, start: int, stop: int) -> np.ndarray:
+    rows = np.fromfile(f, dtype=header.dtype(), count=stop - start)
     if rows.shape[0] != stop - start:  # the file shrank after the header's size check
         raise InputError(
             f"truncated vertex data: expected {header.count} rows, got {start + rows.shape[0]}",

@@ -44,6 +44,7 @@ def _plain(loader: yaml.Loader, suffix: str, node: yaml.Node) -> Any:
         return loader.construct_mapping(node, deep=True)
     if isinstance(node, yaml.SequenceNode):
         return loader.construct_sequence(node, deep=True)
+    assert isinstance(node, yaml.ScalarNode)  # the only other kind of YAML node
     return loader.construct_scalar(node)
 
 
@@ -119,12 +120,18 @@ def gsplat_run(run: Path, *, allow_outside: bool) -> dict[str, Any]:
     return {"sparse": sparse, "images": images, "splat_to_world": splat_to_world, "rescale": factor > 1}
 
 
+def _section(cfg: dict[str, Any], name: str) -> dict[str, Any]:
+    """`cfg[name]` when it is a mapping, else an empty one (configs of other versions omit it)."""
+    value = cfg.get(name)
+    return value if isinstance(value, dict) else {}
+
+
 def _nerfstudio_data(cfg: dict[str, Any]) -> str | None:
     """The data path from a nerfstudio config: `data`, else pipeline.datamanager(.dataparser).data;
     a pathlib tag reads as the list of its parts."""
-    pipeline = cfg.get("pipeline") if isinstance(cfg.get("pipeline"), dict) else {}
-    manager = pipeline.get("datamanager") if isinstance(pipeline.get("datamanager"), dict) else {}
-    parser = manager.get("dataparser") if isinstance(manager.get("dataparser"), dict) else {}
+    pipeline = _section(cfg, "pipeline")
+    manager = _section(pipeline, "datamanager")
+    parser = _section(manager, "dataparser")
     for value in (cfg.get("data"), manager.get("data"), parser.get("data")):
         if isinstance(value, list) and value and all(isinstance(v, str) for v in value):
             return str(Path(*value))

@@ -34,7 +34,13 @@ from bayesian_fields_core.fusion.visibility import centre_columns, mask_associat
 from bayesian_fields_core.job.artifacts import ACCEPTED_KEY, FUSION_KEY, PRIMITIVES_KEY
 from bayesian_fields_core.job.context import JobContext
 from bayesian_fields_core.job.markers import write_marker
-from bayesian_fields_core.job.store import ArrayBlocks, get_arrays, put_array_blocks, put_arrays
+from bayesian_fields_core.job.store import (
+    ARRAY_BLOCK_BYTES,
+    ArrayBlocks,
+    get_arrays,
+    put_array_blocks,
+    put_arrays,
+)
 from bayesian_fields_core.objects.primitives import PrimitiveBuilder
 from bayesian_fields_core.scene.images import load_depth
 
@@ -213,16 +219,20 @@ def write_state(ctx: JobContext, fused: FusedArrays) -> None:
         probs: Any = ArrayBlocks(fused.logodds.shape, np.dtype(np.float32), probability_blocks(fused.logodds))
     else:
         probs = fused.probabilities.astype(np.float32)
+    optional: dict[str, np.ndarray | ArrayBlocks] = {}
+    if fused.observed is not None:
+        optional["observed"] = fused.observed
     put_array_blocks(  # uncompressed: float32 state barely compresses (83 -> 50 MB at the scale
         ctx.store,  # bench) and zlib cost seconds here and ~0.4 s in `cluster`, which reads it back
         ctx.job_key(FUSION_KEY),
         compress=False,
+        block_bytes=ARRAY_BLOCK_BYTES,
         probabilities=probs,
         # Probabilities saturate at 1.0 in float32 after a few dozen agreeing views; the log-odds
         # keep the evidence that ranks saturated objects (selection_score='evidence').
         logodds=fused.logodds.astype(np.float32, copy=False),
         peak_margin=fused.peak,
-        **({} if fused.observed is None else {"observed": fused.observed}),
+        **optional,
     )
 
 

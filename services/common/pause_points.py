@@ -15,6 +15,8 @@ import time
 
 import redis
 
+from bayesian_fields_service.common.redis_text import text
+
 #: The longest a request ever waits at a point (a test that died must not hang the API).
 PAUSE_LIMIT_S = 30.0
 
@@ -24,7 +26,7 @@ def pause(client: redis.Redis, enabled: bool, name: str, scene_id: str) -> None:
     if not enabled:
         return
     armed = client.get(f"bf:test:pause:{name}")
-    if armed is None or armed.decode() != scene_id:
+    if armed is None or text(armed) != scene_id:
         return
     client.set(f"bf:test:reached:{name}:{scene_id}", b"1", ex=120)
     resume = f"bf:test:resume:{name}:{scene_id}"

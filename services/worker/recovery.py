@@ -63,7 +63,7 @@ def recover_orphans(
     lock = client.lock("bf:recovery", timeout=max(10.0, 4 * settings.recovery_interval_s), blocking_timeout=0)
     if not lock.acquire(blocking=False):
         return []
-    requeued = []
+    requeued: list[str] = []
     try:
         now = time.time()
         pending = _enqueue_unsubmitted(app, jobs, settings, grace_s, requeued)

@@ -34,7 +34,7 @@ from bayesian_fields_core.scene.types import Gaussians
 EXTENSION = "KHR_gaussian_splatting"
 GLTF_TO_PLY = np.diag([-1.0, -1.0, 1.0])
 _COMPONENTS = {"SCALAR": 1, "VEC3": 3, "VEC4": 4}
-_TYPES = {5126: np.dtype("<f4"), 5121: np.dtype("u1"), 5123: np.dtype("<u2")}
+_TYPES: dict[int, np.dtype] = {5126: np.dtype("<f4"), 5121: np.dtype("u1"), 5123: np.dtype("<u2")}
 
 
 def _split_glb(raw: bytes, path: Path) -> tuple[dict[str, Any], bytes]:

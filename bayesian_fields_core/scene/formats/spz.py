@@ -153,6 +153,7 @@ def read_spz(path: Path, max_gaussians: int) -> Gaussians:
 
 def _decode(parts: dict[str, bytes], n: int, sh_dim: int, version: int, frac: int) -> Gaussians:
     u8 = {k: np.frombuffer(v, np.uint8) for k, v in parts.items()}
+    means: np.ndarray
     if version == 1:
         means = np.frombuffer(parts["positions"], "<f2").reshape(n, 3).astype(np.float32)
     else:

@@ -566,6 +566,7 @@ def retry_batch(batch_id: str, tenant: Tenant, state: State) -> BatchStatus:
                 state.jobs.quota.release(tenant, [r.id for r in again])
                 raise
             _submit(state, again)  # stores each item's idempotency key -> its new job
+            state.fair.remove(tenant, new_of)  # a failed job waits nowhere; make sure of it
     by_id = {r.id: r for r in again}
     return _status_of(updated, [by_id.get(j) or state.jobs.get(tenant, j) for j in updated.job_ids],
                       created=len(again), with_jobs=False)  # fmt: skip

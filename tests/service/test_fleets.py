@@ -325,38 +325,34 @@ def test_dispatcher_dying_between_move_and_send_and_api_dying_before_confirming(
     busy: PrivateStack, scene_dir: Path, s3_server: S3Server
 ) -> None:
     """Two crash windows made deterministic: (1) a dispatcher moved a job to the dispatched set and
-    died before sending it (the test plays that dispatcher, holding the lease); (2) an API queued
-    a job and died before removing its pending marker (the earlier attempt's bug: recovery queued
-    it again and the batch listed 43 jobs for 40). Each job runs once and is listed once."""
+    died before sending it (the state its Lua move leaves is written here directly, since the
+    live dispatchers would send the job first); (2) an API queued a job and died before removing
+    its pending marker (the earlier attempt's bug: recovery queued it again and the batch listed
+    43 jobs for 40). Each job runs once and is listed once."""
     assert busy.api is not None
     r = busy.redis
     fair = FairQueue(r, "gpu")
-    token = "test-dispatcher"
-    with busy.api.client("tenant-b") as b:
-        scene = upload(b, scene_dir)
-        _wait_for(lambda: r.set("bf:fq:gpu:lease", token, nx=True, px=60_000), 30, "the dispatcher lease")
-        sub = b.post("/v1/jobs", json={"scene_id": scene, "tasks": ["red blob"], "parameters": PARAMS})
-        assert sub.status_code == 202
-        moved = sub.json()["id"]
-        code, job_id, _ = fair.move("tenant-b", token, 16, 1.0)
-        assert (code, job_id) == (1, moved)
-        assert r.hget(f"bf:job:tenant-b:{moved}", "phase") == b"dispatching"
-        # (2): stored and queued exactly as the API does, then "died" before mark_enqueued
-        jobs = JobStore(s3_server.store(), r)
-        params = PipelineParams.model_validate(PARAMS).model_dump(mode="json", exclude_unset=True)
-        record = JobRecord(
-            id=new_id("j_"), tenant="tenant-b", scene_id=scene, tasks=["green blob"], parameters=params
-        )
+    jobs = JobStore(s3_server.store(), r)
+    params = PipelineParams.model_validate(PARAMS).model_dump(mode="json", exclude_unset=True)
+
+    def stored(tasks: list[str]) -> JobRecord:
+        record = JobRecord(id=new_id("j_"), tenant="tenant-b", scene_id=scene, tasks=tasks, parameters=params)
         assert jobs.quota.reserve("tenant-b", [record.id], 100)[0]
         jobs.create(record)
-        fair.submit("tenant-b", record.priority, [record.id])
-        r.delete("bf:fq:gpu:lease")  # the fake dispatcher is gone; the APIs' take over
-        for job_id in (moved, record.id):
-            final = wait_job(b, job_id, 240)
+        return record
+
+    with busy.api.client("tenant-b") as b:
+        scene = upload(b, scene_dir)
+        moved = stored(["red blob"])  # (1): moved, marked dispatching, never sent
+        r.zadd("bf:dispatched:tenant-b", {moved.id: time.time()})
+        r.hset(f"bf:job:tenant-b:{moved.id}", mapping={"phase": "dispatching", "updated": time.time()})
+        jobs.mark_enqueued(moved)
+        unconfirmed = stored(["green blob"])  # (2): queued, pending marker left behind
+        fair.submit("tenant-b", unconfirmed.priority, [unconfirmed.id])
+        for record in (moved, unconfirmed):
+            final = wait_job(b, record.id, 240)
             assert final["state"] == "succeeded" and final["stage_runs"] == 3, final
-        assert not jobs.store.exists(jobs.pending_key("tenant-b", record.id))
+        assert not jobs.store.exists(jobs.pending_key("tenant-b", unconfirmed.id))
         listed = [j["id"] for j in b.get("/v1/jobs", params={"limit": 500}).json()["items"]]
-        assert listed.count(moved) == 1 and listed.count(record.id) == 1
-        assert record.id not in [
-            m.decode() for m in r.zrange(fair.waiting_key("tenant-b", "interactive"), 0, -1)
-        ]
+        assert listed.count(moved.id) == 1 and listed.count(unconfirmed.id) == 1
+        assert fair.waiting("tenant-b") == 0 and r.zcard("bf:dispatched:tenant-b") == 0

@@ -25,6 +25,7 @@ from bayesian_fields_service.common.jobs import JobStore
 from bayesian_fields_service.common.settings import ServiceSettings, apply_log_level, get_settings
 from bayesian_fields_service.common.storage import build_store
 from bayesian_fields_service.worker.celery_app import make_celery
+from bayesian_fields_service.worker.dispatch import Dispatcher
 
 DESCRIPTION = """
 Bayesian Fields as a batch service: upload a scene (Gaussian splat + posed images), submit task
@@ -53,6 +54,11 @@ def _redis_client(settings: ServiceSettings) -> redis.Redis:
         socket_connect_timeout=t,
         retry=Retry(ConstantBackoff(min(0.1, t / 4)), settings.api_backend_attempts - 1),
     )
+
+
+def _worker_redis(settings: ServiceSettings) -> redis.Redis:
+    """Redis for the dispatcher thread: patient, like a worker's (no request waits on it)."""
+    return redis.Redis.from_url(settings.redis_url, socket_timeout=10, socket_connect_timeout=5)
 
 
 def create_app(settings: ServiceSettings | None = None) -> FastAPI:
@@ -86,8 +92,10 @@ def create_app(settings: ServiceSettings | None = None) -> FastAPI:
         celery=celery,
     )
     state.metrics_registry = metrics_registry(state)
+    dispatcher = Dispatcher(celery, state.jobs, settings, _worker_redis(settings))
     sweeper = lifespan(
-        lambda: Sweeper(store, client, settings.orphan_max_age_s, settings.orphan_sweep_interval_s)
+        lambda: Sweeper(store, client, settings.orphan_max_age_s, settings.orphan_sweep_interval_s),
+        also=dispatcher,  # releases waiting jobs to the workers (one API process at a time: a lease)
     )  # what a killed API left behind (see sweeper.py)
     app = FastAPI(title="Bayesian Fields API", version="1.0.0", description=DESCRIPTION, lifespan=sweeper)
     app.state.bf = state

@@ -8,6 +8,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from bayesian_fields_service.common.fair_queue import Priority
 from bayesian_fields_service.common.jobs import JobRecord, JobState
 
 SCENE_EXAMPLE_ID = "s_0192f3a1b2c3aa55bb66cc"
@@ -140,6 +141,11 @@ class JobRequest(BaseModel):
         "the scene must support them (`depth_source: input` needs a depth map per frame).",
     )
     model_profile: str = Field("default", description="Name of a model profile configured on the workers.")
+    priority: Priority = Field(
+        "interactive",
+        description="Class in the tenant's fair-share queue: 'interactive' jobs are dispatched ahead "
+        "of the tenant's 'bulk' jobs.",
+    )
 
 
 class JobAccepted(BaseModel):
@@ -171,6 +177,14 @@ class BatchItem(BaseModel):
     model_config = ConfigDict(extra="forbid")
     scene_id: str
     tasks: list[str] = Field(min_length=1)
+    idempotency_key: str | None = Field(
+        None,
+        min_length=1,
+        max_length=200,
+        pattern=r"^[\x20-\x7e]+$",
+        description="Like the Idempotency-Key header of POST /v1/jobs, per item: an item whose key "
+        "names an earlier job reuses that job (it is listed in this batch; no new job is made).",
+    )
 
 
 class BatchRequest(BaseModel):
@@ -193,6 +207,9 @@ class BatchRequest(BaseModel):
     task_lists: list[list[str]] = Field(default_factory=list)
     parameters: dict[str, Any] = Field(default_factory=dict)
     model_profile: str = "default"
+    priority: Priority = Field(
+        "bulk", description="Class of every job of the batch in the tenant's fair-share queue."
+    )
 
 
 class BatchJob(BaseModel):
@@ -211,7 +228,16 @@ class BatchStatus(BaseModel):
     progress: float = Field(description="Mean progress of the jobs, percent.")
     counts: dict[str, int] = Field(description="Jobs per state.", examples=[{"running": 2, "queued": 6}])
     finished: bool
-    jobs: list[BatchJob]
+    total: int = Field(0, description="Jobs in the batch.")
+    created: int = Field(
+        0,
+        description="Jobs this request created (a submission: fewer than total when items reused "
+        "earlier jobs by idempotency key, 0 when the batch's Idempotency-Key matched; a retry: the "
+        "jobs it started again).",
+    )
+    jobs: list[BatchJob] = Field(
+        description="Every job of the batch (empty with ?jobs=false; page with /v1/batches/{id}/jobs)."
+    )
 
 
 class Health(BaseModel):

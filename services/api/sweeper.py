@@ -230,16 +230,23 @@ class Sweeper:
         self._stop.set()
 
 
-def lifespan(make: Callable[[], Sweeper]) -> Callable[[Any], contextlib.AbstractAsyncContextManager[None]]:
-    """A FastAPI lifespan that runs the sweeper while the app serves."""
+def lifespan(
+    make: Callable[[], Sweeper], also: Any = None
+) -> Callable[[Any], contextlib.AbstractAsyncContextManager[None]]:
+    """A FastAPI lifespan that runs the sweeper (and `also`, another object with start/stop, such
+    as the dispatcher) while the app serves."""
 
     @contextlib.asynccontextmanager
     async def run(_: Any) -> AsyncIterator[None]:
         sweeper = make()
         sweeper.start()
+        if also is not None:
+            also.start()
         try:
             yield
         finally:
+            if also is not None:
+                also.stop()
             sweeper.stop()
 
     return run

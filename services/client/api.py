@@ -3,7 +3,9 @@
 It packs a scene folder the way the server expects it (the .ply, the camera file(s), the images
 zipped into one archive), uploads it with a progress callback, and wraps the job/batch routes.
 Errors from the server become `ClientError` carrying the server's message, which already names
-the file and the problem.
+the file and the problem. A 429 (the tenant's waiting bound is full) or 503 (a backend is down)
+is retried after the server's ``Retry-After`` (bounded: `RetryPolicy`), as is a lost connection
+when the request is safe to repeat (a GET, or a POST carrying an Idempotency-Key).
 """
 
 from __future__ import annotations
@@ -31,6 +33,24 @@ COLMAP_FILES = (
     "frames.txt", "rigs.txt", "frames.bin", "rigs.bin",
 )  # fmt: skip
 TERMINAL = ("succeeded", "failed", "cancelled")
+RETRY_STATUSES = (429, 503)
+
+
+@dataclass(frozen=True)
+class RetryPolicy:
+    """Bounded backoff: at most `attempts` tries; each wait is the server's Retry-After (or
+    1, 2, 4, ... s without one), capped at `max_wait_s`; no wait once `budget_s` is spent."""
+
+    attempts: int = 8
+    max_wait_s: float = 60.0
+    budget_s: float = 600.0
+
+    def wait_s(self, attempt: int, retry_after: str | None) -> float:
+        try:
+            wanted = float(retry_after) if retry_after is not None else 2.0**attempt
+        except ValueError:
+            wanted = 2.0**attempt
+        return min(max(wanted, 0.0), self.max_wait_s)
 
 
 class ClientError(RuntimeError):
@@ -126,7 +146,11 @@ def zip_images(images: list[Path], root: Path, dest: Path) -> Path:
 class BFieldsClient:
     """Calls the API of one server with one API key."""
 
-    def __init__(self, server: str, api_key: str | None, *, timeout_s: float = 60.0) -> None:
+    def __init__(self, server: str, api_key: str | None, *, timeout_s: float = 60.0,
+                 retry: RetryPolicy | None = None, sleep: Callable[[float], None] = time.sleep) -> None:  # fmt: skip
+        self.retry = retry or RetryPolicy()
+        self.sleep = sleep
+        self.retries_done = 0  # how many 429/503/connection retries this client made (for tests, logs)
         if not api_key:
             raise ClientError("no API key: pass --api-key or set BFIELDS_API_KEY")
         self.server = server.rstrip("/")
@@ -146,11 +170,28 @@ class BFieldsClient:
         self.close()
 
     # ---- plumbing ------------------------------------------------------------------------------
-    def _call(self, method: str, path: str, **kwargs: Any) -> Any:
-        try:
-            resp = self.http.request(method, path, **kwargs)
-        except httpx.HTTPError as exc:
-            raise ClientError(f"{self.server}: {type(exc).__name__}: {exc}") from None
+    def _call(self, method: str, path: str, *, retry: bool = True, **kwargs: Any) -> Any:
+        """One API call; `retry=False` for a request whose body cannot be sent twice (a stream)."""
+        headers = kwargs.get("headers") or {}
+        repeatable = retry and (method == "GET" or "Idempotency-Key" in headers)
+        started = time.monotonic()
+        attempt = 0
+        while True:
+            attempt += 1
+            last = attempt >= self.retry.attempts or time.monotonic() - started > self.retry.budget_s
+            try:
+                resp = self.http.request(method, path, **kwargs)
+            except httpx.TransportError as exc:
+                if not repeatable or last:
+                    raise ClientError(f"{self.server}: {type(exc).__name__}: {exc}") from None
+                self._backoff(attempt, None)
+                continue
+            except httpx.HTTPError as exc:
+                raise ClientError(f"{self.server}: {type(exc).__name__}: {exc}") from None
+            if retry and resp.status_code in RETRY_STATUSES and not last:
+                self._backoff(attempt, resp.headers.get("Retry-After"))
+                continue
+            break
         if resp.status_code >= 400:
             try:
                 detail = resp.json().get("detail", resp.text)
@@ -162,6 +203,10 @@ class BFieldsClient:
             if resp.content and resp.headers.get("content-type", "").startswith("application/json")
             else None
         )
+
+    def _backoff(self, attempt: int, retry_after: str | None) -> None:
+        self.retries_done += 1
+        self.sleep(self.retry.wait_s(attempt - 1, retry_after))
 
     # ---- scenes --------------------------------------------------------------------------------
     def upload_scene(self, folder: Path, *, name: str | None = None, on_bytes: ProgressFn | None = None,
@@ -180,20 +225,22 @@ class BFieldsClient:
                 on_total(sum(p.stat().st_size for _, p in parts))
             form = [(field, (p.name, stack.enter_context(_ProgressFile(p, on_bytes)))) for field, p in parts]
             return self._call("POST", "/v1/scenes", files=form, data={"name": name or Path(folder).name},
-                              timeout=httpx.Timeout(None, connect=10.0))  # fmt: skip
+                              timeout=httpx.Timeout(None, connect=10.0), retry=False)  # fmt: skip
 
     def scene(self, scene_id: str) -> dict[str, Any]:
         return self._call("GET", f"/v1/scenes/{scene_id}")
 
     # ---- jobs ----------------------------------------------------------------------------------
     def submit_job(self, scene_id: str, tasks: list[str], *, parameters: dict[str, Any] | None = None,
-                   model_profile: str = "default", idempotency_key: str | None = None) -> dict[str, Any]:  # fmt: skip
+                   model_profile: str = "default", idempotency_key: str | None = None,
+                   priority: str = "interactive") -> dict[str, Any]:  # fmt: skip
         headers = {"Idempotency-Key": idempotency_key} if idempotency_key else None
         body = {
             "scene_id": scene_id,
             "tasks": tasks,
             "parameters": parameters or {},
             "model_profile": model_profile,
+            "priority": priority,
         }
         return self._call("POST", "/v1/jobs", json=body, headers=headers)
 
@@ -244,11 +291,29 @@ class BFieldsClient:
         return written
 
     # ---- batches -------------------------------------------------------------------------------
-    def submit_batch(self, body: dict[str, Any]) -> dict[str, Any]:
-        return self._call("POST", "/v1/batches", json=body)
+    def submit_batch(self, body: dict[str, Any], *, idempotency_key: str | None = None) -> dict[str, Any]:
+        headers = {"Idempotency-Key": idempotency_key} if idempotency_key else None
+        return self._call("POST", "/v1/batches", json=body, headers=headers)
 
-    def batch(self, batch_id: str) -> dict[str, Any]:
-        return self._call("GET", f"/v1/batches/{batch_id}")
+    def batch(self, batch_id: str, *, jobs: bool = True) -> dict[str, Any]:
+        return self._call("GET", f"/v1/batches/{batch_id}", params={"jobs": str(jobs).lower()})
+
+    def batch_jobs(self, batch_id: str, *, page: int = 500) -> Iterator[dict[str, Any]]:
+        """Every job record of a batch, a page at a time."""
+        cursor: str | None = None
+        while True:
+            params: dict[str, Any] = {"limit": page, **({"cursor": cursor} if cursor else {})}
+            got = self._call("GET", f"/v1/batches/{batch_id}/jobs", params=params)
+            yield from got["items"]
+            cursor = got.get("next_cursor")
+            if not cursor:
+                return
+
+    def cancel_batch(self, batch_id: str) -> dict[str, Any]:
+        return self._call("POST", f"/v1/batches/{batch_id}/cancel")
+
+    def retry_batch(self, batch_id: str) -> dict[str, Any]:
+        return self._call("POST", f"/v1/batches/{batch_id}/retry")
 
 
 @contextmanager

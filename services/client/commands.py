@@ -9,6 +9,7 @@ or ``BFIELDS_API_KEY`` (so it stays out of shell history).
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import os
 import sys
@@ -19,9 +20,15 @@ from typing import Any
 
 import yaml
 from rich.console import Console
-from rich.live import Live
-from rich.progress import BarColumn, DownloadColumn, Progress, TextColumn, TransferSpeedColumn
-from rich.table import Table
+from rich.progress import (
+    BarColumn,
+    DownloadColumn,
+    MofNCompleteColumn,
+    Progress,
+    TextColumn,
+    TimeRemainingColumn,
+    TransferSpeedColumn,
+)
 
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.job.task_list import load_tasks, normalise_tasks
@@ -79,15 +86,18 @@ def _parameters(path: str | None) -> dict[str, Any]:
 
 
 def submit(scene_dir: str | Path, tasks_file: str | Path, *, server: str | None = None, api_key: str | None = None,
-           wait: bool = False, parameters: str | None = None, poll_s: float = 1.0) -> int:  # fmt: skip
-    """Upload a scene folder, submit a job for the task list; with `wait`, poll until it ends."""
+           wait: bool = False, parameters: str | None = None, poll_s: float = 1.0,
+           priority: str = "interactive") -> int:  # fmt: skip
+    """Upload a scene folder, submit a job for the task list; with `wait`, poll until it ends.
+    A 429 / 503 is retried after the server's Retry-After (bounded); the submission carries one
+    Idempotency-Key across those retries, so it never makes two jobs."""
     tasks = load_tasks(tasks_file)
     with _client(server, api_key) as client:
         scene = _upload(client, Path(scene_dir))
         console.print(f"scene {scene['id']}: {scene['summary'].get('frames')} frames, "
                       f"{scene['summary'].get('gaussians')} Gaussians")  # fmt: skip
         job = client.submit_job(scene["id"], tasks, parameters=_parameters(parameters),
-                                idempotency_key=str(uuid.uuid4()))  # fmt: skip
+                                idempotency_key=str(uuid.uuid4()), priority=priority)  # fmt: skip
         print(job["id"])
         if not wait:
             return 0
@@ -133,52 +143,83 @@ def _manifest(path: Path) -> dict[str, Any]:
     return {**data, "task_lists": task_lists}
 
 
-def _batch_table(batch: dict[str, Any], names: dict[str, str]) -> Table:
-    counts = ", ".join(f"{k} {v}" for k, v in sorted(batch["counts"].items()))
-    table = Table(title=f"batch {batch['id']}  {batch['progress']:.1f}%  ({counts})")
-    for col in ("job", "scene", "tasks", "state", "stage", "progress"):
-        table.add_column(col)
-    for job in batch["jobs"]:
-        style = {"succeeded": "green", "failed": "red", "cancelled": "yellow"}.get(job["state"], "")
-        table.add_row(job["id"], names.get(job["scene_id"], job["scene_id"]), "; ".join(job["tasks"])[:60],
-                      f"[{style}]{job['state']}[/]" if style else job["state"], job["stage"] or "",
-                      f"{job['progress']:.0f}%")  # fmt: skip
-    return table
+def item_key(scene: str, tasks: list[str], parameters: dict[str, Any], model_profile: str) -> str:
+    """The Idempotency-Key of one manifest item, derived from what the item asks for (the scene
+    entry as written in the manifest, resolved when it is a folder; tasks; parameters; model
+    profile): re-running a manifest sends the same keys, so the server makes no new job."""
+    blob = json.dumps({"scene": scene, "tasks": tasks, "parameters": parameters, "model_profile": model_profile},
+                      sort_keys=True, ensure_ascii=True)  # fmt: skip
+    return "bfields-item-" + hashlib.sha256(blob.encode()).hexdigest()[:40]
+
+
+def _counts(state: dict[str, Any]) -> str:
+    c = state["counts"]
+    return "  ".join(
+        f"{k} {c[k]}" for k in ("succeeded", "failed", "cancelled", "running", "queued") if c.get(k)
+    )
+
+
+def _follow(client: BFieldsClient, state: dict[str, Any], poll_s: float) -> dict[str, Any]:
+    """A progress bar of finished jobs out of the batch, with per-state counts and an ETA."""
+    total = state["total"] or len(state["jobs"])
+    with Progress(TextColumn(f"batch {state['id']}"), BarColumn(), MofNCompleteColumn(),
+                  TextColumn("{task.fields[counts]}"), TimeRemainingColumn(), console=console) as bar:  # fmt: skip
+        task = bar.add_task("batch", total=total, counts="")
+        while True:
+            done = sum(state["counts"].get(k, 0) for k in ("succeeded", "failed", "cancelled"))
+            bar.update(task, completed=done, counts=_counts(state))
+            if state["finished"]:
+                return state
+            time.sleep(poll_s)
+            state = client.batch(state["id"], jobs=False)
 
 
 def batch(manifest: str | Path, *, server: str | None = None, api_key: str | None = None, wait: bool = True,
-          out: str | Path | None = None, poll_s: float = 1.0) -> int:  # fmt: skip
-    """Upload the manifest's scenes, submit scenes x task lists, show a live table of job states."""
+          out: str | Path | None = None, poll_s: float = 2.0, priority: str = "bulk") -> int:  # fmt: skip
+    """Upload the manifest's scenes, submit scenes x task lists as one batch, follow it with a
+    progress bar. Every item carries an Idempotency-Key derived from the item (`item_key`) and
+    the batch one derived from all of them, so a re-run manifest (after a crash, a 429 that ran
+    out of retries, a Ctrl-C) creates no job twice."""
     path = Path(manifest)
     spec = _manifest(path)
-    names: dict[str, str] = {}
+    parameters = spec.get("parameters") or {}
+    model_profile = spec.get("model_profile", "default")
     with _client(server or spec.get("server"), api_key) as client:
-        scene_ids = []
+        items = []
         for entry in spec["scenes"]:
             entry = str(entry)
             if entry.startswith("s_"):
-                scene_ids.append(client.scene(entry)["id"])
-                continue
-            folder = (path.parent / entry).resolve()
-            scene = _upload(client, folder)
-            names[scene["id"]] = folder.name
-            scene_ids.append(scene["id"])
-        body = {"scene_ids": scene_ids, "task_lists": spec["task_lists"],
-                "parameters": spec.get("parameters") or {}, "model_profile": spec.get("model_profile", "default")}  # fmt: skip
-        state = client.submit_batch(body)
+                scene_id, where = client.scene(entry)["id"], entry
+            else:
+                folder = (path.parent / entry).resolve()
+                scene_id, where = _upload(client, folder)["id"], str(folder)
+            for tasks in spec["task_lists"]:
+                key = item_key(where, tasks, parameters, model_profile)
+                items.append({"scene_id": scene_id, "tasks": tasks, "idempotency_key": key})
+        body = {
+            "items": items,
+            "parameters": parameters,
+            "model_profile": model_profile,
+            "priority": priority,
+        }
+        batch_key = (
+            "bfields-batch-"
+            + hashlib.sha256("\n".join(i["idempotency_key"] for i in items).encode()).hexdigest()[:40]
+        )
+        state = client.submit_batch(body, idempotency_key=batch_key)
         print(state["id"])
+        console.print(f"batch {state['id']}: {state['total']} jobs, {state['created']} new")
         if not wait:
             return 0
-        with Live(_batch_table(state, names), console=console, refresh_per_second=4) as live:
-            while not state["finished"]:
-                time.sleep(poll_s)
-                state = client.batch(state["id"])
-                live.update(_batch_table(state, names))
+        state = _follow(client, state, poll_s)
+        jobs = list(client.batch_jobs(state["id"]))
         if out is not None:
-            for job in state["jobs"]:
+            for job in jobs:
                 if job["state"] == "succeeded":
                     client.download_artifacts(job["id"], Path(out) / job["id"])
-        failed = [j for j in state["jobs"] if j["state"] != "succeeded"]
+        failed = [j for j in jobs if j["state"] != "succeeded"]
+        for j in failed[:20]:
+            console.print(f"[red]{j['id']}[/] {j['state']}: {j['error'] or ''}")
         return 0 if not failed else 1
 
 
@@ -188,6 +229,11 @@ def batch(manifest: str | Path, *, server: str | None = None, api_key: str | Non
 def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--server", help=f"API base URL (default: $BFIELDS_SERVER or {DEFAULT_SERVER})")
     p.add_argument("--api-key", help="API key (default: $BFIELDS_API_KEY)")
+
+
+def _priority(p: argparse.ArgumentParser, default: str) -> None:
+    p.add_argument("--priority", choices=("interactive", "bulk"), default=default,
+                   help=f"class in your fair-share queue: interactive jobs go first (default: {default})")  # fmt: skip
 
 
 def _run(fn: Any, **kwargs: Any) -> int:
@@ -205,9 +251,11 @@ def register_client_commands(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--tasks", required=True, help="task list (.yaml, .json or one task per line)")
     p.add_argument("--parameters", help="YAML/JSON mapping of pipeline parameters")
     p.add_argument("--wait", action="store_true", help="poll until the job ends (exit 1 unless it succeeded)")
+    _priority(p, "interactive")
     _common(p)
     p.set_defaults(func=lambda a: _run(submit, scene_dir=a.scene_dir, tasks_file=a.tasks, server=a.server,
-                                       api_key=a.api_key, wait=a.wait, parameters=a.parameters))  # fmt: skip
+                                       api_key=a.api_key, wait=a.wait, parameters=a.parameters,
+                                       priority=a.priority))  # fmt: skip
 
     p = subparsers.add_parser("status", help="show a job's state, stage, progress and timings")
     p.add_argument("job_id")
@@ -224,9 +272,10 @@ def register_client_commands(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("manifest")
     p.add_argument("--out", help="download the results of succeeded jobs here")
     p.add_argument("--no-wait", action="store_true", help="submit and print the batch id only")
+    _priority(p, "bulk")
     _common(p)
     p.set_defaults(func=lambda a: _run(batch, manifest=a.manifest, server=a.server, api_key=a.api_key,
-                                       wait=not a.no_wait, out=a.out))  # fmt: skip
+                                       wait=not a.no_wait, out=a.out, priority=a.priority))  # fmt: skip
 
 
 def main(argv: list[str] | None = None) -> int:

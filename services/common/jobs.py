@@ -44,6 +44,7 @@ from pydantic import BaseModel, Field, computed_field, model_validator
 
 from bayesian_fields_core.job.stage_table import STAGE_TABLE, STAGES
 from bayesian_fields_core.job.store import ArtifactNotFound, Store, get_json, put_json
+from bayesian_fields_service.common.fair_queue import Priority, dispatched_key
 from bayesian_fields_service.common.quota import TenantQuota
 from bayesian_fields_service.common.redis_text import text
 from bayesian_fields_service.common.sanitize import redact_locations, scrub
@@ -115,6 +116,21 @@ class JobRecord(BaseModel):
     finished_at: datetime | None = None
     idempotency_key: str | None = None
     batch_id: str | None = None
+    priority: Priority = Field(
+        "interactive",
+        description="Fair-share class: within a tenant's queue 'interactive' jobs go ahead of 'bulk' "
+        "ones (single jobs default to interactive, batch items to bulk).",
+    )
+    queue_position: int | None = Field(
+        None,
+        description="While the job waits in its tenant's queue: 1 for the tenant's next job to be "
+        "dispatched (interactive jobs first, then bulk, each oldest first); null otherwise.",
+    )
+    estimated_start: datetime | None = Field(
+        None,
+        description="While waiting: an estimate of when a worker starts it, from the tenant's recent "
+        "dispatch rate (or the mean job duration); null when unknown or not waiting.",
+    )
 
     @model_validator(mode="before")
     @classmethod
@@ -150,6 +166,15 @@ class BatchRecord(BaseModel):
     tenant: str
     job_ids: list[str]
     created_at: datetime = Field(default_factory=utcnow)
+    priority: Priority = "bulk"
+    idempotency_key: str | None = None
+    retried: dict[str, str] = Field(
+        default_factory=dict, description="Failed job id -> the job that retried it (in job_ids now)."
+    )
+
+
+#: Fields of a `JobRecord` computed when it is read, never stored.
+_READ_ONLY = {"queue_position", "estimated_start"}
 
 
 def overall_progress(stages_done: Iterable[str], stage: str | None, fraction: float) -> float:
@@ -243,7 +268,7 @@ class JobStore:
         put_json(
             self.tenant(record.tenant),
             self.manifest_key(record.id),
-            _redacted(record).model_dump(mode="json"),
+            _redacted(record).model_dump(mode="json", exclude=_READ_ONLY),
         )
 
     def create(self, record: JobRecord) -> None:
@@ -295,6 +320,7 @@ class JobStore:
         self.store.delete(self.active_key(record.tenant, record.id))
         self.store.delete(self.pending_key(record.tenant, record.id))
         self.quota.release(record.tenant, [record.id])
+        self.redis.zrem(dispatched_key(record.tenant), record.id)
 
     def _manifest_lock(self, tenant: str, job_id: str) -> Any:
         """The short Redis lock every manifest write holds (read, merge, write)."""
@@ -524,6 +550,19 @@ class JobStore:
 
     def remember_idempotent(self, tenant: str, key: str, job_id: str) -> None:
         put_json(self.tenant(tenant), self._idem_key(key), {"job_id": job_id})
+
+    @staticmethod
+    def _batch_idem_key(key: str) -> str:
+        return f"idempotency/batches/{hashlib.sha256(key.encode()).hexdigest()}.json"
+
+    def idempotent_batch(self, tenant: str, key: str) -> str | None:
+        try:
+            return str(get_json(self.tenant(tenant), self._batch_idem_key(key))["batch_id"])
+        except ArtifactNotFound:
+            return None
+
+    def remember_idempotent_batch(self, tenant: str, key: str, batch_id: str) -> None:
+        put_json(self.tenant(tenant), self._batch_idem_key(key), {"batch_id": batch_id})
 
     def _forget_idempotent(self, record: JobRecord) -> None:
         """Drop the key of a submission that was undone, so the client's retry makes a new job."""

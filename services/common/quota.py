@@ -1,4 +1,9 @@
-"""The per-tenant active-job quota as one Redis sorted set, changed only by atomic operations.
+"""The per-tenant admission bound as one Redis sorted set, changed only by atomic operations.
+
+The set holds every unfinished job of the tenant (waiting in its fair-share queue, dispatched or
+running); a submission is admitted while the set stays within BFIELDS_MAX_WAITING_JOBS_PER_TENANT
++ BFIELDS_MAX_ACTIVE_JOBS_PER_TENANT (`admission_limit`). How many of them run at once is bounded
+apart, by the dispatcher (`common.fair_queue`).
 
 Why not "count, then write": two API processes counting at the same moment both see room and
 both write (100 simultaneous submissions at a quota of 16 used to accept 27). Here a Lua script
@@ -29,6 +34,11 @@ if size + new > tonumber(ARGV[1]) then return {0, size} end
 for i = 3, #ARGV do redis.call('ZADD', KEYS[1], 'NX', ARGV[2], ARGV[i]) end
 return {1, size + new}
 """
+
+
+def admission_limit(max_waiting: int, max_dispatched: int) -> int:
+    """Unfinished jobs a tenant may have: its waiting bound plus what may be dispatched."""
+    return max_waiting + max_dispatched
 
 
 def quota_key(tenant: str) -> str:
@@ -62,17 +72,23 @@ class TenantQuota:
         `older_than_s` (a younger one may be a reservation whose job is being written right now).
         Returns (added, dropped)."""
         key = quota_key(tenant)
-        now = time.time()
         added = 0
         if active_ids:
-            added = int(self.client.zadd(key, dict.fromkeys(active_ids, now), nx=True) or 0)
+            added = int(self.client.zadd(key, dict.fromkeys(active_ids, time.time()), nx=True) or 0)
+        return added, self.drop_stale(key, active_ids, older_than_s=older_than_s)
+
+    def drop_stale(self, key: str, active_ids: set[str], *, older_than_s: float) -> int:
+        """Remove members of the sorted set `key` that are not in `active_ids` and older than
+        `older_than_s` (scores are times). Returns how many went."""
+        now = time.time()
         # withscores=True: (member, score) pairs
         members = cast(list[tuple[bytes, float]], self.client.zrange(key, 0, -1, withscores=True))
         stale = [
             m.decode() for m, score in members if m.decode() not in active_ids and score < now - older_than_s
         ]
-        self.release(tenant, stale)
-        return added, len(stale)
+        if stale:
+            self.client.zrem(key, *stale)
+        return len(stale)
 
     def tenants(self) -> list[str]:
         """Tenants that have a quota set in Redis."""

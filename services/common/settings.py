@@ -107,7 +107,9 @@ class ServiceSettings(BaseSettings):
     max_frames: int = Field(10_000, gt=0, description="Most posed images a scene may contain.")
     max_tasks: int = Field(256, gt=0, description="Most task prompts in one job.")
     max_task_chars: int = Field(200, gt=0, description="Longest task prompt, in characters.")
-    max_batch_jobs: int = Field(500, gt=0, description="Most jobs in one batch submission.")
+    max_batch_jobs: int = Field(
+        5000, gt=0, description="Most jobs in one batch submission (accepted whole, or refused whole)."
+    )
 
     # ---- jobs ------------------------------------------------------------------------------------
     model_profile: Path | None = Field(
@@ -123,7 +125,42 @@ class ServiceSettings(BaseSettings):
         3, ge=0, description="Redeliveries of a stage after a worker crash or a transient error."
     )
     max_active_jobs_per_tenant: int = Field(
-        16, gt=0, description="Queued + running jobs a tenant may have; more are refused with 429."
+        16,
+        gt=0,
+        description="Jobs of one tenant dispatched to the workers at a time (in a Celery queue or "
+        "running); the rest wait in the tenant's fair-share queue. Admission is bounded apart, by "
+        "max_waiting_jobs_per_tenant.",
+    )
+    max_waiting_jobs_per_tenant: int = Field(
+        10_000,
+        gt=0,
+        description="Jobs a tenant may have waiting beyond those dispatched: a submission is refused "
+        "with 429 + Retry-After only when the tenant's unfinished jobs would exceed this plus "
+        "max_active_jobs_per_tenant.",
+    )
+    tenant_weights: dict[str, float] = Field(
+        default_factory=dict,
+        description="JSON object tenant -> weight of its share of the workers while several tenants "
+        "have jobs waiting (a tenant of weight 2 gets twice the dispatches of one of weight 1). "
+        "Tenants not named weigh 1.",
+    )
+    dispatch_queue_depth: int = Field(
+        2,
+        ge=1,
+        le=1000,
+        description="Messages the dispatcher keeps waiting in the GPU queue ahead of the workers. "
+        "Small keeps the order fair (a new tenant's job waits behind at most this many); at least "
+        "the number of GPU worker processes that may fall idle at once keeps them busy.",
+    )
+    dispatch_interval_s: float = Field(
+        0.5, gt=0, le=60, description="Seconds between two rounds of the dispatcher."
+    )
+    dispatcher_lease_s: float = Field(
+        10.0,
+        ge=1,
+        le=600,
+        description="Lifetime of the dispatcher lease in Redis: one API process dispatches at a "
+        "time; another takes over this long after the holder stops renewing it (a crash).",
     )
     stage_lock_ttl_s: int = Field(
         60,
@@ -211,6 +248,18 @@ class ServiceSettings(BaseSettings):
                     f"BFIELDS_API_KEYS: invalid tenant name {tenant!r} (allowed {TENANT_PATTERN})"
                 )
         return v
+
+    @field_validator("tenant_weights")
+    @classmethod
+    def _check_weights(cls, v: dict[str, float]) -> dict[str, float]:
+        for tenant, weight in v.items():
+            if not weight > 0 or weight == float("inf"):
+                raise ValueError(f"BFIELDS_TENANT_WEIGHTS: weight of {tenant!r} must be a positive number")
+        return v
+
+    def weight(self, tenant: str) -> float:
+        """The tenant's fair-share weight (1 unless BFIELDS_TENANT_WEIGHTS names it)."""
+        return self.tenant_weights.get(tenant, 1.0)
 
     @model_validator(mode="after")
     def _check_consistency(self) -> ServiceSettings:

@@ -46,3 +46,16 @@ def read_histogram(client: redis.Redis, key: str) -> tuple[list[tuple[str, float
     count = data.get("count", 0.0)
     buckets = [(f"{b:g}", data.get(f"le_{b:g}", 0.0)) for b in BUCKETS] + [("+Inf", count)]
     return buckets, data.get("sum", 0.0), count
+
+
+QUEUE_WAIT_KEY = "bf:metrics:queue_wait:{tenant}"
+
+
+def observe_queue_wait(client: redis.Redis, tenant: str, seconds: float) -> None:
+    """Seconds a job waited from submission to its dispatch to a worker queue (per tenant)."""
+    _observe(client, QUEUE_WAIT_KEY.format(tenant=tenant), seconds)
+
+
+def queue_wait_tenants(client: redis.Redis) -> list[str]:
+    prefix = QUEUE_WAIT_KEY.format(tenant="")
+    return sorted(text(k)[len(prefix) :] for k in client.scan_iter(match=prefix + "*", count=200))

@@ -5,7 +5,10 @@ A job is *orphaned* when its manifest is queued/running (an ``active/<tenant>/<i
 exists), no lock on any of its stages is held, and Redis either has no live hash for it (Redis
 lost it) or its hash says a stage is executing (phase 'active': the worker died and its lock
 expired). The second case recovers a SIGKILLed worker's job after the lock TTL (a minute) rather
-than after the broker's visibility timeout (hours). A job is re-enqueued
+than after the broker's visibility timeout (hours). A third case is a job the
+dispatcher moved to its tenant's dispatched set and died before sending (phase 'dispatching').
+An orphan goes back to the front of its tenant's fair-share queue (`FairQueue.requeue`), so the
+dispatcher resends it within the tenant's dispatch bound. A job is requeued
 only after it has looked orphaned for `grace_s` seconds on two scans: a worker that is running a
 stage re-creates its lock within one heartbeat, so a live job is never sent twice. Should a
 duplicate slip through anyway, stages are idempotent (finished markers are skipped) and guarded
@@ -14,10 +17,10 @@ by the per-stage lock, so the cost is time, never a wrong result.
 Two repairs ride on the same scan. A job with a *pending* marker older than `grace_s` was stored
 by an API that stopped (died, or lost Redis) between storing it and confirming its enqueue. The
 job is complete and valid (the API validated it and took its quota slot before storing it), so a
-batch service runs it: the scan enqueues it itself, as long as its manifest is still queued with
-no stage done, and drops the marker. Enqueueing is idempotent, so "sure it was never queued" is
-not needed: if the API did enqueue it before it stopped, the second message finds each stage's
-marker (skipped), its lock (waits) or the job terminal (dropped), never a second run of a stage.
+batch service runs it: the scan submits it to the tenant's fair-share queue itself, as long as
+its manifest is still queued with no stage done, and drops the marker. A job that already waits
+in the fair-share queue or was dispatched counts as submitted: `FairQueue.submit` leaves it
+alone (one Lua script checks both), so it is never queued, run or listed twice.
 A client that retries with the same Idempotency-Key gets this job back (the key is stored with
 the job, before the enqueue); one that retries without a key asked for a second job. And each
 tenant's quota set is made to agree with the ``active/`` markers (`TenantQuota.repair`), so a
@@ -36,9 +39,9 @@ import redis
 from celery import Celery
 from celery.utils.log import get_logger
 
+from bayesian_fields_service.common.fair_queue import FairQueue, dispatched_key
 from bayesian_fields_service.common.jobs import JobState, JobStore, id_age_s
 from bayesian_fields_service.common.settings import ServiceSettings
-from bayesian_fields_service.worker.dispatch import enqueue_stages
 
 log = get_logger(__name__)  # a child of the 'celery' logger: lands in the worker log
 
@@ -64,9 +67,10 @@ def recover_orphans(
     if not lock.acquire(blocking=False):
         return []
     requeued: list[str] = []
+    fair = FairQueue(client, settings.gpu_queue)
     try:
         now = time.time()
-        pending = _enqueue_unsubmitted(app, jobs, settings, grace_s, requeued)
+        pending = _enqueue_unsubmitted(fair, jobs, grace_s, requeued)
         active = jobs.active_jobs()
         _repair_quotas(jobs, active, grace_s)
         for tenant, job_id in active:
@@ -87,20 +91,10 @@ def recover_orphans(
             if record is None or record.state.terminal:
                 jobs.store.delete(jobs.active_key(tenant, job_id))
                 continue
-            jobs.touch_live(record)  # the job is known to Redis again before its message is sent
-            enqueue_stages(
-                app,
-                tenant,
-                job_id,
-                record.remaining_stages(),
-                gpu_queue=settings.gpu_queue,
-                cpu_queue=settings.cpu_queue,
-            )
+            fair.requeue(tenant, record.priority, job_id)  # phase 'waiting' again, front of its queue
             client.delete(suspect)
             requeued.append(job_id)
-            log.warning(
-                "re-enqueued orphaned job %s/%s at stages %s", tenant, job_id, record.remaining_stages()
-            )
+            log.warning("requeued orphaned job %s/%s at stages %s", tenant, job_id, record.remaining_stages())
     finally:
         try:
             lock.release()
@@ -110,10 +104,11 @@ def recover_orphans(
 
 
 def _enqueue_unsubmitted(
-    app: Celery, jobs: JobStore, settings: ServiceSettings, grace_s: float, requeued: list[str]
+    fair: FairQueue, jobs: JobStore, grace_s: float, requeued: list[str]
 ) -> set[tuple[str, str]]:
-    """Enqueue the jobs whose submission never confirmed its enqueue (pending marker past
-    `grace_s`), appending their ids to `requeued`.
+    """Submit the jobs whose submission never confirmed it (pending marker past `grace_s`) to the
+    fair-share queue, appending their ids to `requeued`; a job already waiting there or
+    dispatched is only relieved of its marker.
 
     Returns the (tenant, job id) still pending but younger than `grace_s` (left to the API)."""
     waiting: set[tuple[str, str]] = set()
@@ -130,21 +125,20 @@ def _enqueue_unsubmitted(
                 jobs.store.delete(jobs.active_key(tenant, job_id))
                 jobs.quota.release(tenant, [job_id])
             continue
-        if record.state == JobState.queued and not record.stages_done:
-            jobs.touch_live(record)  # known to Redis (phase 'waiting') before its message is sent
-            enqueue_stages(
-                app, tenant, job_id, record.remaining_stages(),
-                gpu_queue=settings.gpu_queue, cpu_queue=settings.cpu_queue,
-            )  # fmt: skip
-            requeued.append(job_id)
-            log.warning(
-                "enqueued job %s/%s: stored by an API that stopped before enqueueing it", tenant, job_id
-            )
-        jobs.store.delete(jobs.pending_key(tenant, job_id))  # enqueued now, or a worker has it
+        if record.state == JobState.queued and not record.stages_done and not fair.contains(tenant, job_id):
+            jobs.touch_live(record)  # known to Redis (phase 'waiting') before it can be dispatched
+            if fair.submit(tenant, record.priority, [job_id]):
+                requeued.append(job_id)
+                log.warning(
+                    "submitted job %s/%s: stored by an API that stopped before submitting it", tenant, job_id
+                )
+        jobs.store.delete(jobs.pending_key(tenant, job_id))  # submitted now, or it already was
     return waiting
 
 
 def _repair_quotas(jobs: JobStore, active: list[tuple[str, str]], grace_s: float) -> None:
+    """Admission sets re-take active jobs and drop finished ones; dispatched sets only drop members
+    whose job is no longer active (a lost member is re-added by requeue and dispatch)."""
     by_tenant: dict[str, set[str]] = {}
     for tenant, job_id in active:
         by_tenant.setdefault(tenant, set()).add(job_id)
@@ -154,6 +148,10 @@ def _repair_quotas(jobs: JobStore, active: list[tuple[str, str]], grace_s: float
         )
         if added or dropped:
             log.warning("quota of %s repaired: %d slots re-taken, %d released", tenant, added, dropped)
+        gone = jobs.quota.drop_stale(dispatched_key(tenant), by_tenant.get(tenant, set()),
+                                     older_than_s=max(grace_s, 30.0))  # fmt: skip
+        if gone:
+            log.warning("dispatch bound of %s repaired: %d finished jobs released", tenant, gone)
 
 
 def _loop(app: Celery, jobs: JobStore, settings: ServiceSettings, interval_s: float) -> None:

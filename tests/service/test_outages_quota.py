@@ -104,12 +104,14 @@ def test_outages_answer_503_quickly_and_leave_no_job(private_stack, scene_dir: P
 def two_apis(
     tmp_path: Path, svc_env: dict[str, str], stored_scene: dict
 ) -> Iterator[tuple[list[ApiServer], str]]:
-    """Two API processes at a quota of 16 for a fresh tenant, on queues no worker consumes."""
+    """Two API processes at an admission bound of 16 (15 waiting + 1 dispatched) for a fresh
+    tenant, on queues no worker consumes."""
     tenant = "tenant-q" + secrets.token_hex(3)
     keys = {tenant: "key-q-" + secrets.token_urlsafe(12)}
     env = {
         **svc_env,
-        "BFIELDS_MAX_ACTIVE_JOBS_PER_TENANT": "16",
+        "BFIELDS_MAX_ACTIVE_JOBS_PER_TENANT": "1",
+        "BFIELDS_MAX_WAITING_JOBS_PER_TENANT": "15",
         "BFIELDS_API_KEYS": json.dumps({keys[tenant]: tenant}),
         "BFIELDS_GPU_QUEUE": "quota-test-gpu",
         "BFIELDS_CPU_QUEUE": "quota-test-cpu",

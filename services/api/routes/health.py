@@ -14,7 +14,13 @@ from prometheus_client.registry import Collector
 from bayesian_fields_service.api.schemas import Health
 from bayesian_fields_service.api.state import AppState, get_state
 from bayesian_fields_service.common.jobs import STAGES, JobState
-from bayesian_fields_service.worker.metrics import JOB_KEY, STAGE_KEY, read_histogram
+from bayesian_fields_service.worker.metrics import (
+    JOB_KEY,
+    QUEUE_WAIT_KEY,
+    STAGE_KEY,
+    queue_wait_tenants,
+    read_histogram,
+)
 
 router = APIRouter(tags=["health"])
 
@@ -68,6 +74,16 @@ class ServiceCollector(Collector):
         job_h = HistogramMetricFamily(
             "bfields_job_seconds", "Duration of finished jobs by outcome.", labels=["outcome"]
         )
+        waiting = GaugeMetricFamily(
+            "bfields_jobs_waiting",
+            "Jobs waiting in a tenant's fair-share queue (not yet dispatched to a worker queue).",
+            labels=["tenant"],
+        )
+        wait_h = HistogramMetricFamily(
+            "bfields_queue_wait_seconds",
+            "Seconds from a job's submission to its dispatch to a worker queue.",
+            labels=["tenant"],
+        )
         try:
             for queue in {s.settings.gpu_queue, s.settings.cpu_queue}:
                 depth.add_metric([queue], sum(s.redis.llen(queue + sfx) for sfx in _PRIORITY_SUFFIXES))
@@ -77,10 +93,15 @@ class ServiceCollector(Collector):
             for outcome in (JobState.succeeded, JobState.failed, JobState.cancelled):
                 if (h := read_histogram(s.redis, JOB_KEY.format(outcome=outcome.value))) is not None:
                     job_h.add_metric([outcome.value], h[0], h[1])
+            for tenant, n in s.fair.waiting_by_tenant().items():
+                waiting.add_metric([tenant], n)
+            for tenant in queue_wait_tenants(s.redis):
+                if (h := read_histogram(s.redis, QUEUE_WAIT_KEY.format(tenant=tenant))) is not None:
+                    wait_h.add_metric([tenant], h[0], h[1])
         except redis.RedisError:
             return
         active.add_metric([], len(s.jobs.active_jobs()))
-        yield from (depth, active, stage_h, job_h)
+        yield from (depth, active, stage_h, job_h, waiting, wait_h)
 
 
 def metrics_registry(state: AppState) -> CollectorRegistry:

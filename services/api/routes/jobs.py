@@ -1,10 +1,17 @@
-"""Job routes: submit (idempotent), status, result links, cancel, list; plus batches of jobs."""
+"""Job routes: submit (idempotent), status, result links, cancel, list; plus batches of jobs
+(submit, status, page, cancel, retry).
+
+A submission is admitted (bounded by the tenant's waiting bound, 429 past it), stored, and put in
+the tenant's fair-share queue (`common.fair_queue`); the dispatcher sends it to the workers."""
 
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable, Iterable, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from datetime import UTC, datetime, timedelta
 from pathlib import PurePosixPath
-from typing import Annotated, Any
+from typing import Annotated, Any, TypeVar
 
 from fastapi import APIRouter, Header, HTTPException, Query, Response, status
 from fastapi.responses import FileResponse
@@ -26,6 +33,7 @@ from bayesian_fields_service.api.schemas import (
     JobRequest,
     JobResult,
     Problem,
+    SceneRecord,
 )
 from bayesian_fields_service.api.state import (
     BODY_ERRORS,
@@ -36,13 +44,30 @@ from bayesian_fields_service.api.state import (
     check_id,
     not_found,
 )
+from bayesian_fields_service.common.fair_queue import Priority
 from bayesian_fields_service.common.jobs import BatchRecord, JobRecord, JobState, new_id
+from bayesian_fields_service.common.quota import admission_limit
+from bayesian_fields_service.worker.metrics import JOB_KEY, read_histogram
 
 log = logging.getLogger(__name__)
 router = APIRouter(prefix="/v1", tags=["jobs"])
 
 #: Model profiles a job may name. The workers map "default" to BFIELDS_MODEL_PROFILE.
 MODEL_PROFILES = ("default",)
+#: Threads a request uses for many small bucket calls (a batch's manifests, markers, indexes).
+IO_THREADS = 16
+
+T = TypeVar("T")
+R = TypeVar("R")
+
+
+def _parallel(fn: Callable[[T], R], items: Iterable[T]) -> list[R]:
+    """`fn` over `items` on a few threads (bucket round trips dominate), results in order."""
+    items = list(items)
+    if len(items) <= 1:
+        return [fn(i) for i in items]
+    with ThreadPoolExecutor(min(IO_THREADS, len(items))) as pool:
+        return list(pool.map(fn, items))
 
 
 def _load_job(state: AppState, tenant: str, job_id: str) -> JobRecord:
@@ -53,10 +78,35 @@ def _load_job(state: AppState, tenant: str, job_id: str) -> JobRecord:
     return record
 
 
+def _with_queue_position(state: AppState, record: JobRecord) -> JobRecord:
+    """Add the place in the tenant's queue and an estimated start while the job waits there."""
+    if record.state != JobState.queued:
+        return record
+    position = state.fair.position(record.tenant, record.id)
+    if position is None:
+        return record
+    rate = state.fair.dispatch_rate(record.tenant)
+    eta_s: float | None = position / rate if rate > 0 else None
+    if eta_s is None and (h := read_histogram(state.redis, JOB_KEY.format(outcome="succeeded"))):
+        _, total, count = h  # no recent dispatches: mean job duration per dispatch slot
+        if count:
+            eta_s = total / count * position / state.settings.max_active_jobs_per_tenant
+    start = datetime.now(UTC) + timedelta(seconds=eta_s) if eta_s is not None else None
+    return record.model_copy(update={"queue_position": position, "estimated_start": start})
+
+
 def _build_job(state: AppState, tenant: str, scene_id: str, tasks: list[str], parameters: dict[str, Any],
-               model_profile: str, batch_id: str | None = None, idem: str | None = None) -> JobRecord:  # fmt: skip
-    """Validate a job request against the scene, tasks, parameters and tenant quota."""
-    scene = _load_scene(state, tenant, scene_id)
+               model_profile: str, batch_id: str | None = None, idem: str | None = None,
+               priority: Priority = "interactive",
+               scenes: dict[str, SceneRecord] | None = None) -> JobRecord:  # fmt: skip
+    """Validate a job request against the scene, tasks and parameters (`scenes` caches scene
+    records within one request)."""
+    if scenes is not None and scene_id in scenes:
+        scene = scenes[scene_id]
+    else:
+        scene = _load_scene(state, tenant, scene_id)
+        if scenes is not None:
+            scenes[scene_id] = scene
     if scene.state.value != "ready":
         raise HTTPException(
             status.HTTP_409_CONFLICT, f"scene {scene_id!r} is not ready (upload not completed)"
@@ -80,7 +130,7 @@ def _build_job(state: AppState, tenant: str, scene_id: str, tasks: list[str], pa
         )
     return JobRecord(
         id=new_id("j_"), tenant=tenant, scene_id=scene_id, tasks=tasks, parameters=params,
-        model_profile=model_profile, batch_id=batch_id, idempotency_key=idem,
+        model_profile=model_profile, batch_id=batch_id, idempotency_key=idem, priority=priority,
     )  # fmt: skip
 
 
@@ -97,42 +147,64 @@ def _check_params_against_scene(params: PipelineParams, summary: dict[str, Any])
 
 
 def _reserve_slots(state: AppState, tenant: str, records: list[JobRecord]) -> None:
-    """Take one quota slot per job atomically (all or none), before anything is stored: 429 when
-    they do not fit. Exact under any number of concurrent API processes (`TenantQuota`)."""
-    limit = state.settings.max_active_jobs_per_tenant
+    """Admit the jobs atomically (all or none), before anything is stored: 429 + Retry-After when
+    the tenant's unfinished jobs would exceed its waiting bound plus its dispatch bound. Exact
+    under any number of concurrent API processes (`TenantQuota`)."""
+    if not records:
+        return
+    s = state.settings
+    limit = admission_limit(s.max_waiting_jobs_per_tenant, s.max_active_jobs_per_tenant)
     ok, active = state.jobs.quota.reserve(tenant, [r.id for r in records], limit)
     if not ok:
         raise HTTPException(
             status.HTTP_429_TOO_MANY_REQUESTS,
-            f"{active} jobs are queued or running; at most {limit} are allowed per tenant "
-            f"(BFIELDS_MAX_ACTIVE_JOBS_PER_TENANT); this request needs {len(records)}",
-            headers={"Retry-After": str(state.settings.retry_after_s)},
+            f"{active} jobs are waiting or running; at most {limit} are allowed per tenant "
+            f"({s.max_waiting_jobs_per_tenant} waiting, BFIELDS_MAX_WAITING_JOBS_PER_TENANT, beyond "
+            f"{s.max_active_jobs_per_tenant} dispatched, BFIELDS_MAX_ACTIVE_JOBS_PER_TENANT); this "
+            f"request needs {len(records)}",
+            headers={"Retry-After": str(s.retry_after_s)},
         )
 
 
 def _submit(state: AppState, records: list[JobRecord]) -> None:
-    """Store and enqueue jobs whose slots are reserved. On any failure every job of the request
-    is undone (best effort, see `JobStore.discard_unsubmitted`) and the error propagates (503),
-    so a client's retry never runs the same work twice."""
+    """Store jobs whose slots are reserved and put them in the tenant's fair-share queue. On any
+    failure every job of the request is undone (best effort, see `JobStore.discard_unsubmitted`)
+    and the error propagates (503), so a client's retry never runs the same work twice.
+
+    Order: every job is stored (with its pending marker) before any is queued, then all are queued
+    in one atomic call, then the markers go. An API that dies before the queueing leaves pending
+    markers: recovery submits those jobs; one that dies after it leaves markers of jobs already
+    queued, which recovery only removes (`FairQueue.submit` is idempotent)."""
+    if not records:
+        return
     done: list[JobRecord] = []
+
+    def create(record: JobRecord) -> None:
+        state.jobs.create(record)
+        done.append(record)
+
     try:
-        for record in records:
-            done.append(record)
-            state.jobs.create(record)
-            state.enqueue(record)
+        _parallel(create, records)
+        state.enqueue(records)
     except BaseException:
-        for record in done:
-            state.jobs.discard_unsubmitted(record)
+        try:  # the queueing may have reached Redis before it failed; the dispatcher drops the rest
+            state.fair.remove(records[0].tenant, [r.id for r in records])
+        except Exception:
+            log.warning("could not unqueue the jobs of a failed submission; the dispatcher will")
+        _parallel(state.jobs.discard_unsubmitted, done)
         try:  # the slots of the jobs never created (recovery's quota repair covers a failure here)
             state.jobs.quota.release(records[0].tenant, [r.id for r in records])
         except Exception:
             log.warning("could not release the quota slots of a failed submission; recovery will")
         raise
-    for record in records:
+
+    def confirm(record: JobRecord) -> None:
         try:
             state.jobs.mark_enqueued(record)
-        except Exception:  # enqueued: it will run; recovery drops the marker once a stage starts
-            log.warning("job %s/%s enqueued but its pending marker stays", record.tenant, record.id)
+        except Exception:  # queued: it will run; recovery drops the marker
+            log.warning("job %s/%s queued but its pending marker stays", record.tenant, record.id)
+
+    _parallel(confirm, records)
 
 
 @router.post(
@@ -147,7 +219,7 @@ def _submit(state: AppState, records: list[JobRecord]) -> None:
             "description": "The earlier job of this Idempotency-Key (created: false)",
         },
         409: {"model": Problem, "description": "The scene is not ready"},
-        429: {"model": Problem, "description": "The tenant's active-job quota is full; see Retry-After"},
+        429: {"model": Problem, "description": "The tenant's waiting bound is full; see Retry-After"},
     },
 )
 def submit_job(
@@ -173,14 +245,15 @@ def submit_job(
                 return JobAccepted(id=record.id, state=record.state, created=False)
             with scene_lock(state.redis, tenant, [body.scene_id]):
                 record = _build_job(state, tenant, body.scene_id, body.tasks, body.parameters,
-                                    body.model_profile, idem=idempotency_key)  # fmt: skip
+                                    body.model_profile, idem=idempotency_key, priority=body.priority)  # fmt: skip
                 _reserve_slots(state, tenant, [record])
                 _submit(state, [record])
             state.jobs.remember_idempotent(tenant, idempotency_key, record.id)
     else:
         # Under the scene lock: a concurrent delete either sees this job (409) or came first (404).
         with scene_lock(state.redis, tenant, [body.scene_id]):
-            record = _build_job(state, tenant, body.scene_id, body.tasks, body.parameters, body.model_profile)
+            record = _build_job(state, tenant, body.scene_id, body.tasks, body.parameters, body.model_profile,
+                                priority=body.priority)  # fmt: skip
             _reserve_slots(state, tenant, [record])
             _submit(state, [record])
     return JobAccepted(id=record.id, state=record.state, created=True)
@@ -193,7 +266,7 @@ def submit_job(
     responses=ERRORS,
 )
 def get_job(job_id: str, tenant: Tenant, state: State) -> JobRecord:
-    return _load_job(state, tenant, job_id)
+    return _with_queue_position(state, _load_job(state, tenant, job_id))
 
 
 @router.get("/jobs", response_model=JobList, summary="List jobs, newest first", responses=ERRORS)
@@ -272,7 +345,16 @@ def cancel_job(job_id: str, tenant: Tenant, state: State) -> JobRecord:
     _load_job(state, tenant, job_id)
     record = state.jobs.request_cancel(tenant, job_id)
     assert record is not None
+    state.fair.remove(tenant, [job_id])  # a waiting job leaves its queue at once
     return record
+
+
+_BATCH_ERRORS: dict[int | str, dict[str, Any]] = {
+    **BODY_ERRORS,
+    200: {"model": BatchStatus, "description": "The earlier batch of this Idempotency-Key (created: 0)"},
+    409: {"model": Problem, "description": "A scene is not ready"},
+    429: {"model": Problem, "description": "Past the tenant's waiting bound; see Retry-After"},
+}
 
 
 @router.post(
@@ -281,11 +363,23 @@ def cancel_job(job_id: str, tenant: Tenant, state: State) -> JobRecord:
     response_model=BatchStatus,
     summary="Submit many jobs at once (items, or scenes x task lists)",
     tags=["batches"],
-    responses={**BODY_ERRORS, 409: {"model": Problem}, 429: {"model": Problem}},
+    responses=_BATCH_ERRORS,
 )
-def submit_batch(body: BatchRequest, tenant: Tenant, state: State) -> BatchStatus:
-    pairs = [(i.scene_id, i.tasks) for i in body.items]
-    pairs += [(s, t) for s in body.scene_ids for t in body.task_lists]
+def submit_batch(
+    body: BatchRequest,
+    tenant: Tenant,
+    state: State,
+    response: Response,
+    idempotency_key: Annotated[
+        str | None,
+        Header(
+            max_length=200,
+            description="Retries with the same key return the first batch instead of a new one.",
+        ),
+    ] = None,
+) -> BatchStatus:
+    pairs = [(i.scene_id, i.tasks, i.idempotency_key) for i in body.items]
+    pairs += [(s, t, None) for s in body.scene_ids for t in body.task_lists]
     if not pairs:
         raise HTTPException(422, "the batch is empty: give items or scene_ids x task_lists")
     if len(pairs) > state.settings.max_batch_jobs:
@@ -293,28 +387,60 @@ def submit_batch(body: BatchRequest, tenant: Tenant, state: State) -> BatchStatu
             422,
             f"{len(pairs)} jobs; at most {state.settings.max_batch_jobs} per batch (BFIELDS_MAX_BATCH_JOBS)",
         )
-    batch_id = new_id("b_")
-    for scene_id, _ in pairs:  # before any lock: an id that cannot exist is a plain 404
+    keys = [k for _, _, k in pairs if k]
+    if len(set(keys)) != len(keys):
+        raise HTTPException(422, "items: an idempotency_key appears twice in the batch")
+    for scene_id, _, _ in pairs:  # before any lock: an id that cannot exist is a plain 404
         check_id("scene", scene_id, "s_")
-    with scene_lock(state.redis, tenant, [s for s, _ in pairs]):
+    if idempotency_key:
+        with state.redis.lock(f"bf:idem-batch:{tenant}:{idempotency_key}", timeout=120, blocking_timeout=120):
+            earlier = state.jobs.idempotent_batch(tenant, idempotency_key)
+            if earlier is not None and (batch := state.jobs.load_batch(tenant, earlier)) is not None:
+                response.status_code = status.HTTP_200_OK
+                return _batch_status(state, batch, created=0)
+            result = _submit_batch(state, tenant, body, pairs, idempotency_key)
+            state.jobs.remember_idempotent_batch(tenant, idempotency_key, result.id)
+            return result
+    return _submit_batch(state, tenant, body, pairs, None)
+
+
+def _submit_batch(state: AppState, tenant: str, body: BatchRequest,
+                  pairs: list[tuple[str, list[str], str | None]], batch_key: str | None) -> BatchStatus:  # fmt: skip
+    batch_id = new_id("b_")
+    # Items whose idempotency key names an earlier job reuse it (a re-run manifest makes no job).
+    earlier = _parallel(lambda p: _earlier_job(state, tenant, p[2]), pairs)
+    with scene_lock(
+        state.redis, tenant, [s for (s, _, _), e in zip(pairs, earlier, strict=True) if e is None]
+    ):
+        scenes: dict[str, SceneRecord] = {}
         # Validate every job before submitting any, so a bad item never leaves half a batch queued.
         records = [
-            _build_job(state, tenant, s, t, body.parameters, body.model_profile, batch_id=batch_id)
-            for s, t in pairs
-        ]
-        _reserve_slots(state, tenant, records)
-        batch = BatchRecord(id=batch_id, tenant=tenant, job_ids=[r.id for r in records])
+            e if e is not None else _build_job(state, tenant, s, t, body.parameters, body.model_profile,
+                                               batch_id=batch_id, idem=k, priority=body.priority, scenes=scenes)
+            for (s, t, k), e in zip(pairs, earlier, strict=True)
+        ]  # fmt: skip
+        new = [r for r in records if r.batch_id == batch_id]
+        _reserve_slots(state, tenant, new)
+        batch = BatchRecord(id=batch_id, tenant=tenant, job_ids=[r.id for r in records],
+                            priority=body.priority, idempotency_key=batch_key)  # fmt: skip
         try:
             state.jobs.save_batch(batch)
         except BaseException:
-            state.jobs.quota.release(tenant, [r.id for r in records])
+            state.jobs.quota.release(tenant, [r.id for r in new])
             raise
-        _submit(state, records)
-    return _batch_status(state, batch)
+        _submit(state, new)
+    return _status_of(batch, records, created=len(new))
 
 
-def _batch_status(state: AppState, batch: BatchRecord) -> BatchStatus:
-    jobs = [state.jobs.get(batch.tenant, j) for j in batch.job_ids]
+def _earlier_job(state: AppState, tenant: str, key: str | None) -> JobRecord | None:
+    if not key:
+        return None
+    job_id = state.jobs.idempotent_job(tenant, key)
+    return state.jobs.get(tenant, job_id) if job_id is not None else None
+
+
+def _status_of(batch: BatchRecord, jobs: Sequence[JobRecord | None], *, created: int = 0,
+               with_jobs: bool = True) -> BatchStatus:  # fmt: skip
     present = [j for j in jobs if j is not None]
     counts: dict[str, int] = {}
     for j in present:
@@ -322,10 +448,30 @@ def _batch_status(state: AppState, batch: BatchRecord) -> BatchStatus:
     progress = sum(100.0 if j.state.terminal else j.progress for j in present) / max(len(present), 1)
     return BatchStatus(
         id=batch.id, created_at=batch.created_at, progress=round(progress, 2), counts=counts,
-        finished=all(j.state.terminal for j in present),
+        finished=all(j.state.terminal for j in present), total=len(batch.job_ids), created=created,
         jobs=[BatchJob(id=j.id, scene_id=j.scene_id, tasks=j.tasks, state=j.state, stage=j.stage,
-                       progress=j.progress, error=j.error) for j in present],
+                       progress=j.progress, error=j.error) for j in present] if with_jobs else [],
     )  # fmt: skip
+
+
+def _batch_jobs(
+    state: AppState, batch: BatchRecord, ids: Sequence[str] | None = None
+) -> list[JobRecord | None]:
+    return _parallel(lambda j: state.jobs.get(batch.tenant, j), batch.job_ids if ids is None else ids)
+
+
+def _batch_status(
+    state: AppState, batch: BatchRecord, *, created: int = 0, with_jobs: bool = True
+) -> BatchStatus:
+    return _status_of(batch, _batch_jobs(state, batch), created=created, with_jobs=with_jobs)
+
+
+def _load_batch(state: AppState, tenant: str, batch_id: str) -> BatchRecord:
+    check_id("batch", batch_id, "b_")
+    batch = state.jobs.load_batch(tenant, batch_id)
+    if batch is None:
+        raise not_found("batch", batch_id)
+    return batch
 
 
 @router.get(
@@ -335,9 +481,92 @@ def _batch_status(state: AppState, batch: BatchRecord) -> BatchStatus:
     tags=["batches"],
     responses=ERRORS,
 )
-def get_batch(batch_id: str, tenant: Tenant, state: State) -> BatchStatus:
-    check_id("batch", batch_id, "b_")
-    batch = state.jobs.load_batch(tenant, batch_id)
-    if batch is None:
-        raise not_found("batch", batch_id)
-    return _batch_status(state, batch)
+def get_batch(
+    batch_id: str,
+    tenant: Tenant,
+    state: State,
+    jobs: Annotated[bool, Query(description="false: counts and progress only (cheaper to poll)")] = True,
+) -> BatchStatus:
+    return _batch_status(state, _load_batch(state, tenant, batch_id), with_jobs=jobs)
+
+
+@router.get(
+    "/batches/{batch_id}/jobs",
+    response_model=JobList,
+    summary="Page through a batch's jobs (in submission order)",
+    tags=["batches"],
+    responses=ERRORS,
+)
+def list_batch_jobs(
+    batch_id: str,
+    tenant: Tenant,
+    state: State,
+    limit: Annotated[int, Query(ge=1, le=500)] = 100,
+    cursor: Annotated[
+        str | None, Query(max_length=20, description="next_cursor of the previous page")
+    ] = None,
+) -> JobList:
+    batch = _load_batch(state, tenant, batch_id)
+    if cursor is not None and not cursor.isdigit():
+        raise HTTPException(422, f"cursor {cursor!r} is not one this route returned")
+    start = int(cursor or 0)
+    ids = batch.job_ids[start : start + limit]
+    items = [j for j in _batch_jobs(state, batch, ids) if j is not None]
+    nxt = str(start + limit) if start + limit < len(batch.job_ids) else None
+    return JobList(items=items, next_cursor=nxt)
+
+
+@router.post(
+    "/batches/{batch_id}/cancel",
+    response_model=BatchStatus,
+    status_code=status.HTTP_202_ACCEPTED,
+    summary="Cancel every unfinished job of a batch (waiting ones at once, running ones at their "
+    "next frame or stage boundary)",
+    tags=["batches"],
+    responses=ERRORS,
+)
+def cancel_batch(batch_id: str, tenant: Tenant, state: State) -> BatchStatus:
+    batch = _load_batch(state, tenant, batch_id)
+    state.fair.remove(tenant, batch.job_ids)  # no waiting job of the batch is dispatched from now on
+    jobs = _parallel(lambda j: state.jobs.request_cancel(tenant, j), batch.job_ids)
+    return _status_of(batch, [state.jobs.get(tenant, j.id) if j is not None else None for j in jobs],
+                      with_jobs=False)  # fmt: skip
+
+
+@router.post(
+    "/batches/{batch_id}/retry",
+    response_model=BatchStatus,
+    status_code=status.HTTP_202_ACCEPTED,
+    summary="Submit the batch's failed jobs again (as new jobs that take their place in the batch)",
+    tags=["batches"],
+    responses={**ERRORS, 409: {"model": Problem}, 429: {"model": Problem}},
+)
+def retry_batch(batch_id: str, tenant: Tenant, state: State) -> BatchStatus:
+    batch = _load_batch(state, tenant, batch_id)
+    with state.redis.lock(f"bf:batch-retry:{tenant}:{batch_id}", timeout=120, blocking_timeout=120):
+        batch = _load_batch(state, tenant, batch_id)  # as it is now, under the lock
+        jobs = _batch_jobs(state, batch)
+        failed = [j for j in jobs if j is not None and j.state == JobState.failed]
+        with scene_lock(state.redis, tenant, [j.scene_id for j in failed]):
+            scenes: dict[str, SceneRecord] = {}
+            again = [
+                _build_job(state, tenant, j.scene_id, j.tasks, j.parameters, j.model_profile,
+                           batch_id=batch.id, idem=j.idempotency_key, priority=j.priority, scenes=scenes)
+                for j in failed
+            ]  # fmt: skip
+            _reserve_slots(state, tenant, again)
+            new_of = {old.id: new.id for old, new in zip(failed, again, strict=True)}
+            updated = batch.model_copy(update={
+                "job_ids": [new_of.get(j, j) for j in batch.job_ids],
+                "retried": {**batch.retried, **new_of},
+            })  # fmt: skip
+            try:
+                state.jobs.save_batch(updated)
+            except BaseException:
+                state.jobs.quota.release(tenant, [r.id for r in again])
+                raise
+            _submit(state, again)  # stores each item's idempotency key -> its new job
+            state.fair.remove(tenant, new_of)  # a failed job waits nowhere; make sure of it
+    by_id = {r.id: r for r in again}
+    return _status_of(updated, [by_id.get(j) or state.jobs.get(tenant, j) for j in updated.job_ids],
+                      created=len(again), with_jobs=False)  # fmt: skip

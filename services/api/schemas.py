@@ -140,6 +140,12 @@ class JobRequest(BaseModel):
         "the scene must support them (`depth_source: input` needs a depth map per frame).",
     )
     model_profile: str = Field("default", description="Name of a model profile configured on the workers.")
+    callback_url: str | None = Field(
+        None,
+        max_length=2000,
+        description="http(s) URL that receives an HMAC-signed POST when the job ends (see the "
+        "service docs: callbacks); refused when callbacks are not enabled or the host is not allowed.",
+    )
 
 
 class JobAccepted(BaseModel):
@@ -193,6 +199,12 @@ class BatchRequest(BaseModel):
     task_lists: list[list[str]] = Field(default_factory=list)
     parameters: dict[str, Any] = Field(default_factory=dict)
     model_profile: str = "default"
+    callback_url: str | None = Field(
+        None,
+        max_length=2000,
+        description="http(s) URL that receives one HMAC-signed POST when every job of the batch "
+        "has ended (with the counts by state); the batch's jobs send no callbacks of their own.",
+    )
 
 
 class BatchJob(BaseModel):

@@ -14,6 +14,7 @@ from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.job.store import ArtifactNotFound, LocalStore, get_json, validate_key
 from bayesian_fields_core.job.task_list import normalise_tasks
 from bayesian_fields_core.params import PipelineParams
+from bayesian_fields_service.api.routes.callback_rules import checked_callback
 from bayesian_fields_service.api.routes.scenes import _load_scene
 from bayesian_fields_service.api.scene_lifecycle import scene_lock
 from bayesian_fields_service.api.schemas import (
@@ -54,7 +55,8 @@ def _load_job(state: AppState, tenant: str, job_id: str) -> JobRecord:
 
 
 def _build_job(state: AppState, tenant: str, scene_id: str, tasks: list[str], parameters: dict[str, Any],
-               model_profile: str, batch_id: str | None = None, idem: str | None = None) -> JobRecord:  # fmt: skip
+               model_profile: str, batch_id: str | None = None, idem: str | None = None,
+               callback_url: str | None = None) -> JobRecord:  # fmt: skip
     """Validate a job request against the scene, tasks, parameters and tenant quota."""
     scene = _load_scene(state, tenant, scene_id)
     if scene.state.value != "ready":
@@ -81,6 +83,7 @@ def _build_job(state: AppState, tenant: str, scene_id: str, tasks: list[str], pa
     return JobRecord(
         id=new_id("j_"), tenant=tenant, scene_id=scene_id, tasks=tasks, parameters=params,
         model_profile=model_profile, batch_id=batch_id, idempotency_key=idem,
+        callback_url=checked_callback(state.settings, callback_url),
     )  # fmt: skip
 
 
@@ -173,14 +176,16 @@ def submit_job(
                 return JobAccepted(id=record.id, state=record.state, created=False)
             with scene_lock(state.redis, tenant, [body.scene_id]):
                 record = _build_job(state, tenant, body.scene_id, body.tasks, body.parameters,
-                                    body.model_profile, idem=idempotency_key)  # fmt: skip
+                                    body.model_profile, idem=idempotency_key,
+                                    callback_url=body.callback_url)  # fmt: skip
                 _reserve_slots(state, tenant, [record])
                 _submit(state, [record])
             state.jobs.remember_idempotent(tenant, idempotency_key, record.id)
     else:
         # Under the scene lock: a concurrent delete either sees this job (409) or came first (404).
         with scene_lock(state.redis, tenant, [body.scene_id]):
-            record = _build_job(state, tenant, body.scene_id, body.tasks, body.parameters, body.model_profile)
+            record = _build_job(state, tenant, body.scene_id, body.tasks, body.parameters, body.model_profile,
+                                callback_url=body.callback_url)  # fmt: skip
             _reserve_slots(state, tenant, [record])
             _submit(state, [record])
     return JobAccepted(id=record.id, state=record.state, created=True)
@@ -294,6 +299,7 @@ def submit_batch(body: BatchRequest, tenant: Tenant, state: State) -> BatchStatu
             f"{len(pairs)} jobs; at most {state.settings.max_batch_jobs} per batch (BFIELDS_MAX_BATCH_JOBS)",
         )
     batch_id = new_id("b_")
+    batch_callback = checked_callback(state.settings, body.callback_url)
     for scene_id, _ in pairs:  # before any lock: an id that cannot exist is a plain 404
         check_id("scene", scene_id, "s_")
     with scene_lock(state.redis, tenant, [s for s, _ in pairs]):
@@ -303,7 +309,9 @@ def submit_batch(body: BatchRequest, tenant: Tenant, state: State) -> BatchStatu
             for s, t in pairs
         ]
         _reserve_slots(state, tenant, records)
-        batch = BatchRecord(id=batch_id, tenant=tenant, job_ids=[r.id for r in records])
+        batch = BatchRecord(
+            id=batch_id, tenant=tenant, job_ids=[r.id for r in records], callback_url=batch_callback
+        )
         try:
             state.jobs.save_batch(batch)
         except BaseException:

@@ -279,3 +279,20 @@ def test_usage_per_job_and_per_tenant(fleet: dict, fleet_api: ApiServer) -> None
         assert other.get(f"/v1/batches/{fleet['batch']['id']}/events").status_code == 404
     with fleet_api.client("tenant-a") as client:
         assert client.get("/v1/usage", params={"from": today, "to": "2000-01-01"}).status_code == 422
+
+
+def test_waiting_jobs_metric(fleet_api: ApiServer, redis_url: str) -> None:
+    """`bfields_jobs_waiting{tenant}` counts the members of the tenant queues (`bf:fair:waiting:*`)
+    that deploy/keda.yaml adds to the Celery queue depth."""
+    import redis
+
+    client = redis.Redis.from_url(redis_url)
+    try:
+        assert 'bfields_jobs_waiting{tenant=""} 0.0' in httpx.get(f"{fleet_api.base_url}/metrics").text
+        client.zadd("bf:fair:waiting:tenant-x", {f"j_{n}": n for n in range(7)})
+        client.rpush("bf:fair:waiting:tenant-y", "j_1", "j_2")
+        metrics = httpx.get(f"{fleet_api.base_url}/metrics").text
+        assert 'bfields_jobs_waiting{tenant="tenant-x"} 7.0' in metrics
+        assert 'bfields_jobs_waiting{tenant="tenant-y"} 2.0' in metrics
+    finally:
+        client.delete("bf:fair:waiting:tenant-x", "bf:fair:waiting:tenant-y")

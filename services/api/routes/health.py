@@ -14,6 +14,7 @@ from prometheus_client.registry import Collector
 from bayesian_fields_service.api.schemas import Health
 from bayesian_fields_service.api.state import AppState, get_state
 from bayesian_fields_service.common.jobs import STAGES, JobState
+from bayesian_fields_service.common.waiting import waiting_by_tenant
 from bayesian_fields_service.worker.metrics import JOB_KEY, STAGE_KEY, read_histogram
 
 router = APIRouter(tags=["health"])
@@ -61,6 +62,12 @@ class ServiceCollector(Collector):
         depth = GaugeMetricFamily(
             "bfields_queue_depth", "Messages waiting in a Celery queue.", labels=["queue"]
         )
+        waiting = GaugeMetricFamily(
+            "bfields_jobs_waiting",
+            "Jobs waiting in the service's per-tenant queues, not yet released to a Celery queue "
+            "(autoscaling adds this to bfields_queue_depth; see deploy/keda.yaml).",
+            labels=["tenant"],
+        )
         active = GaugeMetricFamily("bfields_jobs_active", "Jobs whose manifest is queued or running.")
         stage_h = HistogramMetricFamily(
             "bfields_stage_seconds", "Duration of finished stages.", labels=["stage"]
@@ -71,6 +78,11 @@ class ServiceCollector(Collector):
         try:
             for queue in {s.settings.gpu_queue, s.settings.cpu_queue}:
                 depth.add_metric([queue], sum(s.redis.llen(queue + sfx) for sfx in _PRIORITY_SUFFIXES))
+            counts = waiting_by_tenant(s.redis)
+            for tenant, n in sorted(counts.items()):
+                waiting.add_metric([tenant], n)
+            if not counts:  # a series even when nothing waits, so sum() in a query is 0, not empty
+                waiting.add_metric([""], 0)
             for stage in STAGES:
                 if (h := read_histogram(s.redis, STAGE_KEY.format(stage=stage))) is not None:
                     stage_h.add_metric([stage], h[0], h[1])
@@ -80,7 +92,7 @@ class ServiceCollector(Collector):
         except redis.RedisError:
             return
         active.add_metric([], len(s.jobs.active_jobs()))
-        yield from (depth, active, stage_h, job_h)
+        yield from (depth, waiting, active, stage_h, job_h)
 
 
 def metrics_registry(state: AppState) -> CollectorRegistry:

@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any
 
 from bayesian_fields_core.errors import CancelledError, InputError
 from bayesian_fields_core.job.cache_keys import CacheKeys, short_hash
+from bayesian_fields_core.job.flight import Flight, NoFlight
 from bayesian_fields_core.job.scene_source import LocalFolder, SceneSource, StoreDownload
 from bayesian_fields_core.job.store import Store
 from bayesian_fields_core.params import PipelineParams
@@ -64,6 +65,8 @@ class Models:
         self.load_seconds: dict[str, float] = {}
         self._calibration: Calibration | None = None
         self._calibration_loaded = False
+        #: Applied to the encoder when it is built (a worker's test-only call counter wraps it).
+        self.encoder_wrapper: Callable[[Encoder], Encoder] | None = None
 
     def describe(self, role: str) -> str:
         """One model in words for the log: ``encoder hf_clip (tiny-clip, cpu)``."""
@@ -85,7 +88,8 @@ class Models:
             if role == "segmenter":
                 self._built[role] = self._registry.build_segmenter(self.profile.segmenter, device=self.device)
             else:
-                self._built[role] = self._registry.build_encoder(self.profile.encoder, device=self.device)
+                encoder = self._registry.build_encoder(self.profile.encoder, device=self.device)
+                self._built[role] = encoder if self.encoder_wrapper is None else self.encoder_wrapper(encoder)
             self.load_seconds[role] = time.perf_counter() - start
             log.debug("%s loaded in %.2f s", self.describe(role), self.load_seconds[role])
 
@@ -146,6 +150,8 @@ class JobContext:
     folder (the CLI sets it; the service never does: a job reads only its upload).
     splat_transform: a splat -> camera transform file overriding the folder's (CLI
     `--splat-transform`); None = what the folder holds.
+    flight: how concurrent jobs on one scene share the filling of its caches (`flight.Flight`;
+    the CLI's `NoFlight`, a worker's Redis lock).
     """
 
     store: Store
@@ -166,6 +172,7 @@ class JobContext:
     _alignment: AlignmentReport | None = field(default=None, repr=False)
     _alignment_done: bool = field(default=False, repr=False)
     scene_source: SceneSource | None = None
+    flight: Flight = field(default_factory=NoFlight)
     _keys: CacheKeys | None = field(default=None, repr=False)
     _lengths: SceneLengths | None = field(default=None, repr=False)
 

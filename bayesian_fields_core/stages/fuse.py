@@ -33,6 +33,7 @@ from bayesian_fields_core.fusion.tensors import as_tensor, fusion_threads, to_nu
 from bayesian_fields_core.fusion.visibility import centre_columns, mask_associations
 from bayesian_fields_core.job.artifacts import ACCEPTED_KEY, FUSION_KEY, PRIMITIVES_KEY
 from bayesian_fields_core.job.context import JobContext
+from bayesian_fields_core.job.flight import fill_once
 from bayesian_fields_core.job.markers import write_marker
 from bayesian_fields_core.job.store import (
     ARRAY_BLOCK_BYTES,
@@ -261,8 +262,16 @@ def run(ctx: JobContext) -> dict[str, Any]:
     p = ctx.params
     settings = FusionSettings(lik, p.fusion, p.prior, p.outlier_rejection, p.view_correlation)
     state = FusionState(len(ctx.scene().gaussians), len(ctx.tasks), settings, fusion_device(ctx))
-    ctx.record_cache_use("fuse", [ctx.visibility_key(index) for index, _ in frames])
-    tally = fuse_frames(ctx, frames, state, text)
+    keys = [ctx.visibility_key(index) for index, _ in frames]
+    ctx.record_cache_use("fuse", keys)
+    store = ctx.scene_store
+
+    # Single flight on the visibility cache: concurrent jobs on this scene render it once.
+    def missing() -> bool:
+        return any(not store.exists(k) for k in keys)
+
+    with fill_once(ctx.flight, "fuse", keys, missing, ctx.check_cancel):
+        tally = fuse_frames(ctx, frames, state, text)
     log.debug(
         "visibility cache: %d hit(s), %d miss(es) in %s",
         len(frames) - tally.rendered,

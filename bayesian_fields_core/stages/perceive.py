@@ -18,6 +18,7 @@ import numpy as np
 
 from bayesian_fields_core.errors import CancelledError
 from bayesian_fields_core.job.context import JobContext
+from bayesian_fields_core.job.flight import fill_once
 from bayesian_fields_core.job.markers import write_marker
 from bayesian_fields_core.job.store import put_arrays
 from bayesian_fields_core.perception.batching import CropBatcher
@@ -70,60 +71,69 @@ def run(ctx: JobContext) -> dict[str, Any]:
     masks_total = 0
     timings = {"decode": 0.0, "segment": 0.0, "crop": 0.0, "embed": 0.0}
     batcher = None
-    if todo:
-        # Built on first need only, in this thread: a fully cached scene loads no model, and each
-        # model is then used from one thread only (the segmenter in its step, the encoder here).
-        ctx.models.load("segmenter", "encoder")
-        segmenter, encoder = ctx.models.segmenter, ctx.models.encoder
-        batcher = CropBatcher(encoder, ctx.params.crop_batch_size)
 
-        def timed(name: str, fn: Any) -> Any:
-            def step(item: tuple) -> tuple:
+    # Single flight: of the jobs that start together on this scene and models, one computes the
+    # missing frames; the others wait for it, then find them cached (`job/flight.py`).
+    def missing() -> bool:
+        return bool(todo)
+
+    with fill_once(ctx.flight, "perceive", sorted(keys.values()), missing, ctx.check_cancel):
+        todo = [t for t in todo if not store.exists(keys[t[1]])]  # what a flight before us left
+        done_frames = len(frames) - len(todo)
+        if todo:
+            # Built on first need only, in this thread: a fully cached scene loads no model, and each
+            # model is then used from one thread only (the segmenter in its step, the encoder here).
+            ctx.models.load("segmenter", "encoder")
+            segmenter, encoder = ctx.models.segmenter, ctx.models.encoder
+            batcher = CropBatcher(encoder, ctx.params.crop_batch_size)
+
+            def timed(name: str, fn: Any) -> Any:
+                def step(item: tuple) -> tuple:
+                    t = time.perf_counter()
+                    out = fn(item)
+                    timings[name] += time.perf_counter() - t
+                    return out
+
+                return step
+
+            steps = [
+                timed("decode", lambda it: (it[0], load_image(it[1]))),
+                timed("segment", lambda it: (it[0], it[1], segmenter.segment(it[1]))),
+                timed("crop", lambda it: (it[0], it[2], mask_crops(it[1], it[2]))),
+            ]
+
+            def write(index: int, labels: np.ndarray, embeddings: np.ndarray) -> None:
+                nonlocal masks_total, done_frames
+                put_arrays(
+                    store,
+                    keys[index],
+                    labels=labels.astype(smallest_label_dtype(embeddings.shape[0])),
+                    embeddings=embeddings.astype(np.float32),
+                )
+                masks_total += int(embeddings.shape[0])
+                done_frames += 1
+                ctx.progress("perceive", done_frames / len(frames))
+
+            for index, labels, crops in pipelined(
+                ((index, frame) for _n, index, frame in todo), steps, ctx.params.prefetch_frames
+            ):
+                try:
+                    ctx.check_cancel()
+                except CancelledError:
+                    # Frames already received are finished and cached, so a resume skips them.
+                    for (i, lab), emb in batcher.flush():
+                        write(i, lab, emb)
+                    raise
                 t = time.perf_counter()
-                out = fn(item)
-                timings[name] += time.perf_counter() - t
-                return out
-
-            return step
-
-        steps = [
-            timed("decode", lambda it: (it[0], load_image(it[1]))),
-            timed("segment", lambda it: (it[0], it[1], segmenter.segment(it[1]))),
-            timed("crop", lambda it: (it[0], it[2], mask_crops(it[1], it[2]))),
-        ]
-
-        def write(index: int, labels: np.ndarray, embeddings: np.ndarray) -> None:
-            nonlocal masks_total, done_frames
-            put_arrays(
-                store,
-                keys[index],
-                labels=labels.astype(smallest_label_dtype(embeddings.shape[0])),
-                embeddings=embeddings.astype(np.float32),
-            )
-            masks_total += int(embeddings.shape[0])
-            done_frames += 1
-            ctx.progress("perceive", done_frames / len(frames))
-
-        for index, labels, crops in pipelined(
-            ((index, frame) for _n, index, frame in todo), steps, ctx.params.prefetch_frames
-        ):
-            try:
-                ctx.check_cancel()
-            except CancelledError:
-                # Frames already received are finished and cached, so a resume skips them.
-                for (i, lab), emb in batcher.flush():
+                ready = list(batcher.add((index, labels), crops))
+                timings["embed"] += time.perf_counter() - t
+                for (i, lab), emb in ready:
                     write(i, lab, emb)
-                raise
             t = time.perf_counter()
-            ready = list(batcher.add((index, labels), crops))
+            ready = list(batcher.flush())
             timings["embed"] += time.perf_counter() - t
             for (i, lab), emb in ready:
                 write(i, lab, emb)
-        t = time.perf_counter()
-        ready = list(batcher.flush())
-        timings["embed"] += time.perf_counter() - t
-        for (i, lab), emb in ready:
-            write(i, lab, emb)
     ctx.progress("perceive", 1.0)
     return write_marker(
         ctx,

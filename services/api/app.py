@@ -16,7 +16,7 @@ from redis.backoff import ConstantBackoff
 from redis.retry import Retry
 
 from bayesian_fields_service.api.edge import Utf8Guard, install_handlers
-from bayesian_fields_service.api.routes import health, jobs, scenes, ui
+from bayesian_fields_service.api.routes import events, health, jobs, scenes, ui, usage
 from bayesian_fields_service.api.routes.health import metrics_registry
 from bayesian_fields_service.api.state import AppState
 from bayesian_fields_service.api.sweeper import Sweeper, lifespan
@@ -100,7 +100,7 @@ def create_app(settings: ServiceSettings | None = None) -> FastAPI:
     app = FastAPI(title="Bayesian Fields API", version="1.0.0", description=DESCRIPTION, lifespan=sweeper)
     app.state.bf = state
     app.state.key_ring = state.key_ring
-    for module in (scenes, jobs, health, ui):
+    for module in (scenes, jobs, health, ui, events, usage):
         app.include_router(module.router)
     install_handlers(app, settings.retry_after_s)
     app.add_middleware(Utf8Guard)

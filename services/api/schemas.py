@@ -146,6 +146,12 @@ class JobRequest(BaseModel):
         description="Class in the tenant's fair-share queue: 'interactive' jobs are dispatched ahead "
         "of the tenant's 'bulk' jobs.",
     )
+    callback_url: str | None = Field(
+        None,
+        max_length=2000,
+        description="http(s) URL that receives an HMAC-signed POST when the job ends (see the "
+        "service docs: callbacks); refused when callbacks are not enabled or the host is not allowed.",
+    )
 
 
 class JobAccepted(BaseModel):
@@ -209,6 +215,12 @@ class BatchRequest(BaseModel):
     model_profile: str = "default"
     priority: Priority = Field(
         "bulk", description="Class of every job of the batch in the tenant's fair-share queue."
+    )
+    callback_url: str | None = Field(
+        None,
+        max_length=2000,
+        description="http(s) URL that receives one HMAC-signed POST when every job of the batch "
+        "has ended (with the counts by state); the batch's jobs send no callbacks of their own.",
     )
 
 

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import builtins
 import hashlib
+import logging
 import re
 import secrets
 import time
@@ -44,11 +45,15 @@ from pydantic import BaseModel, Field, computed_field, model_validator
 
 from bayesian_fields_core.job.stage_table import STAGE_TABLE, STAGES
 from bayesian_fields_core.job.store import ArtifactNotFound, Store, get_json, put_json
+from bayesian_fields_service.common.callbacks import on_job_terminal
 from bayesian_fields_service.common.fair_queue import Priority, dispatched_key
 from bayesian_fields_service.common.quota import TenantQuota
 from bayesian_fields_service.common.redis_text import text
 from bayesian_fields_service.common.sanitize import redact_locations, scrub
 from bayesian_fields_service.common.storage import tenant_store
+from bayesian_fields_service.common.usage import JobUsage
+
+log = logging.getLogger(__name__)
 
 #: Relative cost of each stage (in `STAGES` order, which the library defines), used to turn
 #: (stage, fraction) into one overall percentage.
@@ -131,6 +136,8 @@ class JobRecord(BaseModel):
         description="While waiting: an estimate of when a worker starts it, from the tenant's recent "
         "dispatch rate (or the mean job duration); null when unknown or not waiting.",
     )
+    callback_url: str | None = Field(None, description="Receives a signed POST on the terminal state.")
+    usage: JobUsage = Field(default_factory=JobUsage, description="CPU / GPU seconds by stage, bytes stored.")
 
     @model_validator(mode="before")
     @classmethod
@@ -168,6 +175,7 @@ class BatchRecord(BaseModel):
     created_at: datetime = Field(default_factory=utcnow)
     priority: Priority = "bulk"
     idempotency_key: str | None = None
+    callback_url: str | None = None
     retried: dict[str, str] = Field(
         default_factory=dict, description="Failed job id -> the job that retried it (in job_ids now)."
     )
@@ -198,6 +206,7 @@ def _merge(old: JobRecord, new: JobRecord) -> JobRecord:
             "stages_done": stages,
             "timings": {**old.timings, **new.timings},
             "stage_reports": {**old.stage_reports, **new.stage_reports},
+            "usage": JobUsage.merged(old.usage, new.usage),
         }
     )
 
@@ -355,12 +364,21 @@ class JobStore:
             )
         merged.updated_at = utcnow()
         self._write(merged)
+        if merged.state.terminal and (old is None or not old.state.terminal):
+            self._notify_terminal(merged)
         if old is not None and old.state != merged.state:
             # new entry first: a crash in between leaves a duplicate the listing filters out
             ts = self.tenant(merged.tenant)
             ts.put_bytes(_state_index(merged.state, merged.id), b"")
             ts.delete(_state_index(old.state, merged.id))
         return merged
+
+    def _notify_terminal(self, record: JobRecord) -> None:
+        """Callbacks and batch completion (`callbacks.on_job_terminal`); never fails the write."""
+        try:
+            on_job_terminal(self.redis, record, self.load_batch)
+        except redis.RedisError as exc:
+            log.warning("job %s/%s: terminal notification not queued: %s", record.tenant, record.id, exc)
 
     def _after_write(self, merged: JobRecord) -> JobRecord:
         if merged.state.terminal:

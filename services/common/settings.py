@@ -219,11 +219,75 @@ class ServiceSettings(BaseSettings):
         description="Seconds between two orphan sweeps of an API process (one also runs at start).",
     )
 
+    # ---- single flight (one perception / visibility computation per scene) -----------------------
+    flight_lock_ttl_s: int = Field(
+        30,
+        ge=2,
+        le=3600,
+        description="A cache-filling lock (`bf:flight:*`) expires this long after its holder stops "
+        "renewing it (a crashed worker's); the holder renews it every third of that.",
+    )
+    flight_wait_timeout_s: float = Field(
+        4 * 3600,
+        gt=0,
+        description="Longest a job waits for another job filling the same scene's perception or "
+        "visibility cache; past it, it computes the frames itself (never a deadlock).",
+    )
+    flight_poll_s: float = Field(
+        0.25, gt=0, le=10, description="How often a waiting job looks whether the lock was released."
+    )
+
+    # ---- notifications (job / batch callbacks, server-sent events) --------------------------------
+    callback_secret: SecretStr | None = Field(
+        None,
+        description="Key of the HMAC-SHA256 signature of every callback POST (header "
+        "X-BFields-Signature). Unset: jobs and batches with a callback_url are refused (422).",
+    )
+    callback_allowed_hosts: list[str] = Field(
+        default_factory=list,
+        description="JSON list of host names (or '*.example.com' suffixes) callback URLs may name; "
+        "empty = any public host.",
+    )
+    callback_allow_private: bool = Field(
+        False,
+        description="Allow callback URLs that name or resolve to loopback, private, link-local or "
+        "reserved addresses (off: a tenant cannot make the service call its own network).",
+    )
+    callback_timeout_s: float = Field(10.0, gt=0, le=120, description="Timeout of one callback POST.")
+    callback_max_attempts: int = Field(
+        12, ge=1, le=100, description="Attempts per callback before it is dropped (logged)."
+    )
+    callback_backoff_s: float = Field(
+        2.0, gt=0, description="Delay before the second attempt; doubles per attempt (with jitter)."
+    )
+    callback_backoff_max_s: float = Field(
+        900.0, gt=0, description="Longest delay between two attempts of one callback."
+    )
+    callback_poll_s: float = Field(
+        1.0, gt=0, le=60, description="How often a worker's delivery thread looks for callbacks due."
+    )
+    events_poll_s: float = Field(
+        1.0, gt=0, le=60, description="How often a batch's event stream (SSE) reads its jobs' states."
+    )
+    events_max_s: float = Field(
+        3600.0, gt=0, description="Longest one event stream stays open (clients reconnect)."
+    )
+
+    # ---- accounting ------------------------------------------------------------------------------
+    usage_max_days: int = Field(
+        366, ge=1, le=3660, description="Longest period GET /v1/usage answers in one request (days)."
+    )
+
     # ---- misc ------------------------------------------------------------------------------------
     test_pause_points: bool = Field(
         False,
         description="Testing only: let a test pause scene routes at named points (through Redis keys) "
         "to force race interleavings. Off in every deployment; inert unless a test sets the keys.",
+    )
+    test_encoder_call_log: Path | None = Field(
+        None,
+        description="Testing only: a worker appends one line to this file per encoder image batch "
+        "(counts perception work across processes). Unset in every deployment.",
     )
     log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = Field(
         "INFO",

@@ -42,15 +42,18 @@ from bayesian_fields_core.job.pipeline import discard_result, load_models, run_s
 from bayesian_fields_core.job.stage_table import STAGE_TABLE, STAGES, StageSpec
 from bayesian_fields_core.job.store import Store
 from bayesian_fields_core.params import PipelineParams
+from bayesian_fields_service.common.callbacks import CallbackSender
 from bayesian_fields_service.common.jobs import JobRecord, JobState, JobStore, overall_progress, utcnow
 from bayesian_fields_service.common.pause_points import pause
 from bayesian_fields_service.common.redis_text import text
 from bayesian_fields_service.common.settings import ServiceSettings
 from bayesian_fields_service.common.storage import build_store, tenant_store
+from bayesian_fields_service.worker.accounting import StageMeter, account_job_end, account_stage
 from bayesian_fields_service.worker.celery_app import app
 from bayesian_fields_service.worker.metrics import observe_job, observe_stage
 from bayesian_fields_service.worker.recovery import start_recovery_thread, stop_recovery_thread
 from bayesian_fields_service.worker.scene_cache import SceneCache
+from bayesian_fields_service.worker.single_flight import RedisFlight
 
 log = get_logger(__name__)  # a child of the 'celery' logger: lands in the worker log
 
@@ -91,7 +94,10 @@ class _Runtime:
                 source: Any = self.settings.model_profile if profile == "default" else profile
                 device = _worker_device(self.settings.worker_device)
                 log.info("loading model profile %s on %s", profile, device)
-                self._models[profile] = load_models(source, device=device)
+                models = load_models(source, device=device)
+                if self.settings.test_encoder_call_log is not None:
+                    models.encoder_wrapper = counting_encoder(self.settings.test_encoder_call_log)
+                self._models[profile] = models
             return self._models[profile]
 
 
@@ -116,7 +122,34 @@ def scene_cache(settings: ServiceSettings) -> SceneCache:
     return SceneCache(root, settings.worker_scene_cache_max_bytes)
 
 
+def counting_encoder(log_file: Path) -> Any:
+    """Testing only (BFIELDS_TEST_ENCODER_CALL_LOG): wrap the encoder so every image batch it
+    encodes appends one line ``<pid> <images>`` to `log_file` (O_APPEND: one whole line per
+    write, whatever the number of processes), which lets a test count perception work."""
+
+    def wrap(encoder: Any) -> Any:
+        class Counting:
+            model_id = encoder.model_id
+            dim = encoder.dim
+
+            def encode_images(self, images: list) -> Any:
+                fd = os.open(log_file, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+                try:
+                    os.write(fd, f"{os.getpid()} {len(images)}\n".encode())
+                finally:
+                    os.close(fd)
+                return encoder.encode_images(images)
+
+            def encode_texts(self, texts: list[str]) -> Any:
+                return encoder.encode_texts(texts)
+
+        return Counting()
+
+    return wrap
+
+
 _runtime: _Runtime | None = None
+_callbacks: CallbackSender | None = None
 
 
 def runtime() -> _Runtime:
@@ -148,13 +181,18 @@ def _clean_scene_cache(**_: Any) -> None:
 
 @worker_ready.connect
 def _on_worker_ready(sender: Any = None, **_: Any) -> None:
+    global _callbacks
     rt = runtime()
     start_recovery_thread(app, rt.jobs, rt.settings)
+    _callbacks = CallbackSender(rt.redis, rt.settings)  # at-least-once delivery (common/callbacks.py)
+    _callbacks.start()
 
 
 @worker_shutdown.connect
 def _on_worker_shutdown(**_: Any) -> None:
     stop_recovery_thread()
+    if _callbacks is not None:
+        _callbacks.stop()
 
 
 def _process_start(pid: int) -> str | None:
@@ -256,10 +294,13 @@ def _finish(rt: _Runtime, record: JobRecord, state: JobState, error: str | None 
     update: dict[str, Any] = {"state": state, "error": error, "finished_at": now}
     if state == JobState.succeeded:
         update["progress"] = 100.0
+    before = rt.jobs.load(record.tenant, record.id)
     saved = rt.jobs.save(record.model_copy(update=update))
     if saved.state == state:  # not already terminal through another path
         start = saved.started_at or saved.created_at
         observe_job(rt.redis, state.value, (now - start).total_seconds())
+        if before is None or not before.state.terminal:  # this call made it terminal: count it once
+            account_job_end(rt.store, rt.redis, saved)
     return saved
 
 
@@ -346,6 +387,7 @@ def _run_locked(rt: _Runtime, record: JobRecord, stage: str) -> str:
         except redis.RedisError:
             return False
 
+    meter = StageMeter(gpu=False)  # GPU-seconds: set below once the models' device is known
     try:
         store = tenant_store(rt.store, tenant)
         leases = contextlib.ExitStack()
@@ -362,21 +404,29 @@ def _run_locked(rt: _Runtime, record: JobRecord, stage: str) -> str:
             progress=progress,
             should_cancel=should_cancel,
             scene_source=source,
-        )
+            flight=RedisFlight(
+                rt.redis, tenant, ttl_s=rt.settings.flight_lock_ttl_s,
+                wait_timeout_s=rt.settings.flight_wait_timeout_s, poll_s=rt.settings.flight_poll_s,
+            ),
+        )  # fmt: skip
+        meter.gpu = (ctx.models.device or "").startswith("cuda")
         t0 = time.perf_counter()
-        with leases:  # the scene copy stays in use (not evictable) until the stage ends
+        with leases, meter:  # the scene copy stays in use (not evictable) until the stage ends
             report = run_stage(stage, ctx)
         seconds = time.perf_counter() - t0
     except CancelledError:
+        record = account_stage(rt.store, rt.redis, record, stage, meter)
         _finish(rt, record, JobState.cancelled, "cancelled by request")
         discard_result(tenant_store(rt.store, tenant), record.job_prefix)  # a stage stopped mid-write
         return "cancelled"
     except (InputError, ModelError) as exc:
+        record = account_stage(rt.store, rt.redis, record, stage, meter)
         _finish(rt, record, JobState.failed, f"{stage}: {exc}")
         return "failed"
     except TRANSIENT:
         raise  # retried by the task wrapper
     except SoftTimeLimitExceeded:
+        record = account_stage(rt.store, rt.redis, record, stage, meter)
         _finish(
             rt,
             record,
@@ -386,12 +436,13 @@ def _run_locked(rt: _Runtime, record: JobRecord, stage: str) -> str:
         return "failed"
     except Exception as exc:  # a bug, not bad input: fail the job visibly instead of leaving it running
         log.exception("stage %s of %s/%s crashed", stage, tenant, job_id)
+        record = account_stage(rt.store, rt.redis, record, stage, meter)
         _finish(rt, record, JobState.failed, f"{stage}: internal error: {type(exc).__name__}: {exc}")
         return "failed"
     observe_stage(rt.redis, stage, seconds)
     done = [s for s in STAGES if s in {*record.stages_done, stage}]
     record = rt.jobs.save(
-        record.model_copy(
+        account_stage(rt.store, rt.redis, record, stage, meter).model_copy(
             update={
                 "stages_done": done,
                 "timings": {**record.timings, stage: round(report.get("seconds", seconds), 3)},

@@ -167,11 +167,17 @@ def test_keda_objects_match_schema_and_targets() -> None:
     for name, obj in scaled.items():
         target = obj["spec"]["scaleTargetRef"]["name"]
         assert target in deployments, f"{name} scales unknown deployment {target}"
-        (trigger,) = obj["spec"]["triggers"]
-        assert trigger["type"] == "redis" and trigger["authenticationRef"]["name"] in auths
+        triggers = {t["type"]: t for t in obj["spec"]["triggers"]}
+        assert set(triggers) == {"prometheus", "redis"}
+        trigger = triggers["redis"]
+        assert trigger["authenticationRef"]["name"] in auths
         # the list KEDA watches is the queue the target deployment consumes
         command = deployments[target]["spec"]["template"]["spec"]["containers"][0]["command"]
-        assert trigger["metadata"]["listName"] == command[command.index("-Q") + 1]
+        queue = command[command.index("-Q") + 1]
+        assert trigger["metadata"]["listName"] == queue
+        # the main trigger scales on what waits: the service's tenant queues + that Celery queue
+        query = triggers["prometheus"]["metadata"]["query"]
+        assert "sum(bfields_jobs_waiting" in query and f'queue="{queue}"' in query
 
 
 def test_keda_schema_rejects_mistakes() -> None:
@@ -179,11 +185,12 @@ def test_keda_schema_rejects_mistakes() -> None:
     bad_field = json.loads(json.dumps(obj))
     bad_field["spec"]["maxReplicas"] = 3  # the field is maxReplicaCount
     assert keda_errors(bad_field)
+    redis_at = [t["type"] for t in obj["spec"]["triggers"]].index("redis")
     no_list = json.loads(json.dumps(obj))
-    del no_list["spec"]["triggers"][0]["metadata"]["listName"]
+    del no_list["spec"]["triggers"][redis_at]["metadata"]["listName"]
     assert keda_errors(no_list)
     numeric = json.loads(json.dumps(obj))
-    numeric["spec"]["triggers"][0]["metadata"]["listLength"] = 2  # KEDA metadata values are strings
+    numeric["spec"]["triggers"][redis_at]["metadata"]["listLength"] = 2  # KEDA metadata values are strings
     assert keda_errors(numeric)
 
 

@@ -110,6 +110,9 @@ def test_ui_flow(api_server: ApiServer, ui_workers, browser, images_zip: Path, t
     page.wait_for_selector("#batches a")
     page.click("#batches a")
     page.wait_for_selector("body[data-finished='true']", timeout=JOB_TIMEOUT_MS)
+    # the page follows the batch's server-sent-event stream (no polling) until its `end` event
+    page.wait_for_selector("body[data-stream='ended']", timeout=JOB_TIMEOUT_MS)
+    assert int(page.evaluate("document.body.dataset.events")) >= 3  # job(s), counts, end
     rows = page.locator("#batch-jobs tbody tr")
     assert rows.count() == 1
     assert rows.first.get_attribute("data-state") == "succeeded"

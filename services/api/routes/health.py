@@ -76,7 +76,8 @@ class ServiceCollector(Collector):
         )
         waiting = GaugeMetricFamily(
             "bfields_jobs_waiting",
-            "Jobs waiting in a tenant's fair-share queue (not yet dispatched to a worker queue).",
+            "Jobs waiting in a tenant's fair-share queue, not yet dispatched to a Celery queue "
+            "(autoscaling adds this to bfields_queue_depth; see deploy/keda.yaml).",
             labels=["tenant"],
         )
         wait_h = HistogramMetricFamily(
@@ -93,8 +94,11 @@ class ServiceCollector(Collector):
             for outcome in (JobState.succeeded, JobState.failed, JobState.cancelled):
                 if (h := read_histogram(s.redis, JOB_KEY.format(outcome=outcome.value))) is not None:
                     job_h.add_metric([outcome.value], h[0], h[1])
-            for tenant, n in s.fair.waiting_by_tenant().items():
+            counts = s.fair.waiting_by_tenant()
+            for tenant, n in sorted(counts.items()):
                 waiting.add_metric([tenant], n)
+            if not counts:  # a series even when nothing waits, so sum() in a query is 0, not empty
+                waiting.add_metric([""], 0)
             for tenant in queue_wait_tenants(s.redis):
                 if (h := read_histogram(s.redis, QUEUE_WAIT_KEY.format(tenant=tenant))) is not None:
                     wait_h.add_metric([tenant], h[0], h[1])

@@ -21,6 +21,7 @@ from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.job.store import ArtifactNotFound, LocalStore, get_json, validate_key
 from bayesian_fields_core.job.task_list import normalise_tasks
 from bayesian_fields_core.params import PipelineParams
+from bayesian_fields_service.api.routes.callback_rules import checked_callback
 from bayesian_fields_service.api.routes.scenes import _load_scene
 from bayesian_fields_service.api.scene_lifecycle import scene_lock
 from bayesian_fields_service.api.schemas import (
@@ -98,7 +99,8 @@ def _with_queue_position(state: AppState, record: JobRecord) -> JobRecord:
 def _build_job(state: AppState, tenant: str, scene_id: str, tasks: list[str], parameters: dict[str, Any],
                model_profile: str, batch_id: str | None = None, idem: str | None = None,
                priority: Priority = "interactive",
-               scenes: dict[str, SceneRecord] | None = None) -> JobRecord:  # fmt: skip
+               scenes: dict[str, SceneRecord] | None = None,
+               callback_url: str | None = None) -> JobRecord:  # fmt: skip
     """Validate a job request against the scene, tasks and parameters (`scenes` caches scene
     records within one request)."""
     if scenes is not None and scene_id in scenes:
@@ -131,6 +133,7 @@ def _build_job(state: AppState, tenant: str, scene_id: str, tasks: list[str], pa
     return JobRecord(
         id=new_id("j_"), tenant=tenant, scene_id=scene_id, tasks=tasks, parameters=params,
         model_profile=model_profile, batch_id=batch_id, idempotency_key=idem, priority=priority,
+        callback_url=checked_callback(state.settings, callback_url),
     )  # fmt: skip
 
 
@@ -245,7 +248,8 @@ def submit_job(
                 return JobAccepted(id=record.id, state=record.state, created=False)
             with scene_lock(state.redis, tenant, [body.scene_id]):
                 record = _build_job(state, tenant, body.scene_id, body.tasks, body.parameters,
-                                    body.model_profile, idem=idempotency_key, priority=body.priority)  # fmt: skip
+                                    body.model_profile, idem=idempotency_key, priority=body.priority,
+                                    callback_url=body.callback_url)  # fmt: skip
                 _reserve_slots(state, tenant, [record])
                 _submit(state, [record])
             state.jobs.remember_idempotent(tenant, idempotency_key, record.id)
@@ -253,7 +257,7 @@ def submit_job(
         # Under the scene lock: a concurrent delete either sees this job (409) or came first (404).
         with scene_lock(state.redis, tenant, [body.scene_id]):
             record = _build_job(state, tenant, body.scene_id, body.tasks, body.parameters, body.model_profile,
-                                priority=body.priority)  # fmt: skip
+                                priority=body.priority, callback_url=body.callback_url)  # fmt: skip
             _reserve_slots(state, tenant, [record])
             _submit(state, [record])
     return JobAccepted(id=record.id, state=record.state, created=True)
@@ -390,6 +394,7 @@ def submit_batch(
     keys = [k for _, _, k in pairs if k]
     if len(set(keys)) != len(keys):
         raise HTTPException(422, "items: an idempotency_key appears twice in the batch")
+    checked_callback(state.settings, body.callback_url)  # a refused URL is a 422 before any work
     for scene_id, _, _ in pairs:  # before any lock: an id that cannot exist is a plain 404
         check_id("scene", scene_id, "s_")
     if idempotency_key:
@@ -422,7 +427,8 @@ def _submit_batch(state: AppState, tenant: str, body: BatchRequest,
         new = [r for r in records if r.batch_id == batch_id]
         _reserve_slots(state, tenant, new)
         batch = BatchRecord(id=batch_id, tenant=tenant, job_ids=[r.id for r in records],
-                            priority=body.priority, idempotency_key=batch_key)  # fmt: skip
+                            priority=body.priority, idempotency_key=batch_key,
+                            callback_url=checked_callback(state.settings, body.callback_url))  # fmt: skip
         try:
             state.jobs.save_batch(batch)
         except BaseException:

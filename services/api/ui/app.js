@@ -177,44 +177,92 @@ async function showResult(id) {
   $("result").classList.remove("hidden");
 }
 
-// ---- batch page: one row per scene --------------------------------------------------------
+// ---- batch page: one row per scene, kept current by the batch's event stream ----------------
+// Server-sent events read with fetch (EventSource cannot send the X-API-Key header): calls
+// onEvent(name, data) per event until the server closes the stream.
+async function readEvents(path, onEvent) {
+  const resp = await fetch(path, { headers: { "X-API-Key": key() || "", Accept: "text/event-stream" } });
+  if (!resp.ok || !resp.body) throw new Error(`HTTP ${resp.status} for ${path}`);
+  const reader = resp.body.pipeThrough(new TextDecoderStream()).getReader();
+  let buf = "";
+  for (;;) {
+    const { value, done } = await reader.read();
+    if (done) return;
+    buf += value;
+    let cut;
+    while ((cut = buf.indexOf("\n\n")) >= 0) {
+      const block = buf.slice(0, cut);
+      buf = buf.slice(cut + 2);
+      let name = "message", data = "";
+      for (const line of block.split("\n")) {
+        if (line.startsWith("event: ")) name = line.slice(7); else if (line.startsWith("data: ")) data += line.slice(6);
+      }
+      if (data) onEvent(name, JSON.parse(data));
+    }
+  }
+}
+
 async function initBatch() {
   const id = new URLSearchParams(location.search).get("id") || "";
   $("batch-id").textContent = id;
   if (!key()) { $("need-key").classList.remove("hidden"); return; }
-  const thumbs = {};
   const names = {};
-  const tick = async () => {
-    const b = await api(`/v1/batches/${encodeURIComponent(id)}`);
-    $("batch-summary").textContent = `${Math.round(b.progress)}% - ` + Object.entries(b.counts).map(([k, v]) => `${v} ${k}`).join(", ");
-    const rows = [];
-    for (const j of b.jobs) {
-      if (!(j.scene_id in names)) {
-        try { names[j.scene_id] = (await api(`/v1/scenes/${encodeURIComponent(j.scene_id)}`)).name || j.scene_id; }
-        catch (e) { names[j.scene_id] = j.scene_id; }
-      }
-      const detail = await api(`/v1/jobs/${encodeURIComponent(j.id)}`);
-      if (j.state === "succeeded" && !(j.id in thumbs)) {
-        const res = await api(`/v1/jobs/${encodeURIComponent(j.id)}/result`);
-        const sheet = (res.summary.previews || {}).contact_sheet;
-        const art = res.artifacts.find((a) => a.path === `result/${sheet}`);
-        thumbs[j.id] = art ? await artifactUrl(art.url) : null;
-      }
-      const thumb = thumbs[j.id] ? el("img", { class: "thumb", src: thumbs[j.id], alt: `preview of ${j.id}` }) : "";
-      rows.push(el("tr", { "data-job": j.id, "data-state": j.state },
-        el("td", { text: names[j.scene_id] }), el("td", {}, el("a", { href: `/ui/job?id=${encodeURIComponent(j.id)}`, text: j.id })),
-        el("td", { class: `state-${j.state}`, text: j.state }), el("td", { text: j.stage || "" }),
-        el("td", {}, bar(j.state === "succeeded" ? 100 : j.progress)), el("td", { text: timings(detail.timings) }),
-        el("td", {}, thumb)));
+  const rows = {};
+  const summary = (c) => `${Math.round(c.progress)}% - ` + Object.entries(c.counts).map(([k, v]) => `${v} ${k}`).join(", ");
+  const b = await api(`/v1/batches/${encodeURIComponent(id)}`);
+  for (const j of b.jobs) {
+    if (!(j.scene_id in names)) {
+      try { names[j.scene_id] = (await api(`/v1/scenes/${encodeURIComponent(j.scene_id)}`)).name || j.scene_id; }
+      catch (e) { names[j.scene_id] = j.scene_id; }
     }
-    $("batch-jobs").tBodies[0].replaceChildren(...rows);
-    document.body.dataset.finished = String(b.finished);
-    if (!b.finished) setTimeout(tick, POLL_MS);
+    const cells = { state: el("td"), stage: el("td"), progress: el("td"), timings: el("td"), thumb: el("td") };
+    rows[j.id] = { tr: el("tr", { "data-job": j.id }, el("td", { text: names[j.scene_id] }),
+      el("td", {}, el("a", { href: `/ui/job?id=${encodeURIComponent(j.id)}`, text: j.id })),
+      cells.state, cells.stage, cells.progress, cells.timings, cells.thumb), cells, state: null };
+    show(j);
+  }
+  $("batch-jobs").tBodies[0].replaceChildren(...Object.values(rows).map((r) => r.tr));
+  $("batch-summary").textContent = summary(b);
+
+  // One job's row from an event (or the first snapshot); a finished job gets its timings and thumbnail.
+  function show(j) {
+    const row = rows[j.id];
+    if (!row) return;
+    const was = row.state;
+    row.state = j.state;
+    row.tr.dataset.state = j.state;
+    row.cells.state.className = `state-${j.state}`;
+    row.cells.state.textContent = j.state;
+    row.cells.stage.textContent = j.stage || "";
+    row.cells.progress.replaceChildren(bar(j.state === "succeeded" ? 100 : j.progress));
+    if (["succeeded", "failed", "cancelled"].includes(j.state) && was !== j.state) finished(j.id, j.state).catch(() => {});
+  }
+  async function finished(jobId, state) {
+    const detail = await api(`/v1/jobs/${encodeURIComponent(jobId)}`);
+    rows[jobId].cells.timings.textContent = timings(detail.timings);
+    if (state !== "succeeded") return;
+    const res = await api(`/v1/jobs/${encodeURIComponent(jobId)}/result`);
+    const sheet = (res.summary.previews || {}).contact_sheet;
+    const art = res.artifacts.find((a) => a.path === `result/${sheet}`);
+    if (art) rows[jobId].cells.thumb.replaceChildren(el("img", { class: "thumb", src: await artifactUrl(art.url), alt: `preview of ${jobId}` }));
+  }
+
+  let events = 0;
+  document.body.dataset.stream = "open";
+  const onEvent = (name, data) => {
+    document.body.dataset.events = String(++events);
+    if (name === "job") show(data);
+    else if (name === "counts") { $("batch-summary").textContent = summary(data); document.body.dataset.finished = String(data.finished); }
+    else if (name === "end") document.body.dataset.stream = "ended";
   };
-  tick().catch((e) => $("batch-summary").textContent = e.message);
+  // Reconnect until the batch ends (the server closes a stream after BFIELDS_EVENTS_MAX_S).
+  while (document.body.dataset.stream !== "ended") {
+    try { await readEvents(`/v1/batches/${encodeURIComponent(id)}/events`, onEvent); }
+    catch (e) { $("batch-summary").textContent = e.message; await new Promise((r) => setTimeout(r, POLL_MS)); }
+  }
 }
 
 document.addEventListener("DOMContentLoaded", () => {
   const page = document.body.dataset.page;
-  if (page === "index") initIndex(); else if (page === "job") initJob(); else if (page === "batch") initBatch();
+  if (page === "index") initIndex(); else if (page === "job") initJob(); else if (page === "batch") initBatch().catch((e) => { $("batch-summary").textContent = e.message; });
 });

@@ -1,0 +1,117 @@
+"""``GET /v1/batches/{id}/events``: a server-sent-events stream of a batch's job states.
+
+Why polling Redis rather than pub/sub: the stream must be right after a reconnect, a missed
+message or an API restart, so each round reads the jobs' live hashes (``bf:job:*``, one pipelined
+HGETALL per round for the whole batch; the manifest only for a job Redis no longer knows) and
+sends what changed since the last round. Events:
+- ``job``: ``{"id", "state", "stage", "progress"}`` for a job whose state, stage or whole percent
+  changed (every job in the first round, so a client starts from a full picture);
+- ``counts``: ``{"counts": {state: n}, "total", "progress", "finished"}`` after each round with
+  changes;
+- ``end``: every job is terminal; the server closes the stream.
+A comment line keeps idle connections open. The stream closes after `events_max_s`; EventSource
+clients reconnect by themselves and get a fresh full picture. Authentication is the API key
+header like every route (browsers: `fetch` with the header and a stream reader, see `/ui`).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import time
+from collections.abc import AsyncIterator
+from typing import Any
+
+from fastapi import APIRouter, Request
+from fastapi.responses import StreamingResponse
+from starlette.concurrency import run_in_threadpool
+
+from bayesian_fields_service.api.state import ERRORS, AppState, State, Tenant, check_id, not_found
+from bayesian_fields_service.common.jobs import BatchRecord, JobStore
+from bayesian_fields_service.common.redis_text import text
+
+router = APIRouter(prefix="/v1", tags=["batches"])
+
+KEEPALIVE_S = 15.0
+TERMINAL = ("succeeded", "failed", "cancelled")
+
+JobView = tuple[str, str, int]  # state, stage, whole percent
+
+
+def snapshot(jobs: JobStore, batch: BatchRecord, known: dict[str, JobView]) -> dict[str, JobView]:
+    """Every job's (state, stage, percent): live hashes in one round trip, manifests for the rest."""
+    pipe = jobs.redis.pipeline()
+    for job_id in batch.job_ids:
+        pipe.hgetall(jobs.live_key(batch.tenant, job_id))
+    views: dict[str, JobView] = {}
+    for job_id, live in zip(batch.job_ids, pipe.execute(), strict=True):
+        if live:
+            state = text(live.get(b"state", b"queued"))
+            pct = 100 if state == "succeeded" else int(float(live.get(b"progress", 0)))
+            views[job_id] = (state, text(live.get(b"stage", b"")), pct)
+        elif job_id in known and known[job_id][0] in TERMINAL:
+            views[job_id] = known[job_id]  # expired hash of a finished job: it stays finished
+        else:
+            record = jobs.load(batch.tenant, job_id)
+            if record is not None:
+                views[job_id] = (record.state.value, record.stage or "", int(record.progress))
+    return views
+
+
+def _event(name: str, seq: int, data: dict[str, Any]) -> str:
+    return f"id: {seq}\nevent: {name}\ndata: {json.dumps(data, separators=(',', ':'))}\n\n"
+
+
+async def stream(request: Request, state: AppState, batch: BatchRecord) -> AsyncIterator[str]:
+    known: dict[str, JobView] = {}
+    seq = 0
+    started = last_sent = time.monotonic()
+    yield f"retry: {int(state.settings.events_poll_s * 2000)}\n\n"
+    while time.monotonic() - started < state.settings.events_max_s:
+        if await request.is_disconnected():
+            return
+        views = await run_in_threadpool(snapshot, state.jobs, batch, known)
+        changed = {j: v for j, v in views.items() if known.get(j) != v}
+        known.update(views)
+        for job_id, (job_state, stage, pct) in changed.items():
+            seq += 1
+            yield _event(
+                "job", seq, {"id": job_id, "state": job_state, "stage": stage or None, "progress": pct}
+            )
+        finished = len(known) == len(batch.job_ids) and all(v[0] in TERMINAL for v in known.values())
+        if changed or seq == 0:
+            counts: dict[str, int] = {}
+            for v in known.values():
+                counts[v[0]] = counts.get(v[0], 0) + 1
+            progress = sum(100 if v[0] in TERMINAL else v[2] for v in known.values()) / max(len(known), 1)
+            seq += 1
+            yield _event("counts", seq, {
+                "counts": counts, "total": len(batch.job_ids), "progress": round(progress, 2), "finished": finished,
+            })  # fmt: skip
+            last_sent = time.monotonic()
+        if finished:
+            seq += 1
+            yield _event("end", seq, {"batch_id": batch.id})
+            return
+        if time.monotonic() - last_sent > KEEPALIVE_S:
+            yield ": keep-alive\n\n"
+            last_sent = time.monotonic()
+        await asyncio.sleep(state.settings.events_poll_s)
+
+
+@router.get(
+    "/batches/{batch_id}/events",
+    summary="Server-sent events: per-job state changes and counts of a batch, until it finishes",
+    response_class=StreamingResponse,
+    responses={**ERRORS, 200: {"content": {"text/event-stream": {}}, "description": "The event stream"}},
+)
+async def batch_events(batch_id: str, request: Request, tenant: Tenant, state: State) -> StreamingResponse:
+    check_id("batch", batch_id, "b_")
+    batch = await run_in_threadpool(state.jobs.load_batch, tenant, batch_id)
+    if batch is None:
+        raise not_found("batch", batch_id)
+    return StreamingResponse(
+        stream(request, state, batch),
+        media_type="text/event-stream",
+        headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"},
+    )

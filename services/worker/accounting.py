@@ -1,0 +1,90 @@
+"""The worker's side of accounting (`common/usage.py`): measure a stage, put it on the job record
+and in the tenant's usage ledger.
+
+A `StageMeter` wraps the stage call: CPU-seconds are the process's CPU time over it (the pool
+process runs one stage at a time, so all of it is this stage's, its helper threads included);
+GPU-seconds are its wall time when the worker's device is CUDA, else 0. Only executions that end
+(finished, failed, cancelled, timed out) are counted; one interrupted by a transient error and
+retried is not (its retry is).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from types import TracebackType
+
+import redis
+
+from bayesian_fields_core.job.store import Store
+from bayesian_fields_service.common import usage
+from bayesian_fields_service.common.jobs import JobRecord, utcnow
+from bayesian_fields_service.common.storage import tenant_store
+from bayesian_fields_service.worker.scene_cache import list_input
+
+log = logging.getLogger(__name__)
+
+
+class StageMeter:
+    """CPU and wall seconds of the ``with`` body (zeros when the body never started)."""
+
+    def __init__(self, *, gpu: bool) -> None:
+        self.gpu = gpu
+        self.cpu_s = 0.0
+        self.wall_s = 0.0
+        self._cpu0 = 0.0
+        self._wall0 = 0.0
+
+    def __enter__(self) -> StageMeter:
+        self._cpu0, self._wall0 = time.process_time(), time.perf_counter()
+        return self
+
+    def __exit__(
+        self, kind: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.cpu_s = time.process_time() - self._cpu0
+        self.wall_s = time.perf_counter() - self._wall0
+
+    @property
+    def gpu_s(self) -> float:
+        return self.wall_s if self.gpu else 0.0
+
+
+def job_bytes(store: Store, record: JobRecord) -> int:
+    """Bytes under the job's prefix (one LIST with sizes on S3)."""
+    return sum(e.size for e in list_input(tenant_store(store, record.tenant), record.job_prefix))
+
+
+def account_stage(
+    store: Store, client: redis.Redis, record: JobRecord, stage: str, meter: StageMeter
+) -> JobRecord:
+    """`record` with this stage execution added to its usage (the caller saves it), and one ledger
+    entry. Accounting never fails a stage: a storage or Redis error is logged."""
+    try:
+        size = job_bytes(store, record)
+    except Exception as exc:  # the bucket is flaky: keep the last known size
+        log.warning("job %s: size unknown (%s)", record.id, exc)
+        size = record.usage.bytes_stored
+    updated = record.model_copy(
+        update={"usage": record.usage.add_stage(stage, meter.cpu_s, meter.gpu_s, size)}
+    )
+    try:
+        usage.record(
+            tenant_store(store, record.tenant), client, record.tenant,
+            f"{record.id}.{stage}.{record.stage_runs}",
+            usage.stage_fields(stage, meter.cpu_s, meter.gpu_s), utcnow(),
+        )  # fmt: skip
+    except Exception as exc:
+        log.warning("job %s: usage of %s not recorded (%s)", record.id, stage, exc)
+    return updated
+
+
+def account_job_end(store: Store, client: redis.Redis, record: JobRecord) -> None:
+    """The job's end in the ledger: one job of its outcome, and the bytes it leaves stored."""
+    try:
+        usage.record(
+            tenant_store(store, record.tenant), client, record.tenant, f"{record.id}.end",
+            usage.job_fields(record.state.value, record.usage.bytes_stored), record.finished_at or utcnow(),
+        )  # fmt: skip
+    except Exception as exc:
+        log.warning("job %s: end not recorded in usage (%s)", record.id, exc)

@@ -1,0 +1,96 @@
+"""The workers' `Flight` (`bayesian_fields_core.job.flight`): a Redis lock per cache fill.
+
+Key: ``bf:flight:<tenant>:<kind>:<hash of the cache keys>``; the cache keys carry the scene's cache
+root, the models' fingerprint and the frames' content digests, so jobs on the same scene content
+and model profile meet on one lock, whatever their task lists. The holder renews the lock from a
+heartbeat thread every third of `flight_lock_ttl_s`; a SIGKILLed holder stops renewing and its lock
+expires, so a waiter takes it over within the TTL. A waiter polls (`flight_poll_s`), calls the
+stage's cancel check while it waits, and past `flight_wait_timeout_s` stops waiting and computes
+itself (a stuck but alive holder costs duplicate work, never a hung job).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import secrets
+import socket
+import threading
+import time
+from collections.abc import Callable, Iterator
+
+import redis
+
+log = logging.getLogger(__name__)
+
+#: Renew / release only while the lock still carries our token (never someone else's).
+_RENEW = "if redis.call('get', KEYS[1]) == ARGV[1] then return redis.call('pexpire', KEYS[1], ARGV[2]) end return 0"
+_RELEASE = "if redis.call('get', KEYS[1]) == ARGV[1] then return redis.call('del', KEYS[1]) end return 0"
+
+
+def flight_redis_key(tenant: str, key: str) -> str:
+    return f"bf:flight:{tenant}:{key}"
+
+
+class RedisFlight:
+    """Holds flight keys of one tenant in Redis (one object per job context)."""
+
+    def __init__(
+        self,
+        client: redis.Redis,
+        tenant: str,
+        *,
+        ttl_s: float,
+        wait_timeout_s: float,
+        poll_s: float = 0.25,
+        on_waited: Callable[[str, float], None] | None = None,
+    ) -> None:
+        self.client = client
+        self.tenant = tenant
+        self.ttl_ms = int(ttl_s * 1000)
+        self.wait_timeout_s = wait_timeout_s
+        self.poll_s = poll_s
+        self.on_waited = on_waited
+
+    @contextlib.contextmanager
+    def hold(self, key: str, *, on_wait: Callable[[], None]) -> Iterator[None]:
+        rkey = flight_redis_key(self.tenant, key)
+        token = f"{socket.gethostname()}:{os.getpid()}:{secrets.token_hex(8)}"
+        start = time.monotonic()
+        held = True
+        while not self.client.set(rkey, token, nx=True, px=self.ttl_ms):
+            on_wait()  # a cancelled job stops waiting here
+            if time.monotonic() - start > self.wait_timeout_s:
+                log.warning(
+                    "flight %s: still held after %.0f s; computing without it", key, self.wait_timeout_s
+                )
+                held = False
+                break
+            time.sleep(self.poll_s)
+        waited = time.monotonic() - start
+        if waited > self.poll_s / 2:
+            log.info("flight %s: waited %.1f s for another job filling the cache", key, waited)
+            if self.on_waited is not None:
+                self.on_waited(key, waited)
+        stop = threading.Event()
+        beat = threading.Thread(target=self._beat, args=(rkey, token, stop), daemon=True) if held else None
+        if beat is not None:
+            beat.start()
+        try:
+            yield
+        finally:
+            stop.set()
+            if beat is not None:
+                beat.join(timeout=5)
+                try:
+                    self.client.eval(_RELEASE, 1, rkey, token)
+                except redis.RedisError:  # the TTL releases it
+                    log.warning("flight %s: release failed; it expires in %d ms", key, self.ttl_ms)
+
+    def _beat(self, rkey: str, token: str, stop: threading.Event) -> None:
+        while not stop.wait(self.ttl_ms / 3000):
+            try:
+                self.client.eval(_RENEW, 1, rkey, token, self.ttl_ms)
+            except redis.RedisError:
+                continue

@@ -8,6 +8,7 @@ from __future__ import annotations
 import hashlib
 import hmac
 import json
+import secrets
 import threading
 import time
 from collections.abc import Iterator
@@ -27,6 +28,7 @@ from .test_workers import model_profile, worker_env  # noqa: F401 - fixtures fou
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 
 SECRET = "test-callback-secret"
+IDLE_TENANT = "tenant-idle"
 FRAMES = 8
 JOBS = 20
 PARAMS = {"max_frames": FRAMES}
@@ -89,9 +91,12 @@ def encoder_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def fleet_api(
     tmp_path_factory: pytest.TempPathFactory, service_env: dict[str, str], test_api_keys: dict[str, str]
 ) -> Iterator[ApiServer]:
-    env = {**service_env, **SERVICE_ENV, **FLEET_ENV}
+    # tenant-idle runs nothing anywhere in the session: its usage must read 0 whatever ran before
+    keys = {**test_api_keys, IDLE_TENANT: "key-idle-" + secrets.token_urlsafe(16)}
+    env = {**service_env, **SERVICE_ENV, **FLEET_ENV,
+           "BFIELDS_API_KEYS": json.dumps({key: tenant for tenant, key in keys.items()})}  # fmt: skip
     server = ApiServer(
-        env=env, log_dir=tmp_path_factory.mktemp("fleet-api"), keys=dict(test_api_keys)
+        env=env, log_dir=tmp_path_factory.mktemp("fleet-api"), keys=keys,
     ).start()
     yield server
     server.stop()
@@ -274,7 +279,7 @@ def test_usage_per_job_and_per_tenant(fleet: dict, fleet_api: ApiServer) -> None
     expected_cpu = sum(j["usage"]["cpu_seconds_total"] for j in jobs)
     assert total["cpu_seconds"] >= expected_cpu - 0.01 * JOBS
     assert total["bytes_stored"] >= sum(j["usage"]["bytes_stored"] for j in jobs)
-    with fleet_api.client("tenant-b") as other:  # tenant isolation: b has used nothing
+    with fleet_api.client(IDLE_TENANT) as other:  # tenant isolation: a's jobs are not counted
         assert other.get("/v1/usage", params={"from": today, "to": today}).json()["total"]["jobs"] == 0
         assert other.get(f"/v1/batches/{fleet['batch']['id']}/events").status_code == 404
     with fleet_api.client("tenant-a") as client:

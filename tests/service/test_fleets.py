@@ -215,6 +215,45 @@ def test_rerunning_a_manifest_creates_no_job(
             client.post(f"/v1/batches/{b}/cancel")
 
 
+def _count_jobs(client: httpx.Client, scene_id: str) -> int:
+    """Every job of the tenant on `scene_id`, counted through the listing's pages."""
+    count, cursor = 0, None
+    while True:
+        params: dict[str, str | int] = {"limit": 500, "scene_id": scene_id}
+        if cursor:
+            params["cursor"] = cursor
+        page = client.get("/v1/jobs", params=params).json()
+        count += len(page["items"])
+        if not (cursor := page["next_cursor"]):
+            return count
+
+
+def test_a_1000_item_manifest_goes_in_through_the_client_once(
+    idle: PrivateStack, scene_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`bfields batch` with a 1,000-item manifest and the default settings: one batch of 1,000
+    jobs; running the same manifest again creates none (every item's key matches)."""
+    from bayesian_fields_service.client import batch
+
+    assert idle.api is not None
+    api = idle.api
+    with api.client("tenant-b") as client:
+        scene_id = upload(client, scene_dir)
+    lists = ", ".join(f"[object {n}]" for n in range(1000))
+    manifest = tmp_path / "fleet-1000.yaml"
+    manifest.write_text(f"scenes: [{scene_id}]\ntask_lists: [{lists}]\nparameters: {{max_frames: 2}}\n")
+    key = api.keys["tenant-b"]
+    assert batch(manifest, server=api.base_url, api_key=key, wait=False) == 0
+    first = capsys.readouterr().out.strip().splitlines()[-1]
+    assert batch(manifest, server=api.base_url, api_key=key, wait=False) == 0
+    second = capsys.readouterr().out.strip().splitlines()[-1]
+    assert second == first
+    with api.client("tenant-b") as client:
+        assert client.get(f"/v1/batches/{first}", params={"jobs": "false"}).json()["total"] == 1000
+        assert _count_jobs(client, scene_id) == 1000
+        client.post(f"/v1/batches/{first}/cancel")
+
+
 # ---- with workers ---------------------------------------------------------------------------------
 
 

@@ -73,7 +73,8 @@ def test_lone_surrogates_refused_in_every_field(client_a: httpx.Client, stored_s
     )
     _assert_problem(idem, 422, "Idempotency-Key")
     # nothing was stored: the tenant's jobs still list and none carries the probes' tasks
-    listed = client_a.get("/v1/jobs", params={"limit": 500})
+    # by scene: the made-up id sorts oldest, behind every other job tenant-a has in the session
+    listed = client_a.get("/v1/jobs", params={"limit": 500, "scene_id": stored_scene["id"]})
     assert listed.status_code == 200
     assert not [j for j in listed.json()["items"] if "ok" in j["tasks"] or "get \ufffd mug" in j["tasks"]]
 
@@ -127,8 +128,17 @@ def test_stored_records_with_bad_text_stay_readable_and_deletable(
     job = got.json()
     assert job["tasks"] == ["get \ufffd mug"]
     assert "/tmp" not in job["error"] and "tenants/" not in job["error"] and "d_0001.npy" in job["error"]
-    listed = client_a.get("/v1/jobs", params={"limit": 500})
-    assert listed.status_code == 200 and record.id in [j["id"] for j in listed.json()["items"]]
+    # every page: the made-up id sorts oldest, behind every other job tenant-a has in the session
+    listed_ids: list[str] = []
+    params: dict[str, str | int] = {"limit": 500}
+    while True:
+        listed = client_a.get("/v1/jobs", params=params)
+        assert listed.status_code == 200, listed.text
+        listed_ids += [j["id"] for j in listed.json()["items"]]
+        if not (cursor := listed.json()["next_cursor"]):
+            break
+        params["cursor"] = cursor
+    assert record.id in listed_ids
     cancelled = client_a.delete(f"/v1/jobs/{record.id}")
     assert cancelled.status_code == 202 and cancelled.json()["state"] == "cancelled", cancelled.text
 

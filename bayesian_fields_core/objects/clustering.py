@@ -30,6 +30,26 @@ from bayesian_fields_core.scene.scale import SceneLengths
 _T = TypeVar("_T")
 
 
+@dataclass(frozen=True)
+class MergeLog:
+    """Which primitives steps 8-9 joined, and at what price: the record behind "why did these two
+    neighbours end up in one object" (issue 23; `bench/merge_mechanism.py` reads it). Nothing in
+    the map depends on it; it only keeps arrays the steps computed anyway.
+
+    identical: (K1, 2) int64 primitive pairs (edges) the identical-vectors pre-merge tied (rows
+    within `identical_tolerance`). node_of_primitive: (P,) int64 the pre-merge node of each
+    primitive, the ids `aib_merges` use. aib_merges: (K2, 2) int64 node pairs in merge order (the
+    lower id survives and names the union). aib_costs: (K2,) information loss `d_ij` of each
+    merge, nats. information: `I(X;Y)` of the AIB's input, the normaliser of its stopping rule.
+    """
+
+    identical: np.ndarray
+    node_of_primitive: np.ndarray
+    aib_merges: np.ndarray
+    aib_costs: np.ndarray
+    information: float
+
+
 @dataclass
 class ObjectMap:
     """The clustered map before serialisation.
@@ -40,6 +60,7 @@ class ObjectMap:
     ids per task, best first, -1 padded. boxes / centroids / sizes: per object, after filtering.
     ranking: (C, T) the score each task's objects were ranked by (mean log-odds with evidence,
     else `task_scores`), so a report can show the number that orders the ranks.
+    merges: what the pre-merge and the AIB joined (`MergeLog`); None for maps not clustered here.
     """
 
     object_ids: np.ndarray
@@ -54,6 +75,7 @@ class ObjectMap:
     timings: dict[str, float] = field(default_factory=dict)
     cpu_timings: dict[str, float] = field(default_factory=dict)
     ranking: np.ndarray | None = None
+    merges: MergeLog | None = None
 
     @property
     def task_scores(self) -> np.ndarray:
@@ -305,6 +327,13 @@ def objects_from_primitives(
         timings=timer.seconds,
         cpu_timings=timer.cpu_seconds,
         ranking=chosen.ranking,
+        merges=MergeLog(
+            identical=merged.identical,
+            node_of_primitive=merged.labels,
+            aib_merges=clustering.merges,
+            aib_costs=clustering.costs,
+            information=clustering.information,
+        ),
     )
 
 

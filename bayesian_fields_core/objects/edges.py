@@ -128,12 +128,16 @@ class MergedGraph:
 
     labels: (P,) int64 node of each primitive. pyx: (C, Y) node conditionals. weights: (C,) number
     of primitives per node (the AIB's unnormalised `p(x)`). edges: (E', 2) int64 node pairs `i < j`.
+    identical: (K, 2) int64 the primitive edges whose rows agreed within the tolerance (the
+    pre-merge's own record: they join the `P - C` unions, more than that when they close cycles),
+    kept so a study of *which* neighbours the pre-merge joins needs no copy of the test.
     """
 
     labels: np.ndarray
     pyx: np.ndarray
     weights: np.ndarray
     edges: np.ndarray
+    identical: np.ndarray
 
 
 def merge_identical(
@@ -165,7 +169,13 @@ def merge_identical(
     members = membership_matrix(labels, count)
     node_w = members @ w
     node_pyx = (members @ (pyx * w[:, None])) / node_w[:, None]
-    return MergedGraph(labels=labels, pyx=node_pyx, weights=node_w, edges=unique_pairs(labels[edges], count))
+    return MergedGraph(
+        labels=labels,
+        pyx=node_pyx,
+        weights=node_w,
+        edges=unique_pairs(labels[edges], count),
+        identical=tied,
+    )
 
 
 def sorted_unique(values: np.ndarray) -> np.ndarray:

@@ -66,6 +66,7 @@ def test_merge_identical() -> None:
     assert graph.weights.tolist() == [2.0, 1.0, 1.0]
     assert graph.edges.tolist() == [[0, 2], [1, 2]]
     np.testing.assert_allclose(graph.pyx, pyx[[0, 2, 3]])
+    assert graph.identical.tolist() == [[0, 1]]  # the record of what the pre-merge tied
 
 
 def test_js_edge_weight_hand_values() -> None:

@@ -101,3 +101,23 @@ def test_the_ranking_score_is_recorded_and_orders_the_ranks() -> None:
     chosen = [int(o) for o in object_map.selection[0] if o >= 0]
     assert chosen == [1, 2, 0]
     np.testing.assert_allclose(object_map.ranking[chosen, 0], [40.0, 30.0, 20.0])
+
+
+def test_merge_log_records_the_pre_merge_and_the_aib_without_changing_the_map() -> None:
+    # Four touching primitives: 0 and 1 identical (pre-merge), 2 close to them (an AIB merge
+    # well under delta), 3 far in p(y|x) (kept apart).
+    rng = np.random.default_rng(1)
+    ids = np.repeat(np.arange(4), 30)
+    means = rng.uniform(0, 1, size=(len(ids), 3))  # all boxes overlap
+    rows = np.array([[0.3, 0.3], [0.3, 0.3], [0.3, 0.3 + 1e-4], [0.99, 0.01]])
+    probs = rows[ids]
+    pyx = primitive_probabilities(ids, probs)
+    params = PipelineParams(knn_filter=False, top_k=2, min_object_gaussians=1)
+    object_map = objects_from_primitives(means, ids, pyx, params)
+    log = object_map.merges
+    assert log is not None
+    assert log.identical.tolist() == [[0, 1]]
+    assert log.node_of_primitive.tolist() == [0, 0, 1, 2]
+    assert log.aib_merges.tolist() == [[0, 1]] and len(log.aib_costs) == 1
+    assert 0 < log.aib_costs[0] / log.information <= params.aib_delta
+    assert object_map.counts["clusters"] == 2

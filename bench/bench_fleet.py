@@ -163,7 +163,10 @@ def crash_effects(submitted: Sequence[str], records: Sequence[Record]) -> dict[s
     rerun = sorted((r["id"], r["stage_runs"]) for r in records if r["stage_runs"] > STAGES)
     return {
         "submitted": len(submitted),
-        "lost": sorted(set(submitted) - ok),
+        "lost": {
+            r["id"]: f"{r['state']} (stage_runs {r['stage_runs']})" for r in records if r["id"] not in ok
+        }
+        | {j: "not listed" for j in set(submitted) - {r["id"] for r in records}},
         "listed_twice": sorted(j for j, n in seen.items() if n > 1),
         "ran_a_stage_twice": [{"id": j, "stage_runs": n} for j, n in rerun],
     }
@@ -237,6 +240,7 @@ class Run:
     digests: dict[str, dict[str, str]] = field(default_factory=dict)  # "label|tasks" -> path -> sha
     load: list[float] = field(default_factory=list)  # 1-min load average samples
     killed_at: float | None = None
+    stalled: bool = False  # the wait ended because nothing finished for --stall-s
     wall_s: float = 0.0
 
 
@@ -320,6 +324,7 @@ def run_scenario(
             c_thread.start()
         total = sum(len(v) for v in plan.values())
         deadline = t0 + args.timeout_s
+        progress = (-1, time.monotonic())  # (finished, when it last changed)
         while time.monotonic() < deadline:
             counts = [
                 clients[t].get(f"/v1/batches/{b}", params={"jobs": "false"}).json()
@@ -334,10 +339,19 @@ def run_scenario(
                 print(f"[{name}] SIGKILLed {victim.node} at {finished}/{total} finished", flush=True)
             if all(c["finished"] for c in counts):
                 break
+            if finished != progress[0]:
+                progress = (finished, time.monotonic())
+            elif time.monotonic() - progress[1] > args.stall_s:
+                # crash recovery (stage lock TTL + scans) acts within seconds; a job not rescued in
+                # stall_s waits for the broker's visibility timeout (hours): record it as lost
+                print(f"[{name}] no batch job finished for {args.stall_s:.0f} s: stopping", flush=True)
+                run.stalled = True
+                break
             time.sleep(2)
         done.set()
         if c_jobs:
             c_thread.join()
+        deadline = min(deadline, time.monotonic() + args.stall_s)
         for job_id in c_ids:  # C's last jobs were submitted at most one interval before
             while (
                 time.monotonic() < deadline
@@ -381,6 +395,7 @@ def summarise(run: Run, base: Run | None) -> dict[str, Any]:
         "jain_starts_a_b": jain_index(starts) if starts else None,
         "perception": perception_runs(run.records, run.labels),
         "crash": crash_effects(run.submitted, run.records),
+        "stalled": run.stalled,
         "load_1min": {"mean": round(float(np.mean(run.load)), 2), "max": round(max(run.load), 2)}
         if run.load
         else None,
@@ -431,6 +446,9 @@ def main() -> int:
         type=int,
         default=None,
         help="jobs of the single-tenant run (default: as many as mixed ran)",
+    )
+    p.add_argument(
+        "--stall-s", type=float, default=180, help="stop waiting when no batch job finished for this long"
     )
     p.add_argument(
         "--timeout-s", type=float, default=24 * 3600, help="per run; unfinished jobs then count as lost"

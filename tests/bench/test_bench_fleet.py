@@ -89,7 +89,7 @@ def test_perception_runs_crash_effects_and_digests() -> None:
     ]
     assert perception_runs(records, {"s1": "a0"}) == {"a0": {"jobs": 3, "runs": 1, "encoder_calls": 2}}
     effects = crash_effects(["j1", "j2", "j3", "j4"], records + [records[0]])
-    assert effects["lost"] == ["j3", "j4"]
+    assert effects["lost"] == {"j3": "running (stage_runs 3)", "j4": "not listed"}
     assert effects["listed_twice"] == ["j1"]
     assert effects["ran_a_stage_twice"] == [{"id": "j2", "stage_runs": 4}]
     same = compare_digests(

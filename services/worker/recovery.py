@@ -7,6 +7,9 @@ lost it) or its hash says a stage is executing (phase 'active': the worker died 
 expired). The second case recovers a SIGKILLed worker's job after the lock TTL (a minute) rather
 than after the broker's visibility timeout (hours). A third case is a job the
 dispatcher moved to its tenant's dispatched set and died before sending (phase 'dispatching').
+A fourth is a job in phase 'waiting' that is neither in its tenant's fair-share queue nor has a
+stage message in a Celery queue: a worker took its message and died before taking the stage lock
+(the message sits in the broker's unacknowledged hash until the visibility timeout).
 An orphan goes back to the front of its tenant's fair-share queue (`FairQueue.requeue`), so the
 dispatcher resends it within the tenant's dispatch bound. A job is requeued
 only after it has looked orphaned for `grace_s` seconds on two scans: a worker that is running a
@@ -42,6 +45,7 @@ from celery.utils.log import get_logger
 from bayesian_fields_service.common.fair_queue import FairQueue, dispatched_key
 from bayesian_fields_service.common.jobs import JobState, JobStore, id_age_s
 from bayesian_fields_service.common.settings import ServiceSettings
+from bayesian_fields_service.worker.dispatch import jobs_with_queued_messages
 
 log = get_logger(__name__)  # a child of the 'celery' logger: lands in the worker log
 
@@ -72,13 +76,25 @@ def recover_orphans(
         now = time.time()
         pending = _enqueue_unsubmitted(fair, jobs, grace_s, requeued)
         active = jobs.active_jobs()
+        queued: set[str] | None = None
         _repair_quotas(jobs, active, grace_s)
         for tenant, job_id in active:
             if (tenant, job_id) in pending:  # stored, not yet enqueued: the API is on it (or died)
                 continue
-            # Healthy: waiting in a queue (live hash, phase 'waiting') or running (stage lock held).
-            if _has_stage_lock(client, tenant, job_id) or jobs.live_phase(tenant, job_id) == "waiting":
+            # Healthy: running (a stage lock is held), or waiting where something will pick it
+            # up: in its tenant's fair-share queue, or as a stage message in a Celery queue. A
+            # job in phase 'waiting' that is in neither had its message taken by a worker that
+            # died before it took the stage lock: without this it would wait for the broker's
+            # visibility timeout (hours).
+            if _has_stage_lock(client, tenant, job_id):
                 continue
+            if jobs.live_phase(tenant, job_id) == "waiting":
+                if fair.position(tenant, job_id) is not None:
+                    continue
+                if queued is None:  # read once per scan, and only when a job needs it
+                    queued = jobs_with_queued_messages(client, {settings.gpu_queue, settings.cpu_queue})
+                if job_id in queued:
+                    continue
             suspect = _SUSPECT_KEY.format(tenant=tenant, job_id=job_id)
             first_seen = client.get(suspect)
             if first_seen is None:

@@ -321,6 +321,8 @@ def execute_stage(task: Task, stage: str, tenant: str, job_id: str, lock_waits: 
         # A duplicate message (recovery's enqueue of a job the API had enqueued after all): the
         # stage ran and is recorded; not counted as a stage run, and the chain goes on.
         return "skipped"
+    # Between taking the message and taking the stage lock: a test kills the worker here.
+    pause(rt.redis, rt.settings.test_pause_points, f"stage:{stage}:before_lock", record.scene_id)
     lock = StageLock(rt.redis, stage_lock_key(tenant, job_id, stage), rt.settings.stage_lock_ttl_s)
     if not lock.acquire():
         # Another delivery of this stage is running (or its holder died on another host): try

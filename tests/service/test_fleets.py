@@ -249,8 +249,20 @@ def test_a_1000_item_manifest_goes_in_through_the_client_once(
     second = capsys.readouterr().out.strip().splitlines()[-1]
     assert second == first
     with api.client("tenant-b") as client:
+        timed: dict[str, float] = {}
+        t0 = time.perf_counter()
         assert client.get(f"/v1/batches/{first}", params={"jobs": "false"}).json()["total"] == 1000
+        timed["batch counts"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        assert len(client.get(f"/v1/batches/{first}").json()["jobs"]) == 1000
+        timed["batch with its 1,000 jobs"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        assert len(client.get(f"/v1/batches/{first}/jobs", params={"limit": 100}).json()["items"]) == 100
+        timed["a page of 100 of its jobs"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
         assert _count_jobs(client, scene_id) == 1000
+        timed["the job listing, all pages"] = time.perf_counter() - t0
+        print("\n" + "; ".join(f"{what} {s:.2f} s" for what, s in timed.items()))
         client.post(f"/v1/batches/{first}/cancel")
 
 
@@ -395,3 +407,34 @@ def test_dispatcher_dying_between_move_and_send_and_api_dying_before_confirming(
         listed = [j["id"] for j in b.get("/v1/jobs", params={"limit": 500}).json()["items"]]
         assert listed.count(moved.id) == 1 and listed.count(unconfirmed.id) == 1
         assert fair.waiting("tenant-b") == 0 and r.zcard("bf:dispatched:tenant-b") == 0
+
+
+@pytest.mark.slow
+def test_a_worker_killed_after_taking_a_message_before_the_stage_lock_loses_no_job(
+    busy: PrivateStack, scene_dir: Path
+) -> None:
+    """bench_fleet's finding: a worker SIGKILLed after it took a stage message but before it took
+    the stage lock left the job dispatched in phase 'waiting', its message in the broker's unacked
+    hash, which recovery took for healthy until the visibility timeout (hours). Recovery now sees
+    the job in no queue and holding no lock and dispatches it again after its grace."""
+    assert busy.api is not None and busy.pool is not None
+    gpu = next(w for w in busy.pool.workers if w.queue == "gpu" and w.alive)
+    r = busy.redis
+    point = "stage:perceive:before_lock"
+    with busy.api.client("tenant-a") as a:
+        scene = upload(a, scene_dir)
+        r.set(f"bf:test:pause:{point}", scene)
+        try:
+            job_id = a.post("/v1/jobs", json={"scene_id": scene, "tasks": ["red blob"],
+                                              "parameters": PARAMS}).json()["id"]  # fmt: skip
+            _wait_for(lambda: r.exists(f"bf:test:reached:{point}:{scene}"), 120, "the message taken")
+            gpu.kill()  # the worker and its children: the message stays unacknowledged
+        finally:
+            r.delete(f"bf:test:pause:{point}")
+        t0 = time.monotonic()
+        busy.pool.start("gpu")
+        final = wait_job(a, job_id, 240)
+    assert final["state"] == "succeeded", final
+    assert final["stage_runs"] == 3, final  # the killed delivery never started the stage
+    print(f"\njob rescued and finished {time.monotonic() - t0:.1f} s after the worker was killed")
+

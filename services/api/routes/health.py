@@ -14,6 +14,7 @@ from prometheus_client.registry import Collector
 from bayesian_fields_service.api.schemas import Health
 from bayesian_fields_service.api.state import AppState, get_state
 from bayesian_fields_service.common.jobs import STAGES, JobState
+from bayesian_fields_service.worker.dispatch import queue_length
 from bayesian_fields_service.worker.metrics import (
     JOB_KEY,
     QUEUE_WAIT_KEY,
@@ -23,9 +24,6 @@ from bayesian_fields_service.worker.metrics import (
 )
 
 router = APIRouter(tags=["health"])
-
-#: kombu's Redis transport keeps priority levels in extra lists named queue + "\x06\x16" + level.
-_PRIORITY_SUFFIXES = ("", "\x06\x163", "\x06\x166", "\x06\x169")
 
 
 @router.get("/healthz", response_model=Health, summary="Liveness: the process answers")
@@ -87,7 +85,7 @@ class ServiceCollector(Collector):
         )
         try:
             for queue in {s.settings.gpu_queue, s.settings.cpu_queue}:
-                depth.add_metric([queue], sum(s.redis.llen(queue + sfx) for sfx in _PRIORITY_SUFFIXES))
+                depth.add_metric([queue], queue_length(s.redis, queue))
             for stage in STAGES:
                 if (h := read_histogram(s.redis, STAGE_KEY.format(stage=stage))) is not None:
                     stage_h.add_metric([stage], h[0], h[1])

@@ -28,7 +28,7 @@ from tests.integration.fixtures.services import ApiServer
 
 from .conftest import SERVICE_ENV
 from .private_stack import PrivateStack, upload, wait_job
-from .test_workers import model_profile, worker_env  # noqa: F401 - fixtures
+from .test_workers import _wait_for, model_profile, worker_env  # noqa: F401 - fixtures
 
 pytestmark = pytest.mark.integration
 
@@ -51,16 +51,6 @@ def idle(
                          _defaults_env()).start()  # fmt: skip
     yield stack
     stack.stop()
-
-
-def _wait_for(predicate, timeout_s: float, what: str):  # noqa: ANN001, ANN202
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        value = predicate()
-        if value:
-            return value
-        time.sleep(0.2)
-    raise AssertionError(f"timed out waiting for {what}")
 
 
 def _gpu_depth(r: redis.Redis, queue: str = "gpu") -> int:

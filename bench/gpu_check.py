@@ -122,8 +122,10 @@ def renderer_fidelity(ctx: JobContext, scene, device: str, gpu: bool, n: int) ->
         lambda index: frame_scores(ctx, index, text),
         settings,
         num_tasks=len(ctx.tasks),
-        depth_tolerance=p.depth_tolerance,
+        # the run's lengths in scene units, as the fuse stage passes them (fractions of the scale)
+        depth_tolerance=ctx.lengths().depth_tolerance,
         relative_tolerance=p.depth_tolerance_relative,
+        near=ctx.lengths().visibility_near,
         device=device,
     )
     for line in gpu_check_fidelity.report_lines(fid):

@@ -139,6 +139,7 @@ def compare_renderers(
     num_tasks: int,
     depth_tolerance: float,
     relative_tolerance: float,
+    near: float,
     device: torch.device | str,
 ) -> Fidelity:
     """Render every (index, frame) with both renderers and compare what fusion reads from them.
@@ -173,6 +174,7 @@ def compare_renderers(
                 labels,
                 depth_tolerance=depth_tolerance,
                 relative_tolerance=relative_tolerance,
+                near=near,
             )
             state.add_frame(gids, mids, phi)
             keys.append(pair_keys(gids, mids, max(len(phi), 1)))

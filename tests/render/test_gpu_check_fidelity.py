@@ -15,6 +15,7 @@ import torch
 
 from bayesian_fields_core.fusion.likelihood import LikelihoodParams
 from bayesian_fields_core.fusion.state import FusionSettings
+from bayesian_fields_core.fusion.visibility import DEFAULT_NEAR
 from bayesian_fields_core.render import GaussianRenderer
 
 from .scenes import make_gaussians, pinhole
@@ -62,6 +63,7 @@ def _compare(scene, candidate) -> fidelity.Fidelity:
         num_tasks=TASKS,
         depth_tolerance=0.05,
         relative_tolerance=0.03,
+        near=DEFAULT_NEAR,
         device="cpu",
     )
 

@@ -553,6 +553,8 @@ def retry_batch(batch_id: str, tenant: Tenant, state: State) -> BatchStatus:
         batch = _load_batch(state, tenant, batch_id)  # as it is now, under the lock
         jobs = _batch_jobs(state, batch)
         failed = [j for j in jobs if j is not None and j.state == JobState.failed]
+        if not failed:  # nothing to retry: no lock, no slot, no write, no empty submission
+            return _status_of(batch, jobs, created=0, with_jobs=False)
         with scene_lock(state.redis, tenant, [j.scene_id for j in failed]):
             scenes: dict[str, SceneRecord] = {}
             again = [

@@ -256,6 +256,10 @@ def test_random_interleavings_keep_a_scene_complete_or_absent(
     print(f"\n{rounds} rounds ({'with' if with_job else 'without'} a job submission):")
     for key, count in sorted(tally.items()):
         print(f"  {count:3d}  {key}")
+    # each round already asserted the invariant (`_round`); here: every round ended in a state
+    # the property allows, and the tally covers them all
+    assert sum(tally.values()) == rounds
+    assert {key.split(":")[0] for key in tally} <= {"ready", "uploading", "absent"}, tally
 
 
 # ---- the sweeper and tombstoned leftovers ---------------------------------------------------

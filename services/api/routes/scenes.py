@@ -263,8 +263,17 @@ def complete_upload(
     record = _load_scene(state, tenant, scene_id)
     if record.state != SceneState.uploading:
         raise HTTPException(status.HTTP_409_CONFLICT, f"scene {scene_id!r} is already {record.state.value}")
+    ts = state.tenant(tenant)
     with completion_claim(state.redis, tenant, scene_id):
-        n, size, summary = _complete_files(state, tenant, record, body)
+        try:
+            n, size, summary = _complete_files(state, tenant, record, body)
+        except BaseException:
+            if is_deleted(ts, scene_id):
+                # a delete listed the scene's objects while this completion was still assembling
+                # them: a file finished after that listing would stay behind. The tombstone is
+                # final, so everything under the scene is removed here, after the last write.
+                ts.delete_prefix(f"scenes/{scene_id}/")
+            raise
         return _publish(state, tenant, record, n, size, summary)
 
 

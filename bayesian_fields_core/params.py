@@ -7,7 +7,7 @@ can carry its exact parameters and a result can report them.
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
@@ -190,6 +190,19 @@ class PipelineParams(BaseModel):
     )
 
     # --- objects (steps 7-12) --------------------------------------------------------------------
+    aib_conditionals: Literal["fused", "per_view"] = Field(
+        "per_view",
+        description=(
+            "What the AIB clusters on. 'per_view' (default; departs from the paper): each "
+            "primitive's rows from its Gaussians' mean evidence per accepted view, "
+            "sigmoid(logit(prior) + (logodds - logit(prior)) / views), which does not grow with "
+            "the number of views; the identical pre-merge joins only primitives no accepted view "
+            "saw. 'fused' (the paper, to reproduce it): the mean fused probability per task, which "
+            "saturates at 1 for every task neighbours share, so their rows stop telling them "
+            "apart and the AIB joins them. Rows: null appended, normalised; selection and "
+            "pruning use the fused values either way. Docs: Evaluation, merged neighbours."
+        ),
+    )
     null_mode: Literal["product", "one_minus_max"] = Field(
         "product", description="Null task: prod(1-p_y) (default) or 1-max p_y."
     )
@@ -245,16 +258,16 @@ class PipelineParams(BaseModel):
             "uses relevance, or the conditional with 'conditional'."
         ),
     )
-    answer_min_peak: float | None = Field(
-        0.83,
-        ge=-10,
-        le=10,
+    answer_min_peak: Annotated[float, Field(ge=-10, le=10)] | Literal["calibrated"] | None = Field(
+        "calibrated",
         description=(
             "A task whose best object's best single view scores below this margin gets no object "
             "(an empty selection with the reason: 'not found', format 1.3). The margin is "
-            "(phi - mu0) / (mu1 - mu0): 0 at the irrelevant mean, 1 at the relevant one. None = "
-            "always answer. Chosen on the synthetic suite's present and absent tasks (docs: "
-            "Not found answers)."
+            "(phi - mu0) / (mu1 - mu0): 0 at the irrelevant mean, 1 at the relevant one. "
+            "'calibrated' (default): the threshold `bfields calibrate --scene` fitted for the "
+            "encoder (in its calibration file), else the margin a relevant view falls below 2 % "
+            "of the time under the calibrated likelihoods. None = always answer. Docs: Not found "
+            "answers."
         ),
     )
     knn_filter: bool = Field(True, description="Statistical outlier removal on each selected object.")

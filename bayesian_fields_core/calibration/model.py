@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from statistics import NormalDist
 from typing import Literal
 
 import numpy as np
@@ -21,6 +22,35 @@ from bayesian_fields_core.fusion.likelihood import LikelihoodParams
 from bayesian_fields_core.params import default
 
 SpreadMode = Literal["positive", "pooled", "negative"]
+
+
+MAX_PRESENT_LOSS = 0.02
+"""Share of present tasks the fitted 'not found' threshold may leave unanswered: a robot that
+is told "not found" for an object that is there loses more than one that gets a weak answer for
+one that is not, so the fit favours present answers."""
+
+
+def distribution_min_peak(mu0: float, mu1: float, s: float, miss: float = MAX_PRESENT_LOSS) -> float:
+    """The 'not found' threshold from the score Gaussians alone, for a calibration without a
+    fitted one (e.g. from a score file): the margin below which a relevant view scores with
+    probability `miss`, `1 - z(1 - miss) s / (mu1 - mu0)`. A present object's best view is the
+    highest of several, so it falls below less often than that."""
+    return float(1.0 - NormalDist().inv_cdf(1.0 - miss) * s / (mu1 - mu0))
+
+
+class NotFoundFit(BaseModel):
+    """How `answer_min_peak` was fitted: task counts, the rule that chose it, what it does on the
+    fitting scenes, and the trade-off curve `[threshold, absent share not found, present share
+    lost]` (margins of this calibration's likelihoods)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    absent_tasks: int = Field(ge=0)
+    present_tasks: int = Field(ge=0)
+    max_present_loss: float = Field(ge=0, le=1)
+    absent_not_found: float = Field(ge=0, le=1)
+    present_lost: float = Field(ge=0, le=1)
+    curve: list[tuple[float, float, float]]
 
 
 class Calibration(BaseModel):
@@ -34,6 +64,17 @@ class Calibration(BaseModel):
     s: float = Field(gt=0)
     num_positive: int | None = Field(default=None, ge=0)
     num_negative: int | None = Field(default=None, ge=0)
+    answer_min_peak: float | None = Field(
+        default=None,
+        ge=-10,
+        le=10,
+        description=(
+            "The 'not found' threshold fitted for this encoder by `bfields calibrate --scene` "
+            "(present and absent tasks of scenes with ground truth); None: not fitted, the "
+            "pipeline falls back to `distribution_min_peak`."
+        ),
+    )
+    not_found_fit: NotFoundFit | None = None
 
     @model_validator(mode="after")
     def _positives_score_higher(self) -> Calibration:

@@ -289,27 +289,41 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         negatives=args.negatives,
         max_frames=args.max_frames,
         model_id=args.model_id,
+        keep_likelihoods=args.keep_likelihoods,
     )
     cal = calibrate(request)
     print(
         f"calibration for {cal.model_id}: mu0={cal.mu0:.4f} mu1={cal.mu1:.4f} s={cal.s:.4f} "
         f"({cal.num_positive} positive, {cal.num_negative} negative scores) -> {request.out}"
     )
+    fit = cal.not_found_fit
+    if fit is not None and cal.answer_min_peak is not None:
+        print(
+            f"'not found' threshold answer_min_peak = {cal.answer_min_peak:.4f}: {100 * fit.absent_not_found:.0f}% "
+            f"of {fit.absent_tasks} absent tasks not found, {100 * fit.present_lost:.1f}% of "
+            f"{fit.present_tasks} present tasks lost (at most {100 * fit.max_present_loss:.0f}% allowed)"
+        )
+        print("trade-off (threshold: absent not found / present lost):")
+        for t, absent, lost in fit.curve:
+            print(f"  {t:8.4f}: {100 * absent:5.1f}% / {100 * lost:5.1f}%")
+    elif request.scenes:
+        print("no 'not found' threshold fitted (the scenes need present and absent tasks with answers)")
     return 0
 
 
 def _suite_count(text: str) -> int:
-    """argparse type: how many suite scenes, 3 (the fewest that make a suite) to 5 (all of them)."""
-    from bayesian_fields_core.eval.synthetic.spec import SUITE_SIZE
+    """argparse type: how many public suite scenes, 3 (the fewest that make a suite) to 10 (the
+    five layouts with their own seeds, then re-seeded with the public `PUBLIC_RESEEDS`)."""
+    from bayesian_fields_core.eval.synthetic.spec import MAX_SUITE_SCENES
 
     value = int_at_least(0)(text)
-    if not 3 <= value <= SUITE_SIZE:
-        raise argparse.ArgumentTypeError(f"must be 3 to {SUITE_SIZE}, got {value}")
+    if not 3 <= value <= MAX_SUITE_SCENES:
+        raise argparse.ArgumentTypeError(f"must be 3 to {MAX_SUITE_SCENES}, got {value}")
     return value
 
 
 def _suite_seeds(text: str) -> list[int]:
-    """argparse type: comma-separated seeds that `suite_specs` accepts (1 to 5, distinct, >= 0)."""
+    """argparse type: comma-separated seeds that `suite_specs` accepts (1 to 10, distinct, >= 0)."""
     from bayesian_fields_core.eval.synthetic.spec import suite_specs
 
     try:
@@ -424,7 +438,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="which synthetic suite: tabletop (orbiting cameras, whole objects) or capture "
         "(handheld walks, close-ups, border cuts, occluders, one-sided labels, texture, clutter)",
     )
-    ev.add_argument("--scenes", type=_suite_count, default=5, help="number of suite scenes (3 to 5)")
+    ev.add_argument(
+        "--scenes",
+        type=_suite_count,
+        default=5,
+        help="number of public suite scenes (3 to 10; 6-10 are the five layouts re-seeded)",
+    )
     ev.add_argument("--profile", help="model profile YAML")
     ev.add_argument("--markdown", action="store_true", help="print the table as Markdown")
     ev.add_argument(
@@ -437,7 +456,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--seeds",
         type=_suite_seeds,
         metavar="S1,S2,...",
-        help="held-out scenes: re-seed the first N suite scenes with these seeds (N = their count; "
+        help="held-out scenes: re-seed the suite's layouts in turn with these seeds (1 to 10; "
         "replaces --scenes)",
     )
     ev.add_argument(
@@ -482,6 +501,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     cal.add_argument("--max-frames", type=int, help="with --scene: use at most this many frames per scene")
     cal.add_argument("--model-id", help="model id recorded in the file (default: the encoder's)")
+    cal.add_argument(
+        "--keep-likelihoods",
+        metavar="FILE",
+        help="with --scene: keep mu0/mu1/s of this calibration and fit only the 'not found' threshold",
+    )
     cal.add_argument("--out", required=True, help="calibration JSON to write")
     cal.set_defaults(func=cmd_calibrate)
 

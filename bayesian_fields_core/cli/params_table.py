@@ -27,8 +27,11 @@ class ParamRow:
 
 
 def type_name(annotation: Any) -> str:
-    """`int`, `float | None`, `bayes|average` (a Literal lists its choices)."""
+    """`int`, `float | None`, `bayes|average` (a Literal lists its choices), `float | calibrated |
+    None` (an Annotated member shows its base type)."""
     origin = typing.get_origin(annotation)
+    if origin is typing.Annotated:  # a constrained type (bounds live in the Field): its base type
+        return type_name(typing.get_args(annotation)[0])
     if origin is Literal:
         return "|".join(str(v) for v in typing.get_args(annotation))
     if origin in (typing.Union, types.UnionType):

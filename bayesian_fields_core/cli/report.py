@@ -136,7 +136,12 @@ def answer_table(result: Result) -> Table:
     label = SCORE_LABELS.get(name, name)
     with_p = label != "p(relevant)"
     table = Table(title="Task-relevant objects", show_lines=False)
-    columns: list[tuple[str, JustifyMethod]] = [("task", "left"), ("rank", "right"), ("object", "right"), (f"{label} (ranks)", "right")]
+    columns: list[tuple[str, JustifyMethod]] = [
+        ("task", "left"),
+        ("rank", "right"),
+        ("object", "right"),
+        (f"{label} (ranks)", "right"),
+    ]
     columns += [("p(relevant)", "right")] if with_p else []
     columns += [("Gaussians", "right"), (f"centroid ({units(result)})", "left")]
     for column, justify in columns:

@@ -18,7 +18,7 @@ from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.eval.bootstrap import paired_differences
 from bayesian_fields_core.eval.clio import ClioScores, format_table
 from bayesian_fields_core.eval.clio_format import load_clio_case
-from bayesian_fields_core.eval.suite import FULL, SceneCase, evaluate_scene, print_not_found
+from bayesian_fields_core.eval.suite import FULL, SceneCase, evaluate_scene, print_not_found, run_threshold
 from bayesian_fields_core.job.pipeline import load_models
 
 
@@ -66,5 +66,6 @@ def run_clio_scene(
         marks = "".join("*" if d.significant else " " for d in diff.values())
         print(f"  {row.strip():<56} strict {diff['strict_osr']}  IoU {diff['iou']}  {marks}")
     print("  (* = the interval excludes 0)")
-    print_not_found(evaluation.not_found, base_params, markdown=markdown, curve=not_found_curve)
+    threshold = run_threshold(base_params, models)
+    print_not_found(evaluation.not_found, threshold, markdown=markdown, curve=not_found_curve)
     return rows

@@ -21,7 +21,6 @@ import numpy as np
 from bayesian_fields_core.eval.clio import ClioScores
 from bayesian_fields_core.eval.tables import render_table
 from bayesian_fields_core.objects.not_found import is_not_found
-from bayesian_fields_core.params import default
 
 
 @dataclass(frozen=True)
@@ -82,9 +81,7 @@ def task_outcomes(
     return out
 
 
-def not_found_stats(
-    outcomes: Iterable[TaskOutcome], threshold: float | None = default("answer_min_peak")
-) -> NotFoundStats:
+def not_found_stats(outcomes: Iterable[TaskOutcome], threshold: float | None) -> NotFoundStats:
     """Apply the rule at `threshold` to every outcome and count what it does."""
     counts = dict.fromkeys(
         ("absent", "absent_nf", "present", "present_nf", "relaxed", "relaxed_lost", "strict", "strict_lost"),
@@ -152,7 +149,7 @@ _HEADER = ["Absent: not found", "Present: not found", "Recall lost", "Strict los
 def format_not_found_table(
     rows: Mapping[str, Sequence[TaskOutcome]],
     *,
-    threshold: float | None = default("answer_min_peak"),
+    threshold: float | None,
     markdown: bool = False,
 ) -> str:
     """Per Table 1 row, what the rule at `threshold` does: absent tasks answered "not found",

@@ -52,15 +52,22 @@ from bayesian_fields_core.job.pipeline import load_models, run_job
 from bayesian_fields_core.job.store import LocalStore
 from bayesian_fields_core.job.task_list import load_tasks
 from bayesian_fields_core.objects.clustering import ObjectMap
+from bayesian_fields_core.objects.not_found import resolve_answer_min_peak
 from bayesian_fields_core.params import PipelineParams
 from bayesian_fields_core.results.reader import read_result
 
 FULL = "Bayesian Fields (ours)"
+AVERAGING = "  averaging instead of Bayes"
+_OTHER_CONDITIONALS = "fused" if PipelineParams().aib_conditionals == "per_view" else "per_view"
 METHOD_ROWS: dict[str, dict[str, Any]] = {
     FULL: {},
     "  w/o OR-phi": {"outlier_rejection": False},
     "  w/o kNN filter": {"knn_filter": False},
-    "  averaging instead of Bayes": {"fusion": "average"},
+    AVERAGING: {"fusion": "average"},
+    # the clustering's other conditionals (issue 23): 'fused' is the paper's, 'per_view' the fix
+    f"  AIB on {_OTHER_CONDITIONALS.replace('_', '-')} conditionals": {
+        "aib_conditionals": _OTHER_CONDITIONALS
+    },
 }
 SEMANTIC_GAUSSIANS = "Semantic Gaussians-style (avg. embeddings, best label)"
 CLIO = "Clio-style (AIB on raw cosine)"
@@ -329,7 +336,15 @@ def run_suite(
         marks = "".join("*" if d.significant else " " for d in diff.values())
         print(f"  {row.strip():<56} strict {diff['strict_osr']}  IoU {diff['iou']}  {marks}")
     print("  (* = the interval excludes 0)")
-    print_not_found(outcomes, base_params, markdown=markdown, curve=not_found_curve)
+    print()
+    print(f"Each Bayesian row minus averaging, paired bootstrap over the {n_tasks} tasks (95%):")
+    for row, scores in pooled.items():
+        if row in (AVERAGING, SEMANTIC_GAUSSIANS, CLIO):
+            continue
+        diff = paired_differences(scores, pooled[AVERAGING])
+        marks = "".join("*" if d.significant else " " for d in diff.values())
+        print(f"  {row.strip():<56} strict {diff['strict_osr']}  IoU {diff['iou']}  {marks}")
+    print_not_found(outcomes, run_threshold(base_params, models), markdown=markdown, curve=not_found_curve)
     if breakdown:
         print_breakdown(causes, markdown=markdown)
     if lerf_rows:
@@ -354,16 +369,24 @@ def print_breakdown(causes: dict[str, list[TaskBreakdown]], *, markdown: bool = 
         print(format_breakdown(rows, markdown=markdown, per_task=row == FULL))
 
 
+def run_threshold(base_params: dict[str, Any] | None, models: Models) -> float | None:
+    """The `answer_min_peak` a run with `base_params` applies ('calibrated' resolved with the
+    profile's calibration, as the cluster stage resolves it)."""
+    params = PipelineParams.model_validate(base_params or {})
+    return resolve_answer_min_peak(
+        params.answer_min_peak, models.calibration, resolve_likelihood(params, models.calibration)
+    )
+
+
 def print_not_found(
     outcomes: dict[str, list[TaskOutcome]],
-    base_params: dict[str, Any] | None,
+    threshold: float | None,
     *,
     markdown: bool = False,
     curve: bool = False,
 ) -> None:
-    """The "not found" columns per row at the run's threshold and, with `curve`, the full
-    method's threshold trade-off curve and its best point (<= 5% recall lost)."""
-    threshold = PipelineParams.model_validate(base_params or {}).answer_min_peak
+    """The "not found" columns per row at the run's `threshold` (`run_threshold`) and, with
+    `curve`, the full method's threshold trade-off curve and its best point (<= 5% recall lost)."""
     print()
     print(format_not_found_table(outcomes, threshold=threshold, markdown=markdown))
     if not curve or not outcomes.get(FULL):

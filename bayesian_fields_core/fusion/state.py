@@ -53,13 +53,15 @@ class FusedArrays:
     logodds, peak: (N, T) float32. probabilities: (N, T) float32 for the averaging ablation;
     None for the Bayesian update, whose probabilities are `sigmoid(logodds)`, written a block at a
     time (`bayes.probability_blocks`). observed: (N,) bool, Gaussians some accepted mask saw
-    (averaging only, else None).
+    (averaging only, else None). view_counts: (N,) int32 accepted views per Gaussian (the
+    Bayesian update only, else None).
     """
 
     logodds: np.ndarray
     peak: np.ndarray
     probabilities: np.ndarray | None = None
     observed: np.ndarray | None = None
+    view_counts: np.ndarray | None = None
 
 
 class FusionState:
@@ -74,10 +76,10 @@ class FusionState:
         self.logodds = init_logodds(num_gaussians, num_tasks, settings.prior, self.device) if bayes else None
         self.averager = None if bayes else CosineAverager(num_gaussians, num_tasks, self.device)
         self.peak = init_peak(num_gaussians, num_tasks, self.device)
-        # Only the correlated-views discount reads view counts: the paper's update does no extra work.
-        counting = bayes and settings.view_correlation > 0
+        # Accepted views per Gaussian: the correlated-views discount and the per-view conditionals
+        # of the clustering (`aib_conditionals`) read them; one scatter per frame.
         self.view_counts = (
-            torch.zeros(num_gaussians, dtype=torch.int32, device=self.device) if counting else None
+            torch.zeros(num_gaussians, dtype=torch.int32, device=self.device) if bayes else None
         )
 
     def add_frame(self, gaussian_ids: torch.Tensor, mask_ids: torch.Tensor, phi: np.ndarray) -> np.ndarray:
@@ -109,9 +111,12 @@ class FusionState:
         s = self.settings
         peak = to_numpy(self.peak)
         if self.logodds is not None:
-            if self.view_counts is not None:
+            assert self.view_counts is not None  # counted whenever there are log-odds
+            if s.view_correlation > 0:
                 discount_correlated_views(self.logodds, self.view_counts, s.view_correlation, s.prior)
-            return FusedArrays(logodds=to_numpy(self.logodds), peak=peak)
+            return FusedArrays(
+                logodds=to_numpy(self.logodds), peak=peak, view_counts=to_numpy(self.view_counts)
+            )
         assert self.averager is not None  # exactly one of logodds / averager exists
         probs = self.averager.probabilities(s.likelihood, unobserved=s.prior)
         clipped = np.clip(probs.astype(np.float64), PROBABILITY_CLIP, 1 - PROBABILITY_CLIP)

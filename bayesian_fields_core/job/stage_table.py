@@ -123,6 +123,7 @@ NOT_IN_ANY_CACHE_KEY: dict[str, str] = {
     "view_correlation": "fusion update",
     # The cluster stage and the result: per job.
     "null_mode": "cluster",
+    "aib_conditionals": "cluster",
     "edge_padding": "cluster",
     "edge_padding_scene": "cluster",
     "identical_tolerance": "cluster",

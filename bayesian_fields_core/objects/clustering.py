@@ -21,7 +21,7 @@ from bayesian_fields_core.geometry.obb import DEFAULT_MIN_THICKNESS, OrientedBox
 from bayesian_fields_core.objects.aib import aib
 from bayesian_fields_core.objects.edges import MergedGraph, merge_identical, overlap_edges
 from bayesian_fields_core.objects.knn_filter import statistical_outlier_mask
-from bayesian_fields_core.objects.probabilities import conditionals, primitive_means
+from bayesian_fields_core.objects.probabilities import conditionals, per_view_probabilities, primitive_means
 from bayesian_fields_core.objects.select import prune_mask, task_scores, top_k
 from bayesian_fields_core.objects.timing import StepTimer
 from bayesian_fields_core.params import PipelineParams
@@ -87,11 +87,13 @@ class ObjectMap:
 class PrimitiveScores:
     """Per-primitive inputs of the clustering: `pyx` (P, T+1) conditionals (null last), and for
     the selection score, `relevance` (P, T) mean fused probability and `evidence` (P, T) mean
-    fused log-odds (None when the score does not use them)."""
+    fused log-odds (None when the score does not use them). `premerge`: (P,) bool the primitives
+    the identical pre-merge may join (None: all, the paper's rule)."""
 
     pyx: np.ndarray
     relevance: np.ndarray | None
     evidence: np.ndarray | None
+    premerge: np.ndarray | None = None
 
 
 @dataclass
@@ -109,16 +111,37 @@ class Selection:
 
 
 def primitive_scores(
-    primitive_ids: np.ndarray, probabilities: np.ndarray, logodds: np.ndarray, params: PipelineParams
+    primitive_ids: np.ndarray,
+    probabilities: np.ndarray,
+    logodds: np.ndarray,
+    params: PipelineParams,
+    view_counts: np.ndarray | None = None,
 ) -> PrimitiveScores:
     """Step 7: p(y|x) of every primitive from its Gaussians' (N, T) fused `probabilities`, plus
-    the relevance or evidence that `params.selection_score` ranks by (`logodds` (N, T))."""
+    the relevance or evidence that `params.selection_score` ranks by (`logodds` (N, T)).
+
+    With `aib_conditionals='per_view'` and `view_counts` (N,) (the Bayesian update's accepted
+    views per Gaussian) the AIB's rows come from the per-view probabilities instead
+    (`per_view_probabilities`), and only primitives no accepted view saw may be pre-merged;
+    relevance and evidence stay the fused ones. Without view counts (the averaging ablation,
+    whose probabilities are per-view means already) the fused rows are used."""
     with_evidence = params.selection_score == "evidence"
-    means, _ = primitive_means(primitive_ids, [probabilities, logodds] if with_evidence else [probabilities])
+    per_view = params.aib_conditionals == "per_view" and view_counts is not None
+    arrays = [probabilities] + ([logodds] if with_evidence else [])
+    if per_view:
+        assert view_counts is not None
+        arrays += [
+            per_view_probabilities(logodds, view_counts, params.prior),
+            np.asarray(view_counts, dtype=np.float32)[:, None],
+        ]
+    means, _ = primitive_means(primitive_ids, arrays)
     relevance = None if params.selection_score == "conditional" else means[0]
-    return PrimitiveScores(
-        conditionals(means[0], params.null_mode), relevance, means[1] if with_evidence else None
-    )
+    evidence = means[1] if with_evidence else None
+    if per_view:
+        return PrimitiveScores(
+            conditionals(means[-2], params.null_mode), relevance, evidence, premerge=means[-1][:, 0] == 0
+        )
+    return PrimitiveScores(conditionals(means[0], params.null_mode), relevance, evidence)
 
 
 def primitive_graph(
@@ -128,15 +151,19 @@ def primitive_graph(
     gaussian_counts: np.ndarray,
     params: PipelineParams,
     lengths: SceneLengths | None = None,
+    premerge: np.ndarray | None = None,
 ) -> tuple[np.ndarray, MergedGraph]:
     """Step 8: overlap edges (E, 2) between primitives, then identical neighbours merged.
 
     Boxes grow by `lengths.edge_padding` (scene units); without `lengths`, by the absolute
-    `params.edge_padding` if set, else not at all."""
+    `params.edge_padding` if set, else not at all. `premerge` (P,) bool: the primitives the
+    pre-merge may join (None: all)."""
     padding = params.edge_padding if lengths is None else lengths.edge_padding
     edges = overlap_edges(means, primitive_ids, padding=padding)
     weights = gaussian_counts if params.aib_px == "size" else None
-    return edges, merge_identical(pyx, edges, atol=params.identical_tolerance, weights=weights)
+    return edges, merge_identical(
+        pyx, edges, atol=params.identical_tolerance, weights=weights, eligible=premerge
+    )
 
 
 def prune_and_select(
@@ -268,20 +295,22 @@ def objects_from_primitives(
     evidence: np.ndarray | None = None,
     lengths: SceneLengths | None = None,
     checkpoint: Callable[[], None] | None = None,
+    premerge: np.ndarray | None = None,
 ) -> ObjectMap:
     """Steps 8-12 from primitives (N,) and their conditionals `pyx` (P, T+1) (shared by the
     method and the baselines); `relevance` / `evidence` as in `prune_and_select`; `lengths`: the
     run's lengths in scene units (edge padding, thinnest box side), None for the absolute ones.
 
     `checkpoint` is called between the steps (edges, AIB, select, kNN, boxes): the cluster stage
-    passes its cancel check there, so a cancelled job stops within one step."""
+    passes its cancel check there, so a cancelled job stops within one step. `premerge` (P,)
+    bool: the primitives the identical pre-merge may join (`PrimitiveScores.premerge`)."""
     check = checkpoint or (lambda: None)
     if pyx.shape[0] == 0:
         return empty_object_map(len(means), primitive_ids, pyx.shape[1], params.top_k)
     timer = StepTimer()
     with timer("edges"):
         counts = np.bincount(primitive_ids[primitive_ids >= 0], minlength=pyx.shape[0]).astype(np.float64)
-        edges, merged = primitive_graph(means, primitive_ids, pyx, counts, params, lengths)
+        edges, merged = primitive_graph(means, primitive_ids, pyx, counts, params, lengths, premerge)
     check()
     with timer("aib"):
         clustering = aib(merged.pyx, merged.edges, params.aib_delta, weights=merged.weights)

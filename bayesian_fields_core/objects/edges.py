@@ -146,13 +146,16 @@ def merge_identical(
     *,
     atol: float = default("identical_tolerance"),
     weights: np.ndarray | None = None,
+    eligible: np.ndarray | None = None,
 ) -> MergedGraph:
     """Merge connected primitives whose `p(y|x)` rows agree within `atol` (paper Sec. 4.3).
 
     Such merges cost nothing in the AIB (zero JS divergence), so doing them up front in one
     connected-components pass is exact and shrinks the graph (many primitives stay at the prior).
     Node conditionals are weighted means and node weights are sums, as the AIB would have made
-    them; `weights` defaults to one per primitive.
+    them; `weights` defaults to one per primitive. `eligible` (P,) bool limits the pre-merge to
+    edges between eligible primitives (the paper meant it for primitives still at their prior;
+    saturated rows agree too, and joining those up front hides their differences from the AIB).
     """
     pyx = np.asarray(pyx, dtype=np.float64)
     num = pyx.shape[0]
@@ -162,7 +165,13 @@ def merge_identical(
         raise InputError(f"expected ({num},), got {w.shape}", source="edges.weights")
     if edges.size and (edges.min() < 0 or edges.max() >= num):
         raise InputError(f"edge endpoint outside [0, {num})", source="edges.edges")
-    tied = edges[_identical_rows(pyx, edges, atol)]
+    same = _identical_rows(pyx, edges, atol)
+    if eligible is not None:
+        ok = np.asarray(eligible, dtype=bool)
+        if ok.shape != (num,):
+            raise InputError(f"expected ({num},), got {ok.shape}", source="edges.eligible")
+        same &= ok[edges[:, 0]] & ok[edges[:, 1]]
+    tied = edges[same]
     graph = coo_matrix((np.ones(tied.shape[0]), (tied[:, 0], tied[:, 1])), shape=(num, num))
     count, labels = connected_components(graph, directed=False)
     labels = labels.astype(np.int64)

@@ -18,8 +18,9 @@ from typing import Any
 
 import numpy as np
 
+from bayesian_fields_core.calibration.model import distribution_min_peak
 from bayesian_fields_core.errors import InputError
-from bayesian_fields_core.params import default
+from bayesian_fields_core.fusion.likelihood import LikelihoodParams
 
 RULE = "peak"
 """The score the rule thresholds: the best object's best single view for the task, as a margin
@@ -68,7 +69,22 @@ class NotFound:
             raise InputError(f"result summary: malformed not_found ({exc})") from None
 
 
-def is_not_found(score: float | None, threshold: float | None = default("answer_min_peak")) -> bool:
+def resolve_answer_min_peak(
+    value: float | str | None, calibration: object | None, likelihood: LikelihoodParams
+) -> float | None:
+    """The threshold a run applies: a number or None as given; 'calibrated' -> the encoder
+    calibration's fitted `answer_min_peak` (`bfields calibrate --scene`), else, for a calibration
+    without one (or a model without any), the margin a relevant view falls below 2 % of the time
+    under the run's likelihoods (`calibration.model.distribution_min_peak`)."""
+    if value != "calibrated":
+        return None if value is None else float(value)
+    fitted = getattr(calibration, "answer_min_peak", None)
+    if fitted is not None:
+        return float(fitted)
+    return distribution_min_peak(likelihood.mu0, likelihood.mu1, likelihood.s)
+
+
+def is_not_found(score: float | None, threshold: float | None) -> bool:
     """True when a task whose best candidate scores `score` (None: no candidate) gets no answer.
 
     `threshold` None switches the rule off (only a task without any candidate is "not found")."""
@@ -80,7 +96,7 @@ def is_not_found(score: float | None, threshold: float | None = default("answer_
 def not_found_reason(
     object_id: int | None,
     score: float | None,
-    threshold: float | None = default("answer_min_peak"),
+    threshold: float | None,
     rule: str = RULE,
 ) -> NotFound | None:
     """Why a task whose best candidate is `object_id` with rule score `score` gets no answer, or

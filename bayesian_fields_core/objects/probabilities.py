@@ -17,6 +17,7 @@ from typing import Literal
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.special import expit, logit
 
 from bayesian_fields_core.compute.jit import compiled
 from bayesian_fields_core.errors import InputError
@@ -96,6 +97,24 @@ def primitive_relevance(
     """
     (task,), counts = primitive_means(primitive_ids, [gaussian_probs], num_primitives)
     return task, counts
+
+
+def per_view_probabilities(
+    logodds: np.ndarray, view_counts: np.ndarray, prior: float = default("prior")
+) -> np.ndarray:
+    """(N, T) float32 probability one average accepted view gives each Gaussian for each task:
+    `sigmoid(logit(prior) + (logodds - logit(prior)) / max(views, 1))`.
+
+    Why: the fused log-odds add one likelihood ratio per view, so with dozens of views every task
+    a Gaussian resembles at all saturates at p = 1 and the normalised `p(y|x)` of two neighbours
+    that share one such task become nearly equal, whatever else tells them apart (issue 23). The
+    mean ratio per view is what a single view says: it does not grow with the number of views and
+    keeps the relative strength of the tasks. Gaussians no accepted mask saw stay at the prior.
+    logodds: (N, T) fused (possibly after the correlated-views discount); view_counts: (N,).
+    """
+    base = float(logit(prior))
+    views = np.maximum(np.asarray(view_counts, dtype=np.float32), 1.0)[:, None]
+    return expit(base + (np.asarray(logodds, dtype=np.float32) - base) / views).astype(np.float32)
 
 
 def conditionals(task: np.ndarray, null_mode: NullMode = default("null_mode")) -> np.ndarray:

@@ -8,11 +8,13 @@ algorithm itself is `objects.clustering`; this module only reads, orchestrates a
 from __future__ import annotations
 
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from bayesian_fields_core.fusion.likelihood import resolve_likelihood
 from bayesian_fields_core.fusion.peak import object_peak
 from bayesian_fields_core.job.artifacts import ACCEPTED_KEY, FUSION_KEY, PRIMITIVES_KEY, RESULT_PREFIX
 from bayesian_fields_core.job.context import JobContext
@@ -21,7 +23,7 @@ from bayesian_fields_core.job.stage_table import STAGES
 from bayesian_fields_core.job.store import get_arrays
 from bayesian_fields_core.objects.clustering import ObjectMap, objects_from_primitives, primitive_scores
 from bayesian_fields_core.objects.compile_kernels import prepare_kernels
-from bayesian_fields_core.objects.not_found import not_found_reason
+from bayesian_fields_core.objects.not_found import not_found_reason, resolve_answer_min_peak
 from bayesian_fields_core.objects.primitives import PrimitiveBuilder
 from bayesian_fields_core.objects.timing import StepTimer
 from bayesian_fields_core.results.format import NotFound, Result, SelectedObject
@@ -40,18 +42,37 @@ def load_primitives(ctx: JobContext) -> np.ndarray:
 def build_primitives(ctx: JobContext) -> np.ndarray:
     """Replay the primitive rule over the frames with the masks OR-phi accepted (step 6): every
     frame's associations are read again (at the scale bench, 300 files and 30 M pairs, ~2 s)."""
+    builder = PrimitiveBuilder(len(ctx.scene().gaussians))
+    for gaussian_ids, mask_ids, accepted in _accepted_frames(ctx):
+        builder.add_frame(gaussian_ids, mask_ids, accepted)
+    return builder.primitive_ids
+
+
+def _view_counts(ctx: JobContext, fused: dict[str, np.ndarray]) -> np.ndarray | None:
+    """(N,) accepted views per Gaussian when the per-view conditionals need them: as `fuse`
+    stored them, or counted again from the accepted masks for a job fused before it stored
+    them (the same count, so the map does not depend on when the job was fused)."""
+    if ctx.params.aib_conditionals != "per_view" or ctx.params.fusion != "bayes":
+        return None
+    if "view_counts" in fused:
+        return fused["view_counts"]
+    counts = np.zeros(len(ctx.scene().gaussians), dtype=np.int32)
+    for gaussian_ids, mask_ids, accepted in _accepted_frames(ctx):
+        counts[gaussian_ids[accepted[mask_ids]]] += 1  # masks are exclusive: once per frame
+    return counts
+
+
+def _accepted_frames(ctx: JobContext) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Each fused frame's cached associations (gaussian_ids (n,), mask_ids (n,)) with its masks'
+    OR-phi flags (M,), in fusion order; the cancel check runs after each frame."""
     scene_store = ctx.scene_store
     assert scene_store is not None
     accepted = get_arrays(ctx.store, ctx.job_key(ACCEPTED_KEY))
     offsets = np.concatenate([[0], np.cumsum(accepted["mask_counts"])])
-    builder = PrimitiveBuilder(len(ctx.scene().gaussians))
     for n, index in enumerate(accepted["frame_indices"]):
         vis = get_arrays(scene_store, ctx.visibility_key(int(index)))
-        builder.add_frame(
-            vis["gaussian_ids"], vis["mask_ids"], accepted["accepted"][offsets[n] : offsets[n + 1]]
-        )
+        yield vis["gaussian_ids"], vis["mask_ids"], accepted["accepted"][offsets[n] : offsets[n + 1]]
         ctx.check_cancel()
-    return builder.primitive_ids
 
 
 def run(ctx: JobContext) -> dict[str, Any]:
@@ -68,7 +89,9 @@ def run(ctx: JobContext) -> dict[str, Any]:
     ctx.check_cancel()
     ctx.progress("cluster", 0.3)
     with timer("probabilities"):
-        scores = primitive_scores(primitive_ids, fused["probabilities"], fused["logodds"], ctx.params)
+        scores = primitive_scores(
+            primitive_ids, fused["probabilities"], fused["logodds"], ctx.params, _view_counts(ctx, fused)
+        )
     ctx.check_cancel()
     with timer("kernels"):  # seconds once per machine (numba compiles), said when it happens
         prepare_kernels()
@@ -81,6 +104,7 @@ def run(ctx: JobContext) -> dict[str, Any]:
         scores.evidence,
         lengths=ctx.lengths(),
         checkpoint=ctx.check_cancel,
+        premerge=scores.premerge,
     )
     timer.seconds.update(object_map.timings)
     timer.cpu_seconds.update(object_map.cpu_timings)
@@ -160,6 +184,11 @@ def build_result(
     not_found: dict[str, NotFound] = {}
     scores = object_map.task_scores
     members: dict[int, np.ndarray] = {}
+    threshold = resolve_answer_min_peak(
+        ctx.params.answer_min_peak,
+        ctx.models.calibration,
+        resolve_likelihood(ctx.params, ctx.models.calibration),
+    )
     for t, task in enumerate(ctx.tasks):
         chosen = []
         for obj in object_map.selection[t]:
@@ -190,7 +219,7 @@ def build_result(
         missing = not_found_reason(
             None if best is None else best.object_id,
             None if best is None else best.peak,
-            ctx.params.answer_min_peak if peak is not None else None,
+            threshold if peak is not None else None,
         )
         if missing is not None:
             not_found[task], chosen = missing, []
@@ -202,7 +231,8 @@ def build_result(
         relevance=None if object_map.relevance is None else object_map.relevance.astype(np.float32),
         selections=selections,
         primitive_ids=object_map.primitive_ids if ctx.params.store_primitive_ids else None,
-        parameters=ctx.params.model_dump(mode="json"),
+        # the threshold as applied ('calibrated' resolved to the encoder calibration's number)
+        parameters=ctx.params.model_dump(mode="json") | {"answer_min_peak": threshold},
         models=ctx.models.model_ids,
         timings_s=timings,
         num_primitives=int(object_map.counts.get("primitives", 0)),

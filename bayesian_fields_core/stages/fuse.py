@@ -214,7 +214,8 @@ def fuse_frames(
 
 
 def write_state(ctx: JobContext, fused: FusedArrays) -> None:
-    """The per-Gaussian artifact: probabilities, log-odds, peak margins (and `observed`)."""
+    """The per-Gaussian artifact: probabilities, log-odds, peak margins (and `observed` of the
+    averaging ablation, `view_counts` of the Bayesian update)."""
     if fused.probabilities is None:
         # Written a block at a time: the (N, T) probabilities are never held beside the log-odds.
         probs: Any = ArrayBlocks(fused.logodds.shape, np.dtype(np.float32), probability_blocks(fused.logodds))
@@ -223,6 +224,8 @@ def write_state(ctx: JobContext, fused: FusedArrays) -> None:
     optional: dict[str, np.ndarray | ArrayBlocks] = {}
     if fused.observed is not None:
         optional["observed"] = fused.observed
+    if fused.view_counts is not None:
+        optional["view_counts"] = fused.view_counts
     put_array_blocks(  # uncompressed: float32 state barely compresses (83 -> 50 MB at the scale
         ctx.store,  # bench) and zlib cost seconds here and ~0.4 s in `cluster`, which reads it back
         ctx.job_key(FUSION_KEY),

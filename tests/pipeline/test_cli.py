@@ -261,10 +261,11 @@ def test_eval_rejects_a_bad_view_count(
     ("option", "value"),
     [
         ("--seeds", "7,7"),
-        ("--seeds", "1,2,3,4,5,6"),
+        ("--seeds", "1,2,3,4,5,6,7,8,9,10,11"),
         ("--seeds", "a,b"),
         ("--seeds", "-1"),
-        ("--scenes", "9"),
+        ("--scenes", "11"),
+        ("--scenes", "2"),
     ],
 )
 def test_eval_rejects_bad_scene_choices(

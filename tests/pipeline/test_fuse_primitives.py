@@ -10,11 +10,11 @@ from typing import Any
 import numpy as np
 import pytest
 
-from bayesian_fields_core.job.artifacts import PRIMITIVES_KEY
+from bayesian_fields_core.job.artifacts import ACCEPTED_KEY, FUSION_KEY, PRIMITIVES_KEY
 from bayesian_fields_core.job.pipeline import run_stage
 from bayesian_fields_core.job.store import get_arrays
 from bayesian_fields_core.params import PipelineParams
-from bayesian_fields_core.stages.cluster import build_primitives, load_primitives
+from bayesian_fields_core.stages.cluster import _view_counts, build_primitives, load_primitives
 
 from .conftest import counting_models, make_ctx
 
@@ -39,3 +39,36 @@ def test_fuse_stores_the_primitives_that_replaying_the_frames_gives(
     np.testing.assert_array_equal(load_primitives(ctx), replayed)
     ctx.store.delete(ctx.job_key(PRIMITIVES_KEY))  # a job fused before fuse stored them
     np.testing.assert_array_equal(load_primitives(ctx), replayed)
+
+
+def test_fuse_stores_the_view_counts_that_replaying_the_frames_gives(
+    scene_dir: Path, profile: dict[str, Any], tmp_path: Path
+) -> None:
+    """The per-view conditionals (`aib_conditionals='per_view'`) divide by each Gaussian's accepted
+    views: `fuse` stores them, and a job fused before it did gets the very same counts again from
+    the accepted masks, so the map does not depend on when the job was fused."""
+    ctx = make_ctx(
+        scene_dir,
+        tmp_path / "job",
+        tmp_path / "cache",
+        counting_models(profile),
+        params=PipelineParams(aib_conditionals="per_view"),
+    )
+    run_stage("perceive", ctx)
+    run_stage("fuse", ctx)
+    fused = get_arrays(ctx.store, ctx.job_key(FUSION_KEY))
+    stored = fused["view_counts"]
+    assert stored.shape == (len(ctx.scene().gaussians),) and stored.max() > 1
+    older = {k: v for k, v in fused.items() if k != "view_counts"}
+    np.testing.assert_array_equal(_view_counts(ctx, older), stored)
+    # an unseen Gaussian has no accepted view; a seen one at most one per fused frame
+    frames = len(get_arrays(ctx.store, ctx.job_key(ACCEPTED_KEY))["frame_indices"])
+    assert stored.min() == 0 and stored.max() <= frames
+    fused_ctx = make_ctx(
+        scene_dir,
+        tmp_path / "job",
+        tmp_path / "cache",
+        counting_models(profile),
+        params=PipelineParams(aib_conditionals="fused"),
+    )
+    assert _view_counts(fused_ctx, fused) is None  # the paper's conditionals read no counts

@@ -22,6 +22,7 @@ from bayesian_fields_core.eval.synthetic import (
     suite_specs,
 )
 from bayesian_fields_core.eval.synthetic.id_images import IdImageRenderer
+from bayesian_fields_core.eval.synthetic.spec import MAX_SUITE_SCENES, PUBLIC_RESEEDS
 from bayesian_fields_core.job.task_list import load_tasks
 from bayesian_fields_core.scene.colmap import read_colmap
 from bayesian_fields_core.scene.images import load_image
@@ -186,8 +187,24 @@ def test_reseeded_suite_keeps_layouts_and_changes_the_objects() -> None:
     assert len(variant_objects) == len(original_objects) and variant_objects != original_objects
     with pytest.raises(ValueError, match="distinct"):
         suite_specs([5, 5])
-    with pytest.raises(ValueError, match="1 to 5"):
-        suite_specs(list(range(6)))
+    with pytest.raises(ValueError, match="1 to 10"):
+        suite_specs(list(range(11)))
+    seven = suite_specs(list(range(40, 47)), suite="capture")  # past five seeds the layouts repeat
+    layouts = suite_specs(suite="capture")
+    assert [s.name for s in seven[5:]] == [f"{layouts[0].name}-s45", f"{layouts[1].name}-s46"]
+    assert seven[6].model_dump(exclude={"name", "seed"}) == layouts[1].model_dump(exclude={"name", "seed"})
+
+
+def test_public_suite_has_ten_scenes_the_last_five_reseeded_layouts() -> None:
+    """Ten public scenes per suite (issue 23 decides on them): the layouts, then the layouts with
+    the public re-seeds; none shares a seed with another."""
+    for suite in ("tabletop", "capture"):
+        specs = suite_specs(suite=suite)
+        assert len(specs) == MAX_SUITE_SCENES == 10
+        assert [s.seed for s in specs[5:]] == list(PUBLIC_RESEEDS)
+        assert len({s.seed for s in specs}) == 10 and len({s.name for s in specs}) == 10
+        for first, again in zip(specs[:5], specs[5:], strict=True):
+            assert again.name == f"{first.name}-s{again.seed}"
 
 
 def test_spec_validation() -> None:

@@ -20,7 +20,12 @@ from pathlib import Path
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from bayesian_fields_core.calibration.model import Calibration, fit_calibration, save_calibration
+from bayesian_fields_core.calibration.model import (
+    Calibration,
+    fit_calibration,
+    load_calibration,
+    save_calibration,
+)
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.eval.calibration.ground_truth import Negatives
 
@@ -37,6 +42,13 @@ class CalibrationRequest(BaseModel):
     negatives: Negatives = Field("absent", description="With scenes: which pairs are negatives.")
     max_frames: int | None = Field(None, ge=1, description="With scenes: at most this many frames per scene.")
     model_id: str | None = Field(None, description="Model id recorded in the file (default: the encoder's).")
+    keep_likelihoods: Path | None = Field(
+        None,
+        description=(
+            "With scenes: keep mu0 / mu1 / s of this calibration file (fitted elsewhere, e.g. on "
+            "crops) and fit only the 'not found' threshold in its margins."
+        ),
+    )
 
     def check(self) -> None:
         """Refuse a request without exactly one source, or a score file without a model id.
@@ -44,6 +56,8 @@ class CalibrationRequest(BaseModel):
         (Not a pydantic validator: those would wrap the `InputError` into a ValidationError.)"""
         if (self.scores is None) == (not self.scenes):
             raise InputError("give either a score file or scenes with ground truth", source="calibrate")
+        if self.keep_likelihoods is not None and not self.scenes:
+            raise InputError("--keep-likelihoods goes with --scene (it fits the 'not found' threshold)")
         if self.scores is not None and not self.model_id:
             # A calibration is only used with the CLIP it was fitted for; without an id no profile
             # would ever accept the file.
@@ -90,14 +104,20 @@ def calibrate(request: CalibrationRequest) -> Calibration:
     request.check()
     if request.scores is not None:
         pos, neg = read_score_file(request.scores)
-        model_id = str(request.model_id)
+        cal = fit_calibration(pos, neg, str(request.model_id))
     else:
         from bayesian_fields_core.eval.calibration.ground_truth import collect_scores
+        from bayesian_fields_core.eval.calibration.not_found_fit import fit_answer_min_peak
 
-        pos, neg, encoder_id = collect_scores(
+        labels, encoder_id = collect_scores(
             list(request.scenes), request.profile, max_frames=request.max_frames, negatives=request.negatives
         )
         model_id = request.model_id or encoder_id
-    cal = fit_calibration(pos, neg, model_id)
+        if request.keep_likelihoods is not None:
+            kept = load_calibration(request.keep_likelihoods, model_id=model_id)
+            cal = kept.model_copy(update={"answer_min_peak": None, "not_found_fit": None})
+        else:
+            cal = fit_calibration(labels.positive, labels.negative, model_id)
+        cal = fit_answer_min_peak(labels.peaks, cal)
     save_calibration(request.out, cal)
     return cal

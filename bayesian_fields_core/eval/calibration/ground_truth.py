@@ -19,6 +19,7 @@ scores are exactly those the fusion will see with that model profile.
 from __future__ import annotations
 
 import tempfile
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
@@ -26,10 +27,13 @@ import numpy as np
 
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.eval.synthetic import load_ground_truth
+from bayesian_fields_core.fusion.likelihood import resolve_likelihood
+from bayesian_fields_core.job.artifacts import RESULT_PREFIX
 from bayesian_fields_core.job.context import JobContext
 from bayesian_fields_core.job.pipeline import load_models, run_stage
 from bayesian_fields_core.job.store import LocalStore, get_arrays
 from bayesian_fields_core.params import PipelineParams
+from bayesian_fields_core.results.reader import read_result
 
 Negatives = Literal["absent", "unrelated"]
 
@@ -58,6 +62,28 @@ def label_masks(
     return observed & (share >= positive_overlap), observed & (hits == 0)
 
 
+@dataclass(frozen=True)
+class TaskPeak:
+    """One task of a scene with ground truth, as the full pipeline answers it with the "not found"
+    rule off: whether the scene holds none of its objects, and its first answer's peak as a raw
+    cosine score (the best view's score; None: no answer at all). Raw scores, not margins, so the
+    'not found' threshold can be fitted in the margins of whichever likelihoods are fitted."""
+
+    task: str
+    absent: bool
+    peak_score: float | None
+
+
+@dataclass(frozen=True)
+class SceneLabels:
+    """What one scene gives the calibration: positive and negative (mask, task) scores, and each
+    task's first-answer peak (`TaskPeak`)."""
+
+    positive: np.ndarray
+    negative: np.ndarray
+    peaks: list[TaskPeak] = field(default_factory=list)
+
+
 def scene_scores(
     scene_dir: Path,
     models: Any,
@@ -65,8 +91,9 @@ def scene_scores(
     positive_overlap: float,
     max_frames: int | None = None,
     negatives: Negatives = "absent",
-) -> tuple[np.ndarray, np.ndarray]:
-    """(positive scores, negative scores) of one scene."""
+) -> SceneLabels:
+    """Positive and negative scores of one scene, and its tasks' first-answer peaks (the
+    pipeline's own stages, perceive -> fuse -> cluster at the default parameters)."""
     gt = load_ground_truth(scene_dir)
     tasks = gt.task_texts
     if not tasks:
@@ -82,7 +109,7 @@ def scene_scores(
         store=LocalStore(work_dir / "job"),
         job_prefix="",
         tasks=tasks,
-        params=PipelineParams(max_frames=max_frames),
+        params=PipelineParams(max_frames=max_frames, answer_min_peak=None),
         models=models,
         scene_store=cache,
         scene_prefix="scene/",
@@ -115,7 +142,28 @@ def scene_scores(
             is_neg = seen[:, None] & absent[None, :]
         pos.append(scores[is_pos])
         neg.append(scores[is_neg])
-    return np.concatenate(pos or [np.zeros(0)]), np.concatenate(neg or [np.zeros(0)])
+    return SceneLabels(
+        np.concatenate(pos or [np.zeros(0)]),
+        np.concatenate(neg or [np.zeros(0)]),
+        first_answer_peaks(ctx, [not task.objects for task in gt.tasks]),
+    )
+
+
+def first_answer_peaks(ctx: JobContext, absent: list[bool]) -> list[TaskPeak]:
+    """Run the cluster stage (rule off) and read each task's first answer's peak, as a raw
+    cosine score: the stored peaks are margins of the profile's likelihoods, turned back into
+    scores here (`phi = mu0 + margin (mu1 - mu0)`, exact: the object peak is a median of a
+    linear function)."""
+    run_stage("cluster", ctx)
+    result = read_result(ctx.store, RESULT_PREFIX)
+    likelihood = resolve_likelihood(ctx.params, ctx.models.calibration)
+    peaks = []
+    for task, is_absent in zip(ctx.tasks, absent, strict=True):
+        answers = result.selections.get(task, [])
+        margin = answers[0].peak if answers else None
+        score = None if margin is None else likelihood.mu0 + margin * (likelihood.mu1 - likelihood.mu0)
+        peaks.append(TaskPeak(task, is_absent, score))
+    return peaks
 
 
 def collect_scores(
@@ -125,18 +173,22 @@ def collect_scores(
     positive_overlap: float = POSITIVE_OVERLAP,
     max_frames: int | None = None,
     negatives: Negatives = "absent",
-) -> tuple[np.ndarray, np.ndarray, str]:
-    """(positive scores, negative scores, encoder model id) pooled over scenes with ground truth."""
+) -> tuple[SceneLabels, str]:
+    """(the scenes' labels pooled, encoder model id) over scenes with ground truth."""
     if not 0.0 < positive_overlap <= 1.0:
         raise InputError(f"positive_overlap must be in (0, 1], got {positive_overlap}")
     models = load_models(profile)
-    pos: list[np.ndarray] = []
-    neg: list[np.ndarray] = []
+    scenes = []
     with tempfile.TemporaryDirectory(prefix="bfields-calibrate-") as tmp:
         for n, scene_dir in enumerate(scene_dirs):
-            p, q = scene_scores(
-                Path(scene_dir), models, Path(tmp) / str(n), positive_overlap, max_frames, negatives
+            scenes.append(
+                scene_scores(
+                    Path(scene_dir), models, Path(tmp) / str(n), positive_overlap, max_frames, negatives
+                )
             )
-            pos.append(p)
-            neg.append(q)
-    return np.concatenate(pos), np.concatenate(neg), str(models.encoder.model_id)
+    pooled = SceneLabels(
+        np.concatenate([s.positive for s in scenes]),
+        np.concatenate([s.negative for s in scenes]),
+        [peak for s in scenes for peak in s.peaks],
+    )
+    return pooled, str(models.encoder.model_id)

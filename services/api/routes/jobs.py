@@ -534,9 +534,10 @@ def list_batch_jobs(
 def cancel_batch(batch_id: str, tenant: Tenant, state: State) -> BatchStatus:
     batch = _load_batch(state, tenant, batch_id)
     state.fair.remove(tenant, batch.job_ids)  # no waiting job of the batch is dispatched from now on
+    # each job's record as its cancel left it (read and written under its manifest lock): no
+    # second read of every manifest, which took a 1,000-job batch past a client's timeout
     jobs = _parallel(lambda j: state.jobs.request_cancel(tenant, j), batch.job_ids)
-    return _status_of(batch, [state.jobs.get(tenant, j.id) if j is not None else None for j in jobs],
-                      with_jobs=False)  # fmt: skip
+    return _status_of(batch, jobs, with_jobs=False)
 
 
 @router.post(

@@ -19,19 +19,23 @@ from bayesian_fields_core.stages.cluster import _view_counts, build_primitives, 
 from .conftest import counting_models, make_ctx
 
 
+def _job(scene_dir: Path, profile: dict[str, Any], tmp_path: Path, params: PipelineParams) -> Any:
+    return make_ctx(scene_dir, tmp_path / "job", tmp_path / "cache", counting_models(profile), params=params)
+
+
+def _fused_job(scene_dir: Path, profile: dict[str, Any], tmp_path: Path, params: PipelineParams) -> Any:
+    """A job with `params` whose perceive and fuse stages have run."""
+    ctx = _job(scene_dir, profile, tmp_path, params)
+    run_stage("perceive", ctx)
+    run_stage("fuse", ctx)
+    return ctx
+
+
 @pytest.mark.parametrize("fusion", ["bayes", "average"])
 def test_fuse_stores_the_primitives_that_replaying_the_frames_gives(
     fusion: str, scene_dir: Path, profile: dict[str, Any], tmp_path: Path
 ) -> None:
-    ctx = make_ctx(
-        scene_dir,
-        tmp_path / "job",
-        tmp_path / "cache",
-        counting_models(profile),
-        params=PipelineParams(fusion=fusion),
-    )
-    run_stage("perceive", ctx)
-    run_stage("fuse", ctx)
+    ctx = _fused_job(scene_dir, profile, tmp_path, PipelineParams(fusion=fusion))
     stored = get_arrays(ctx.store, ctx.job_key(PRIMITIVES_KEY))["primitive_ids"]
     replayed = build_primitives(ctx)
     assert len(np.unique(replayed[replayed >= 0])) > 1
@@ -47,15 +51,7 @@ def test_fuse_stores_the_view_counts_that_replaying_the_frames_gives(
     """The per-view conditionals (`aib_conditionals='per_view'`) divide by each Gaussian's accepted
     views: `fuse` stores them, and a job fused before it did gets the very same counts again from
     the accepted masks, so the map does not depend on when the job was fused."""
-    ctx = make_ctx(
-        scene_dir,
-        tmp_path / "job",
-        tmp_path / "cache",
-        counting_models(profile),
-        params=PipelineParams(aib_conditionals="per_view"),
-    )
-    run_stage("perceive", ctx)
-    run_stage("fuse", ctx)
+    ctx = _fused_job(scene_dir, profile, tmp_path, PipelineParams(aib_conditionals="per_view"))
     fused = get_arrays(ctx.store, ctx.job_key(FUSION_KEY))
     stored = fused["view_counts"]
     assert stored.shape == (len(ctx.scene().gaussians),) and stored.max() > 1
@@ -64,11 +60,5 @@ def test_fuse_stores_the_view_counts_that_replaying_the_frames_gives(
     # an unseen Gaussian has no accepted view; a seen one at most one per fused frame
     frames = len(get_arrays(ctx.store, ctx.job_key(ACCEPTED_KEY))["frame_indices"])
     assert stored.min() == 0 and stored.max() <= frames
-    fused_ctx = make_ctx(
-        scene_dir,
-        tmp_path / "job",
-        tmp_path / "cache",
-        counting_models(profile),
-        params=PipelineParams(aib_conditionals="fused"),
-    )
+    fused_ctx = _job(scene_dir, profile, tmp_path, PipelineParams(aib_conditionals="fused"))
     assert _view_counts(fused_ctx, fused) is None  # the paper's conditionals read no counts

@@ -10,10 +10,16 @@ interpreter's own (numpy and the library imported, nothing read).
     python bench/bench_upload_memory.py                      # 100 MB and 1 GB, both checks
     python bench/bench_upload_memory.py --sizes 4000 --modes after
     python bench/bench_upload_memory.py --sizes 656 --api       # the API process itself
+    python bench/bench_upload_memory.py --bombs                 # one hostile file per format
 
 `--api` starts the API (uvicorn, local storage backend, alignment check off) and uploads the
 splat with a one-frame camera file through `POST /v1/scenes`, then reads the API process's peak
 resident size (VmHWM) before and after the request.
+
+`--bombs` uploads each file of `bench/splat_bombs.py` (files that declare far more than they
+carry: an all-zero SPZ, constant WebPs, a meta.json that inflates to 600 MB, ...) through the API
+in turn, each to a fresh API process, and prints the status, the answer and the API's peak growth
+during the request (issue 30's bound: about 150 MiB whatever the file declares).
 
 Run by hand; not part of CI. Needs free disk of the largest size (in --dir) and, for 'before',
 memory of about 2.7x the largest size.
@@ -93,8 +99,8 @@ def _vm_hwm_mib(pid: int) -> float:
     raise RuntimeError("no VmHWM in /proc status")
 
 
-def measure_api(path: Path, workdir: Path) -> tuple[float, float, int]:
-    """(API peak MiB after start, after the upload, HTTP status) for one upload of `path`."""
+def measure_api(path: Path, workdir: Path) -> tuple[float, float, int, str]:
+    """(API peak MiB after start, after the upload, HTTP status, answer) for one upload of `path`."""
     import io
     import json
     import os
@@ -144,16 +150,51 @@ def measure_api(path: Path, workdir: Path) -> tuple[float, float, int]:
                 headers={"X-API-Key": "bench-key"},
                 data={"alignment_check": "false"},
                 files=[
-                    ("splat", ("splat.ply", splat)),
+                    ("splat", (path.name, splat)),
                     ("cameras", ("transforms.json", json.dumps(cams).encode())),
                     ("images", ("a.png", png.getvalue())),
                 ],
                 timeout=600,
             )
-        return started, _vm_hwm_mib(proc.pid), resp.status_code
+        return started, _vm_hwm_mib(proc.pid), resp.status_code, resp.text
     finally:
         proc.terminate()
         proc.wait(30)
+
+
+def bombs(directory: Path) -> None:
+    """Upload every bomb of `splat_bombs` to a fresh API and print the peaks (module docstring)."""
+    import shutil
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from splat_bombs import BOMBS
+
+    print(
+        f"{'bomb':<18} {'file B':>8} {'HTTP':>4} {'start MiB':>9} {'peak MiB':>8} {'growth':>6} {'s':>5}  answer"
+    )
+    growths = []
+    for name, build in BOMBS.items():
+        work = Path(tempfile.mkdtemp(dir=directory, prefix=f"bench-bomb-{name}-"))
+        try:
+            path = build(work)
+            t0 = time.perf_counter()
+            started, peak, code, answer = measure_api(path, work)
+            seconds = time.perf_counter() - t0
+            growths.append(peak - started)
+            try:
+                import json
+
+                answer = json.loads(answer).get("detail", answer)
+            except ValueError:
+                pass
+            print(
+                f"{name:<18} {path.stat().st_size:8d} {code:4d} {started:9.0f} {peak:8.0f} "
+                f"{peak - started:6.0f} {seconds:5.1f}  {str(answer)[:110]}",
+                flush=True,
+            )
+        finally:
+            shutil.rmtree(work, ignore_errors=True)
+    print(f"largest growth {max(growths):.0f} MiB, median {sorted(growths)[len(growths) // 2]:.0f} MiB")
 
 
 def main() -> None:
@@ -162,10 +203,14 @@ def main() -> None:
     parser.add_argument("--modes", nargs="+", default=["before", "after"], choices=["before", "after"])
     parser.add_argument("--dir", type=Path, default=Path(tempfile.gettempdir()))
     parser.add_argument("--api", action="store_true", help="measure the API process on an upload")
+    parser.add_argument("--bombs", action="store_true", help="upload one hostile file per format")
     parser.add_argument("--child", nargs=2, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child:
         child(*args.child)
+        return
+    if args.bombs:
+        bombs(args.dir)
         return
     if args.api:
         import shutil
@@ -175,7 +220,7 @@ def main() -> None:
             try:
                 path = work / "splat.ply"
                 write_splat(path, size)
-                started, peak, code = measure_api(path, work)
+                started, peak, code, _ = measure_api(path, work)
                 print(
                     f"API: {path.stat().st_size / 1e6:.0f} MB splat -> HTTP {code}; peak RSS {started:.0f} MiB "
                     f"after start, {peak:.0f} MiB after the upload ({peak / (path.stat().st_size / 2**20):.2f}x file)",

@@ -2,7 +2,8 @@
 
 A job that fails on frame 900 because one JPEG is truncated wastes GPU time; so at upload we read
 the full splat (values included: NaNs are caught here) and decode every image and depth map,
-checking each against its camera's size. The splat is streamed in chunks (`scene.ply_scan`), so
+checking each against its camera's size. The splat is streamed in chunks (`scene.ply_scan`,
+`scene.formats.scan`), so
 the memory this takes is bounded whatever the file's size; only a sample of its Gaussians is kept
 (for the geometric alignment check and the warnings' extent). Costs one read of the splat (two
 when its extent is non-zero) plus one decode per image.
@@ -15,7 +16,8 @@ from pathlib import Path
 from typing import Any
 
 from bayesian_fields_core.errors import InputError, input_boundary
-from bayesian_fields_core.scene.formats import check_splat_header, read_splat
+from bayesian_fields_core.scene.formats import READER_FAILURES, check_splat_header, open_source, read_splat
+from bayesian_fields_core.scene.formats.scan import scan_source
 from bayesian_fields_core.scene.images import check_image, load_depth
 from bayesian_fields_core.scene.loader import frames_of_layout, resolve_layout
 from bayesian_fields_core.scene.ply import DEFAULT_MAX_GAUSSIANS, read_ply_header
@@ -97,15 +99,21 @@ def _validate(folder: Path, max_gaussians: int, max_frames: int | None, alignmen
 
 
 def _scan_splat(splat: Path, splat_format: str, max_gaussians: int) -> SplatScan:
-    """The splat's count, SH degree, fixed-seed sample and warnings. An INRIA-layout PLY (the
-    large ones) is streamed in bounded memory (`scene.ply_scan`); the compressed formats are
-    read whole: they are several times smaller than the PLY they decode to."""
+    """The splat's count, SH degree, fixed-seed sample and warnings, in bounded memory whatever
+    the format or what its header declares: an INRIA-layout PLY is streamed by `scene.ply_scan`;
+    every other format is opened by row range (compressed payloads inflated through bounded
+    reads into an unlinked temporary file beside the upload) and walked by `formats.scan`."""
     from bayesian_fields_core.checks.alignment import GEOMETRY_MAX_GAUSSIANS
 
     if splat_format == "ply":
         names = {name for name, _ in read_ply_header(splat, max_gaussians=max_gaussians).properties}
         if "f_dc_0" in names:
             return scan_ply(splat, sample_size=GEOMETRY_MAX_GAUSSIANS, max_gaussians=max_gaussians)
-    gaussians = read_splat(splat, max_gaussians=max_gaussians)
-    sample = gaussians.subset(sample_index(len(gaussians), GEOMETRY_MAX_GAUSSIANS))
-    return SplatScan(len(gaussians), gaussians.sh_degree, sample, splat_warnings(gaussians))
+    if splat_format == "checkpoint":  # CLI only (an upload refuses .pt by name): read whole
+        gaussians = read_splat(splat, max_gaussians=max_gaussians)
+        sample = gaussians.subset(sample_index(len(gaussians), GEOMETRY_MAX_GAUSSIANS))
+        return SplatScan(len(gaussians), gaussians.sh_degree, sample, splat_warnings(gaussians))
+    spill_dir = splat if splat.is_dir() else splat.parent
+    with input_boundary(str(splat), what=f"cannot read the {splat_format} splat", extra=READER_FAILURES):
+        with open_source(splat, splat_format, max_gaussians=max_gaussians, spill_dir=spill_dir) as source:
+            return scan_source(source, sample_size=GEOMETRY_MAX_GAUSSIANS)

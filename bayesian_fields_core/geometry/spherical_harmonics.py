@@ -2,12 +2,20 @@
 
 Shared by rendering (view-dependent colour, `render.sh`), the similarity transforms that rotate a
 splat's SH bands (`scene.similarity`), the result exports and the synthetic scenes, so the
-constants are written once.
+constants are written once. The basis takes numpy arrays or torch tensors alike, and torch is
+imported only for tensors: reading a splat (which rotates SH bands) needs no torch.
 """
 
 from __future__ import annotations
 
-import torch
+from typing import TYPE_CHECKING, TypeVar
+
+import numpy as np
+
+if TYPE_CHECKING:
+    import torch
+
+Directions = TypeVar("Directions", np.ndarray, "torch.Tensor")
 
 C0 = 0.28209479177387814
 SH_C0 = C0
@@ -31,10 +39,16 @@ C3 = (
 )
 
 
-def sh_basis(dirs: torch.Tensor, degree: int) -> torch.Tensor:
-    """Real SH basis values (N, (degree+1)^2) for unit directions (N, 3), 3DGS sign convention."""
-    x, y, z = dirs.unbind(-1)
-    terms = [torch.full_like(x, C0)]
+def sh_basis(dirs: Directions, degree: int) -> Directions:
+    """Real SH basis values (N, (degree+1)^2) for unit directions (N, 3), 3DGS sign convention;
+    a numpy array in, a numpy array out, a tensor in, a tensor out."""
+    x, y, z = dirs[..., 0], dirs[..., 1], dirs[..., 2]
+    if isinstance(dirs, np.ndarray):
+        terms = [np.full_like(x, C0)]
+    else:
+        import torch
+
+        terms = [torch.full_like(x, C0)]
     if degree > 0:
         terms += [-C1 * y, C1 * z, -C1 * x]
     if degree > 1:
@@ -56,4 +70,6 @@ def sh_basis(dirs: torch.Tensor, degree: int) -> torch.Tensor:
             C3[5] * z * (xx - yy),
             C3[6] * x * (xx - 3.0 * yy),
         ]
+    if isinstance(dirs, np.ndarray):
+        return np.stack(terms, axis=-1)
     return torch.stack(terms, dim=-1)

@@ -113,7 +113,7 @@ def _scan_binary(header: PlyHeader, sample_size: int) -> SplatScan:
             del chunk, groups
     raise_nonfinite(header.path, nonfinite)
     raise_degenerate((int(degenerate[0]), int(degenerate[1]), int(degenerate[2])), source=str(header.path))
-    sample = _concat(parts)
+    sample = concat_gaussians(parts)
     extent = splat_extent(sample.means)
     huge = _huge_count(header, extent) if extent > 0.0 else 0
     return SplatScan(
@@ -134,7 +134,8 @@ def _huge_count(header: PlyHeader, extent: float) -> int:
     return total
 
 
-def _concat(parts: list[Gaussians]) -> Gaussians:
+def concat_gaussians(parts: list[Gaussians]) -> Gaussians:
+    """The parts, in order, as one `Gaussians` (extra properties of the first part's keys)."""
     return Gaussians(
         means=np.concatenate([p.means for p in parts]),
         log_scales=np.concatenate([p.log_scales for p in parts]),

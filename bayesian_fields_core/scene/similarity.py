@@ -171,14 +171,12 @@ def sh_band_rotations(rotation: np.ndarray, degree: int) -> list[np.ndarray]:
     (`render.sh.sh_basis`, 3DGS signs) at a few dozen directions; the colour condition
     B_l(d') c' = B_l(R^T d') c for every rotated direction d' then gives c' = A_l c.
     """
-    import torch
-
     from bayesian_fields_core.geometry.spherical_harmonics import sh_basis
 
     d = _sample_directions()
     back = d @ np.asarray(rotation, dtype=np.float64)  # rows R^T d
-    b = sh_basis(torch.from_numpy(d), degree).numpy()
-    b_back = sh_basis(torch.from_numpy(back), degree).numpy()
+    b = sh_basis(d, degree)
+    b_back = sh_basis(back, degree)
     out = []
     for band in range(1, degree + 1):
         cols = slice(band * band, (band + 1) * (band + 1))

@@ -16,6 +16,9 @@ from typing import Any
 _ABS_PATH = re.compile(r"(?<![\w.:/])/(?:[^\s'\"/:,;()<>]+/)+([^\s'\"/:,;()<>]*)")
 #: A storage key with its tenant prefix, e.g. ``tenants/acme/scenes/s_.../input/x.png``.
 _TENANT_KEY = re.compile(r"\btenants/[A-Za-z0-9][A-Za-z0-9_-]{0,63}/")
+#: A path the user sent, quoted after the word "path" (`scene.files.resolve_inside`'s messages:
+#: "glTF buffers[0].uri path '/etc/passwd' is absolute"): the user's own text, kept as sent.
+_USER_PATH = re.compile(r"""(\bpath (?:'[^']*'|"[^"]*"))""")
 #: Bucket names in storage messages ("bucket 'bf-prod'").
 _BUCKET = re.compile(r"bucket '[^']*'")
 
@@ -42,11 +45,16 @@ def scrub(value: Any) -> Any:
 
 def redact_locations(message: str) -> str:
     """An error message without absolute paths (only their last component is kept, so
-    'images/frame_3.png: ...' style context survives) and without tenant/bucket prefixes."""
+    'images/frame_3.png: ...' style context survives) and without tenant/bucket prefixes.
+    A path the user sent (`_USER_PATH`) is kept whole: refusing '/etc/passwd' must say so."""
 
     def _path(m: re.Match[str]) -> str:
         return m.group(1) or "<path>"
 
-    message = _ABS_PATH.sub(_path, message)
-    message = _TENANT_KEY.sub("", message)
-    return _BUCKET.sub("the bucket", message)
+    def _redact(part: str) -> str:
+        part = _ABS_PATH.sub(_path, part)
+        part = _TENANT_KEY.sub("", part)
+        return _BUCKET.sub("the bucket", part)
+
+    parts = _USER_PATH.split(message)  # odd indices: the user's quoted paths
+    return "".join(part if i % 2 else _redact(part) for i, part in enumerate(parts))

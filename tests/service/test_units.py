@@ -84,3 +84,21 @@ def test_garbage_is_not_an_archive(tmp_path: Path) -> None:
     path.write_bytes(b"not an archive at all")
     with pytest.raises(InputError, match="x.zip"):
         extract_archive(path, tmp_path / "out", LIMITS, source="x.zip")
+
+
+@pytest.mark.parametrize(
+    ("message", "expected"),
+    [
+        (
+            "/tmp/up-1/scene/splat.gltf: glTF buffers[0].uri path '/etc/passwd' is absolute",
+            "splat.gltf: glTF buffers[0].uri path '/etc/passwd' is absolute",
+        ),
+        ('images path "/etc/it\'s" is absolute', 'images path "/etc/it\'s" is absolute'),
+        ("No such file or directory: '/srv/store/tenants/acme/x.png'", "No such file or directory: 'x.png'"),
+        ("path '/a/b' then /var/lib/worker/tmp/frame.png", "path '/a/b' then frame.png"),
+    ],
+)
+def test_redaction_keeps_the_paths_a_user_sent_and_drops_the_servers(message: str, expected: str) -> None:
+    from bayesian_fields_service.common.sanitize import redact_locations
+
+    assert redact_locations(message) == expected

@@ -29,6 +29,7 @@ from pathlib import Path
 
 from bayesian_fields_core.errors import InputError, input_boundary
 from bayesian_fields_core.scene.formats.common import convert_command, require_finite
+from bayesian_fields_core.scene.formats.source import SplatSource
 from bayesian_fields_core.scene.sanity import check_splat
 from bayesian_fields_core.scene.types import Gaussians
 
@@ -70,7 +71,7 @@ def _ply_kind(path: Path) -> str:
     from bayesian_fields_core.scene.formats.ply_rgb import is_rgb_splat
     from bayesian_fields_core.scene.ply import read_ply_elements
 
-    with input_boundary(str(path), what="cannot read PLY header"):
+    with input_boundary(str(path), what="cannot read PLY header", extra=READER_FAILURES):
         _, elements, _ = read_ply_elements(path)
     if is_compressed_ply(elements):
         return "compressed_ply"
@@ -78,6 +79,13 @@ def _ply_kind(path: Path) -> str:
     if is_rgb_splat(names):
         return "rgb_ply"
     return "ply"
+
+
+READER_FAILURES: tuple[type[BaseException], ...] = (Exception,)
+"""What the splat readers' boundary turns into InputError: every exception. Why not only
+`INPUT_FAILURES`: a hostile file reaches code paths no check anticipated (a JSON field of the
+wrong type deep in a glTF, a PIL error class), and whatever a reader of an uploaded file raises
+is that file's fault; the message keeps the exception's type and text for whoever debugs it."""
 
 
 def read_splat(path: str | Path, *, max_gaussians: int) -> Gaussians:
@@ -88,41 +96,54 @@ def read_splat(path: str | Path, *, max_gaussians: int) -> Gaussians:
         from bayesian_fields_core.scene.ply import read_ply
 
         return read_ply(path, max_gaussians=max_gaussians)
-    with input_boundary(str(path), what=f"cannot read the {kind} splat"):
-        gaussians = _reader(kind)(path, max_gaussians)
+    if kind == "checkpoint":
+        from bayesian_fields_core.scene.formats.checkpoint import read_checkpoint
+
+        with input_boundary(str(path), what="cannot read the checkpoint", extra=READER_FAILURES):
+            gaussians = read_checkpoint(path, max_gaussians)
+    else:
+        with input_boundary(str(path), what=f"cannot read the {kind} splat", extra=READER_FAILURES):
+            with open_source(path, kind, max_gaussians=max_gaussians) as source:
+                gaussians = source.rows(0, source.count)
+    with input_boundary(str(path), what=f"cannot read the {kind} splat", extra=READER_FAILURES):
         require_finite(gaussians, source=path)
     check_splat(gaussians, source=str(path))
     return gaussians
 
 
-def _reader(kind: str):  # noqa: ANN202 - one of the readers below, all (Path, int) -> Gaussians
+def open_source(path: Path, kind: str, *, max_gaussians: int, spill_dir: Path | None = None) -> SplatSource:
+    """Open a splat of format `kind` (not an INRIA PLY or a checkpoint) for reading by row range.
+    `spill_dir`: where compressed payloads are inflated to (None: in memory). Raises what the
+    reader raises: callers put it inside an `input_boundary(..., extra=READER_FAILURES)`."""
+    return _opener(kind)(path, max_gaussians, spill_dir=spill_dir)
+
+
+def _opener(kind: str):  # noqa: ANN202 - one of the openers below, all (Path, int, *, spill_dir) -> SplatSource
     if kind == "compressed_ply":
-        from bayesian_fields_core.scene.formats.compressed_ply import read_compressed_ply
+        from bayesian_fields_core.scene.formats.compressed_ply import open_compressed_ply
 
-        return read_compressed_ply
+        return open_compressed_ply
     if kind == "rgb_ply":
-        from bayesian_fields_core.scene.formats.ply_rgb import read_rgb_ply
+        from bayesian_fields_core.scene.formats.ply_rgb import open_rgb_ply
 
-        return read_rgb_ply
+        return open_rgb_ply
     if kind == "spz":
-        from bayesian_fields_core.scene.formats.spz import read_spz
+        from bayesian_fields_core.scene.formats.spz import open_spz
 
-        return read_spz
+        return open_spz
     if kind == "sog":
-        from bayesian_fields_core.scene.formats.sog import read_sog
+        from bayesian_fields_core.scene.formats.sog import open_sog
 
-        return read_sog
+        return open_sog
     if kind == "splat":
-        from bayesian_fields_core.scene.formats.antimatter import read_antimatter
+        from bayesian_fields_core.scene.formats.antimatter import open_antimatter
 
-        return read_antimatter
+        return open_antimatter
     if kind == "gltf":
-        from bayesian_fields_core.scene.formats.gltf import read_gltf
+        from bayesian_fields_core.scene.formats.gltf import open_gltf
 
-        return read_gltf
-    from bayesian_fields_core.scene.formats.checkpoint import read_checkpoint
-
-    return read_checkpoint
+        return open_gltf
+    raise ValueError(f"no row-range reader for splat format {kind!r}")
 
 
 def check_upload_name(name: str) -> None:

@@ -53,9 +53,9 @@ def require_count(count: int, max_gaussians: int, *, source: Path) -> None:
         )
 
 
-def require_finite(g: Gaussians, *, source: Path) -> None:
-    """Non-finite values (a NaN in a float buffer) refused naming the attribute, like the PLY reader."""
-    bad = {
+def nonfinite_counts(g: Gaussians) -> dict[str, int]:
+    """Non-finite values per attribute (counts add up over chunks of rows)."""
+    return {
         name: int((~np.isfinite(values)).sum())
         for name, values in (
             ("means", g.means),
@@ -65,9 +65,18 @@ def require_finite(g: Gaussians, *, source: Path) -> None:
             ("colours/SH", g.sh),
         )
     }
-    problems = [f"{n} in {name}" for name, n in bad.items() if n]
+
+
+def raise_nonfinite(counts: dict[str, int], *, source: Path) -> None:
+    """InputError naming every attribute with non-finite values (nothing when there are none)."""
+    problems = [f"{n} in {name}" for name, n in counts.items() if n]
     if problems:
         raise InputError(f"non-finite values (NaN or inf): {', '.join(problems)}", source=str(source))
+
+
+def require_finite(g: Gaussians, *, source: Path) -> None:
+    """Non-finite values (a NaN in a float buffer) refused naming the attribute, like the PLY reader."""
+    raise_nonfinite(nonfinite_counts(g), source=source)
 
 
 def gaussians(

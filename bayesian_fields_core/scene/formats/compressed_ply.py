@@ -26,6 +26,8 @@ from bayesian_fields_core.scene.formats.common import (
     sh_degree_for,
     sh_from_bands,
 )
+from bayesian_fields_core.scene.formats.ply_tables import element_tables
+from bayesian_fields_core.scene.formats.source import SplatSource
 from bayesian_fields_core.scene.ply import read_ply_elements
 from bayesian_fields_core.scene.types import Gaussians
 
@@ -63,81 +65,129 @@ def _unpack_rotation(value: np.ndarray) -> np.ndarray:
     return quats
 
 
-def _structured(path: Path, fmt: str, elements: list[tuple[str, int, list]], offset: int) -> dict:
-    if fmt != "binary_little_endian":
-        raise InputError(f"compressed PLY must be binary_little_endian, not {fmt}", source=str(path))
-    tables = {}
-    with open(path, "rb") as f:
-        f.seek(offset)
-        for name, count, props in elements:
-            if any(p[1] == "list" for p in props):
-                raise InputError(f"element {name!r} has list properties", source=str(path))
-            dtype = np.dtype([(p[0], "<" + p[1]) for p in props])
-            rows = np.fromfile(f, dtype=dtype, count=count)
-            if rows.shape[0] != count:
-                raise InputError(
-                    f"truncated {name!r} data: expected {count} rows, got {rows.shape[0]}", source=str(path)
-                )
-            tables[name] = rows
-    return tables
+CHUNK_BOUNDS = tuple(f"{m}_{a}" for m in ("min", "max") for a in "xyz") + tuple(
+    f"{m}_scale_{a}" for m in ("min", "max") for a in "xyz"
+)
+COLOUR_BOUNDS = tuple(f"{m}_{c}" for m in ("min", "max") for c in "rgb")
+
+
+class CompressedPlySource(SplatSource):
+    """An opened compressed PLY: header, chunk bounds and body size checked, rows read by range.
+
+    The chunk table (one row per 256 Gaussians, 72 bytes or so) is read whole and checked
+    (finite, min <= max); vertex and SH rows are read per range."""
+
+    def __init__(self, path: Path, max_gaussians: int) -> None:
+        fmt, elements, offset = read_ply_elements(path)
+        counts = {name: count for name, count, _ in elements}
+        n = counts.get("vertex", 0)
+        require_count(n, max_gaussians, source=path)
+        chunks = (n + CHUNK - 1) // CHUNK
+        if counts.get("chunk", -1) != chunks:
+            raise InputError(
+                f"compressed PLY needs {chunks} chunk rows for {n} vertices, has {counts.get('chunk', 0)}",
+                source=str(path),
+            )
+        if "sh" in counts and counts["sh"] != n:
+            raise InputError(f"sh element has {counts['sh']} rows for {n} vertices", source=str(path))
+        for name, _, props in elements:
+            if name == "vertex" and any(p[1] != "u4" for p in props if p[0] in PACKED):
+                raise InputError("packed_* properties must be uint", source=str(path))
+            if name == "chunk" and any(p[1] not in ("f4", "f8") for p in props):
+                raise InputError("chunk properties must be float", source=str(path))
+            if name == "sh" and any(p[1] != "u1" for p in props):
+                raise InputError("sh properties must be uchar", source=str(path))
+        self._file = open(path, "rb")  # noqa: SIM115 - closed by close()
+        try:
+            if fmt != "binary_little_endian":
+                raise InputError(f"compressed PLY must be binary_little_endian, not {fmt}", source=str(path))
+            tables = element_tables(self._file, path, fmt, elements, offset, formats="compressed PLY")
+            self._vertex = tables["vertex"]
+            self._sh = tables.get("sh")
+            self._chunk = _checked_chunks(path, tables["chunk"].read(0, chunks))
+            coeffs = 0
+            if self._sh is not None:
+                names = self._sh.dtype.names or ()
+                coeffs = len(names) // 3
+                want = [f"f_rest_{i}" for i in range(coeffs * 3)]
+                if list(names) != want:
+                    raise InputError(
+                        f"sh properties must be f_rest_0..f_rest_{len(names) - 1}", source=str(path)
+                    )
+            degree = sh_degree_for(coeffs, source=path)
+        except BaseException:
+            self._file.close()
+            raise
+        super().__init__(path, n, degree)
+
+    def rows(self, start: int, stop: int) -> Gaussians:
+        vertex = self._vertex.read(start, stop)
+        n = vertex.shape[0]
+        of = np.arange(start, start + n) // CHUNK
+        chunk = self._chunk
+
+        def lerp(prefix: str, axes: tuple[str, str, str], unit: np.ndarray) -> np.ndarray:
+            lo = np.stack([chunk[f"min_{prefix}{a}"] for a in axes], axis=1).astype(np.float32)[of]
+            hi = np.stack([chunk[f"max_{prefix}{a}"] for a in axes], axis=1).astype(np.float32)[of]
+            return lo + (hi - lo) * unit
+
+        means = lerp("", ("x", "y", "z"), _unpack_111011(vertex["packed_position"]))
+        log_scales = lerp("scale_", ("x", "y", "z"), _unpack_111011(vertex["packed_scale"]))
+        colour = vertex["packed_color"]
+        rgb = np.stack([_unorm(colour, s, 8) for s in (24, 16, 8)], axis=1)
+        if set(COLOUR_BOUNDS) <= set(chunk.dtype.names or ()):
+            rgb = lerp("", ("r", "g", "b"), rgb)
+        rest = None
+        if self._sh is not None and self.sh_degree > 0:
+            sh_rows = self._sh.read(start, stop)
+            coeffs = len(sh_rows.dtype.names or ()) // 3
+            raw = np.stack([sh_rows[f"f_rest_{i}"] for i in range(coeffs * 3)], axis=1).astype(np.float32)
+            values = (np.where(raw == 0, 0.0, raw + 0.5) / 256.0 - 0.5) * 8.0
+            rest = values.reshape(n, 3, coeffs).transpose(0, 2, 1)
+        return gaussians(
+            means,
+            log_scales,
+            _unpack_rotation(vertex["packed_rotation"]),
+            logit(_unorm(colour, 0, 8)),
+            sh_from_bands(colour_to_dc(rgb), rest),
+        )
+
+    def close(self) -> None:
+        self._file.close()
+
+
+def _checked_chunks(path: Path, chunk: np.ndarray) -> np.ndarray:
+    """The chunk table, refused unless every bound is present, finite and min <= max."""
+    names = set(chunk.dtype.names or ())
+    missing = [b for b in CHUNK_BOUNDS if b not in names]
+    if missing:
+        raise InputError(f"chunk element lacks {', '.join(missing)}", source=str(path))
+    bounds = [b for b in CHUNK_BOUNDS + COLOUR_BOUNDS if b in names]
+    for name in bounds:
+        bad = int((~np.isfinite(chunk[name])).sum())
+        if bad:
+            raise InputError(f"chunk bound {name} has {bad} non-finite values", source=str(path))
+    for name in bounds:
+        if name.startswith("min_"):
+            upper = "max_" + name[4:]
+            if upper in names:
+                inverted = int((chunk[name] > chunk[upper]).sum())
+                if inverted:
+                    raise InputError(
+                        f"chunk bounds {name} > {upper} in {inverted} chunks (a bound's min must not exceed its max)",
+                        source=str(path),
+                    )
+    return chunk
+
+
+def open_compressed_ply(
+    path: Path, max_gaussians: int, *, spill_dir: Path | None = None
+) -> CompressedPlySource:
+    """Open a compressed PLY for reading by range (`spill_dir` unused: nothing is inflated)."""
+    return CompressedPlySource(path, max_gaussians)
 
 
 def read_compressed_ply(path: Path, max_gaussians: int) -> Gaussians:
     """Decode a compressed PLY into the INRIA parameterisation (see the module docstring)."""
-    fmt, elements, offset = read_ply_elements(path)
-    counts = {name: count for name, count, _ in elements}
-    n = counts.get("vertex", 0)
-    require_count(n, max_gaussians, source=path)
-    if counts.get("chunk", -1) != (n + CHUNK - 1) // CHUNK:
-        raise InputError(
-            f"compressed PLY needs {(n + CHUNK - 1) // CHUNK} chunk rows for {n} vertices, "
-            f"has {counts.get('chunk', 0)}",
-            source=str(path),
-        )
-    for name, _, props in elements:
-        if name == "vertex" and any(p[1] != "u4" for p in props if p[0] in PACKED):
-            raise InputError("packed_* properties must be uint", source=str(path))
-        if name == "chunk" and any(p[1] not in ("f4", "f8") for p in props):
-            raise InputError("chunk properties must be float", source=str(path))
-    tables = _structured(path, fmt, elements, offset)
-    chunk, vertex = tables["chunk"], tables["vertex"]
-    of = np.arange(n) // CHUNK
-
-    def bounds(prefix: str, axes: tuple[str, str, str]) -> tuple[np.ndarray, np.ndarray]:
-        lo = np.stack([chunk[f"min_{prefix}{a}"] for a in axes], axis=1).astype(np.float32)[of]
-        hi = np.stack([chunk[f"max_{prefix}{a}"] for a in axes], axis=1).astype(np.float32)[of]
-        return lo, hi
-
-    names = set(chunk.dtype.names or ())
-    need = {f"{m}_{a}" for m in ("min", "max") for a in "xyz"} | {
-        f"{m}_scale_{a}" for m in ("min", "max") for a in "xyz"
-    }
-    if not need <= names:
-        raise InputError(f"chunk element lacks {', '.join(sorted(need - names))}", source=str(path))
-    lo, hi = bounds("", ("x", "y", "z"))
-    means = lo + (hi - lo) * _unpack_111011(vertex["packed_position"])
-    lo, hi = bounds("scale_", ("x", "y", "z"))
-    log_scales = lo + (hi - lo) * _unpack_111011(vertex["packed_scale"])
-    colour = vertex["packed_color"]
-    rgb = np.stack([_unorm(colour, s, 8) for s in (24, 16, 8)], axis=1)
-    if {"min_r", "max_r"} <= names:
-        lo, hi = bounds("", ("r", "g", "b"))
-        rgb = lo + (hi - lo) * rgb
-    opacity = _unorm(colour, 0, 8)
-    rest = None
-    if "sh" in tables:
-        sh_rows = tables["sh"]
-        if sh_rows.shape[0] != n:
-            raise InputError(f"sh element has {sh_rows.shape[0]} rows for {n} vertices", source=str(path))
-        coeffs = len(sh_rows.dtype.names or ()) // 3
-        sh_degree_for(coeffs, source=path)
-        raw = np.stack([sh_rows[f"f_rest_{i}"] for i in range(coeffs * 3)], axis=1).astype(np.float32)
-        values = (np.where(raw == 0, 0.0, raw + 0.5) / 256.0 - 0.5) * 8.0
-        rest = values.reshape(n, 3, coeffs).transpose(0, 2, 1)
-    return gaussians(
-        means,
-        log_scales,
-        _unpack_rotation(vertex["packed_rotation"]),
-        logit(opacity),
-        sh_from_bands(colour_to_dc(rgb), rest),
-    )
+    with open_compressed_ply(path, max_gaussians) as source:
+        return source.rows(0, source.count)

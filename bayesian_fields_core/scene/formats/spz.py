@@ -20,43 +20,49 @@ and SH bands follow), and the result matches the PLY the file was made from. Che
 
 from __future__ import annotations
 
+import gzip
+import io
 import struct
-import zlib
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.scene.formats.common import gaussians, logit, require_count, rotate_axes
+from bayesian_fields_core.scene.formats.source import (
+    READ_BYTES,
+    ByteStore,
+    FileWindow,
+    SplatSource,
+    file_chunks,
+    read_exact,
+)
 from bayesian_fields_core.scene.types import Gaussians, sh_coefficient_count
 
 MAGIC = 0x5053474E  # "NGSP" little-endian
 RUB_TO_PLY = np.diag([1.0, -1.0, -1.0])
 COLOUR_SCALE = 0.15
-MAX_DECOMPRESSED = 1 << 34
-"""Largest decompressed payload accepted (16 GiB); a hostile stream stops there."""
+FRACTIONAL_BITS = (1, 23)
+"""Fractional bits a position may use: the positions are 24-bit signed fixed point, so 0 would
+make every coordinate an integer up to 8.4 M and 24 or more leave no integer bit (Niantic's
+writer uses 12). Outside this range the file is refused rather than read as nonsense."""
+MAX_DEFLATE_RATIO = 1032
+"""Deflate's largest possible expansion (one 258-byte match per 2 bits): a gzip stream of `c`
+bytes cannot hold more than about `c * MAX_DEFLATE_RATIO` bytes, so a header declaring more
+Gaussians than that is refused before anything is inflated."""
 
 
-def _blocks(n: int, sh_dim: int, version: int) -> list[tuple[str, int]]:
-    position = 6 if version == 1 else 9
-    rotation = 4 if version >= 3 else 3
+def _row_bytes(sh_dim: int, version: int) -> list[tuple[str, int]]:
+    """(block name, bytes per Gaussian), in the file's order."""
     return [
-        ("positions", n * position),
-        ("alphas", n),
-        ("colors", n * 3),
-        ("scales", n * 3),
-        ("rotations", n * rotation),
-        ("sh", n * sh_dim * 3),
+        ("positions", 6 if version == 1 else 9),
+        ("alphas", 1),
+        ("colors", 3),
+        ("scales", 3),
+        ("rotations", 4 if version >= 3 else 3),
+        ("sh", sh_dim * 3),
     ]
-
-
-def _gunzip(raw: bytes, limit: int, path: Path) -> bytes:
-    """At most `limit` bytes of the gzip stream: a hostile stream never inflates past it."""
-    d = zlib.decompressobj(16 + zlib.MAX_WBITS)
-    try:
-        return d.decompress(raw, limit)
-    except zlib.error as exc:
-        raise InputError(f"corrupt SPZ gzip stream ({exc})", source=str(path)) from None
 
 
 def _header(buf: bytes, path: Path, max_gaussians: int) -> tuple[int, int, int, int]:
@@ -69,11 +75,84 @@ def _header(buf: bytes, path: Path, max_gaussians: int) -> tuple[int, int, int, 
         raise InputError(f"SPZ version {version} is not supported (1 to 4)", source=str(path))
     if degree > 3:
         raise InputError(f"SPZ SH degree {degree} is not supported (0 to 3)", source=str(path))
+    lo, hi = FRACTIONAL_BITS
+    if version >= 2 and not lo <= frac <= hi:
+        raise InputError(
+            f"SPZ fractional bits {frac} outside {lo}..{hi} (24-bit fixed-point positions)", source=str(path)
+        )
     require_count(n, max_gaussians, source=path)
     return version, n, degree, frac
 
 
-def _v4_payload(raw: bytes, n: int, sh_dim: int, path: Path) -> dict[str, bytes]:
+class SpzSource(SplatSource):
+    """An SPZ payload held in a `ByteStore`, decoded by row range (module docstring)."""
+
+    def __init__(self, path: Path, store: ByteStore, n: int, degree: int, version: int, frac: int) -> None:
+        super().__init__(path, n, degree)
+        self.store, self.version, self.frac = store, version, frac
+        self.sh_dim = sh_coefficient_count(degree) - 1
+
+    def rows(self, start: int, stop: int) -> Gaussians:
+        m = stop - start
+        parts = {
+            name: self.store.read(name, start * width, m * width) if width else b""
+            for name, width in _row_bytes(self.sh_dim, self.version)
+        }
+        return rotate_axes(_decode(parts, m, self.sh_dim, self.version, self.frac), RUB_TO_PLY)
+
+    def close(self) -> None:
+        self.store.close()
+
+
+def open_spz(path: Path, max_gaussians: int, *, spill_dir: Path | None = None) -> SpzSource:
+    """Check an SPZ header against its payload, then inflate the payload (bounded by what the
+    header declares) into a store; `spill_dir` puts the store in a temporary file there."""
+    store = ByteStore(spill_dir)
+    try:
+        with open(path, "rb") as f:
+            if f.read(2) == b"\x1f\x8b":
+                return _open_gzip(path, f, store, max_gaussians)
+            return _open_v4(path, f, store, max_gaussians)
+    except BaseException:
+        store.close()
+        raise
+
+
+def _open_gzip(path: Path, f: BinaryIO, store: ByteStore, max_gaussians: int) -> SpzSource:
+    f.seek(0)
+    size = path.stat().st_size
+    with gzip.GzipFile(fileobj=f, mode="rb") as stream:
+        try:
+            head = stream.read(16)
+        except (OSError, EOFError) as exc:
+            raise InputError(f"corrupt SPZ gzip stream ({exc})", source=str(path)) from None
+        version, n, degree, frac = _header(head, path, max_gaussians)
+        sh_dim = sh_coefficient_count(degree) - 1
+        blocks = _row_bytes(sh_dim, version)
+        total = 16 + n * sum(width for _, width in blocks)
+        if total > size * MAX_DEFLATE_RATIO:
+            raise InputError(
+                f"the header declares {n} Gaussians ({total} bytes) but a {size}-byte gzip stream "
+                f"holds at most {size * MAX_DEFLATE_RATIO}",
+                source=str(path),
+            )
+        for name, width in blocks:
+            if width:
+                try:
+                    store.write(name, file_chunks(stream, n * width), n * width, source=path)  # type: ignore[arg-type]
+                except (OSError, EOFError) as exc:
+                    raise InputError(f"corrupt SPZ gzip stream ({exc})", source=str(path)) from None
+    return SpzSource(path, store, n, degree, version, frac)
+
+
+def _open_v4(path: Path, f: BinaryIO, store: ByteStore, max_gaussians: int) -> SpzSource:
+    f.seek(0)
+    head = f.read(32)
+    version, n, degree, frac = _header(head, path, max_gaussians)
+    if version < 4:
+        raise InputError(f"SPZ v{version} must be gzip-compressed", source=str(path))
+    if len(head) < 32:
+        raise InputError("SPZ v4 header is truncated", source=str(path))
     try:
         import zstandard
     except ImportError:  # pragma: no cover - a declared dependency
@@ -82,27 +161,26 @@ def _v4_payload(raw: bytes, n: int, sh_dim: int, path: Path) -> dict[str, bytes]
             f"npx @playcanvas/splat-transform --spz-version 3 {path.name} out.spz",
             source=str(path),
         ) from None
-    if len(raw) < 32:
-        raise InputError("SPZ v4 header is truncated", source=str(path))
-    streams, toc = struct.unpack_from("<BI", raw, 15)
-    blocks = [b for b in _blocks(n, sh_dim, 4) if b[1] > 0]
-    if streams != len(blocks) or toc < 32 or toc + 16 * streams > len(raw):
+    sh_dim = sh_coefficient_count(degree) - 1
+    size = path.stat().st_size
+    streams, toc = struct.unpack_from("<BI", head, 15)
+    blocks = [(name, width) for name, width in _row_bytes(sh_dim, 4) if width]
+    if streams != len(blocks) or toc < 32 or toc + 16 * streams > size:
         raise InputError(f"SPZ v4 table of contents is inconsistent ({streams} streams)", source=str(path))
-    out: dict[str, bytes] = {}
+    table = read_exact(f, toc, 16 * streams, what="SPZ v4 table of contents", source=path)
     offset = toc + 16 * streams
-    for i, (name, size) in enumerate(blocks):
-        csize, usize = struct.unpack_from("<QQ", raw, toc + 16 * i)
-        if usize != size or offset + csize > len(raw):
+    for i, (name, width) in enumerate(blocks):
+        csize, usize = struct.unpack_from("<QQ", table, 16 * i)
+        if usize != n * width or offset + csize > size:
             raise InputError(f"SPZ v4 stream {name!r} has the wrong size", source=str(path))
+        window = io.BufferedReader(FileWindow(f, offset, csize), READ_BYTES)
+        reader = zstandard.ZstdDecompressor().stream_reader(window, closefd=False)
         try:
-            data = zstandard.ZstdDecompressor().decompress(raw[offset : offset + csize], max_output_size=size)
+            store.write(name, file_chunks(reader, usize), usize, source=path)
         except zstandard.ZstdError as exc:
             raise InputError(f"corrupt SPZ v4 stream {name!r} ({exc})", source=str(path)) from None
-        if len(data) != size:
-            raise InputError(f"SPZ v4 stream {name!r} decompressed to the wrong size", source=str(path))
-        out[name] = data
         offset += csize
-    return out
+    return SpzSource(path, store, n, degree, version, frac)
 
 
 def _smallest_three(packed: np.ndarray) -> np.ndarray:
@@ -125,30 +203,9 @@ def _smallest_three(packed: np.ndarray) -> np.ndarray:
 
 
 def read_spz(path: Path, max_gaussians: int) -> Gaussians:
-    """Decode an SPZ file into the PLY's frame and parameterisation (module docstring)."""
-    raw = path.read_bytes()
-    if raw[:2] == b"\x1f\x8b":
-        head = _gunzip(raw, 16, path)
-        version, n, degree, frac = _header(head, path, max_gaussians)
-        sh_dim = sh_coefficient_count(degree) - 1
-        total = 16 + sum(size for _, size in _blocks(n, sh_dim, version))
-        if total > MAX_DECOMPRESSED:
-            raise InputError(f"SPZ payload of {total} bytes is too large", source=str(path))
-        body = _gunzip(raw, total, path)
-        if len(body) < total:
-            raise InputError(f"SPZ payload is truncated ({len(body)} of {total} bytes)", source=str(path))
-        parts, offset = {}, 16
-        for name, size in _blocks(n, sh_dim, version):
-            parts[name] = body[offset : offset + size]
-            offset += size
-    else:
-        version, n, degree, frac = _header(raw, path, max_gaussians)
-        if version < 4:
-            raise InputError(f"SPZ v{version} must be gzip-compressed", source=str(path))
-        sh_dim = sh_coefficient_count(degree) - 1
-        parts = _v4_payload(raw, n, sh_dim, path)
-        parts.setdefault("sh", b"")
-    return rotate_axes(_decode(parts, n, sh_dim, version, frac), RUB_TO_PLY)
+    """Decode a whole SPZ file into the PLY's frame and parameterisation (module docstring)."""
+    with open_spz(path, max_gaussians) as source:
+        return source.rows(0, source.count)
 
 
 def _decode(parts: dict[str, bytes], n: int, sh_dim: int, version: int, frac: int) -> Gaussians:

@@ -32,6 +32,13 @@ class ServiceSettings(BaseSettings):
         env_prefix="BFIELDS_", case_sensitive=False, extra="ignore", validate_default=True
     )
 
+    # ---- records -------------------------------------------------------------------------------
+    database_url: str = Field(
+        "postgresql+psycopg://postgres@127.0.0.1:5432/bfields",
+        description="PostgreSQL URL of the service's records (scenes, jobs, batches, idempotency keys, "
+        "callback outbox, usage ledger), in SQLAlchemy form with the psycopg 3 driver.",
+    )
+
     # ---- queue ---------------------------------------------------------------------------------
     redis_url: str = Field(
         "redis://127.0.0.1:6379/0",

@@ -1,0 +1,71 @@
+"""`bfields-service`: the operator's commands for the service's own state (not the user's CLI).
+
+    bfields-service migrate [--revision REV] [--create-database]   apply the records migrations
+    bfields-service db-revision                                    print the database's revision
+
+Why a separate command from `bfields`: these act on the deployment's database with the
+deployment's settings (`BFIELDS_DATABASE_URL`), run from an init container or by hand in an
+upgrade; `bfields` is what users run against the API. Every process also migrates at start-up
+under the same advisory lock, so running this first is an option, not a step.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from sqlalchemy import text
+from sqlalchemy.engine import make_url
+
+
+def _create_database(url: str) -> bool:
+    """Create the database `url` names when it does not exist (connecting to `postgres`)."""
+    from bayesian_fields_service.records.database import engine
+
+    target = make_url(url)
+    name = target.database
+    admin = target.set(database="postgres")
+    eng = engine(admin.render_as_string(hide_password=False)).execution_options(isolation_level="AUTOCOMMIT")
+    with eng.connect() as conn:
+        if conn.execute(text("SELECT 1 FROM pg_database WHERE datname = :n"), {"n": name}).first():
+            return False
+        conn.execute(text(f'CREATE DATABASE "{name}"'))
+        return True
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="bfields-service", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    migrate = sub.add_parser("migrate", help="apply the records migrations (under the migration lock)")
+    migrate.add_argument("--revision", default="head", help="target revision (default: head; 'base' empties)")
+    migrate.add_argument("--create-database", action="store_true", help="create the database first if absent")
+    sub.add_parser("db-revision", help="print the revision the database is at")
+    args = parser.parse_args(argv)
+
+    from sqlalchemy.exc import OperationalError
+
+    from bayesian_fields_service.common.settings import get_settings
+    from bayesian_fields_service.records.database import current_revision, head_revision
+    from bayesian_fields_service.records.database import migrate as run
+
+    url = get_settings().database_url
+    shown = make_url(url).render_as_string(hide_password=True)
+    try:
+        if args.command == "db-revision":
+            print(current_revision(url) or "none", "(head:", head_revision() + ")")
+            return 0
+        if args.create_database and _create_database(url):
+            print(f"created database {make_url(url).database}")
+        print(f"{shown}: at revision {run(url, args.revision) or 'none'}")
+        return 0
+    except OperationalError as exc:
+        first = str(exc.orig).strip().splitlines()[0] if exc.orig else str(exc)
+        print(
+            f"error: cannot reach the records database {shown}: {first} (set BFIELDS_DATABASE_URL)",
+            file=sys.stderr,
+        )
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,181 @@
+"""Every table of the service's records, in one place (SQLAlchemy Core, PostgreSQL dialect).
+
+Why Core and not the ORM: fleet operations are set statements (insert 5,000 jobs, cancel a
+batch, count a queue range), written as such; rows come back as plain mappings that the jobs
+domain layer turns into its pydantic records. Indexes follow what the API filters, pages and
+counts by: a tenant's jobs by creation (keyset paging on (created_at, id)), by state, by batch
+and by scene; the waiting queue by (tenant, priority, created_at). The first migration
+(`migrations/versions/0001_records.py`) creates exactly this schema; a test compares the two.
+"""
+
+from __future__ import annotations
+
+from sqlalchemy import (
+    JSON,
+    BigInteger,
+    Boolean,
+    CheckConstraint,
+    Column,
+    DateTime,
+    Double,
+    ForeignKey,
+    Index,
+    Integer,
+    MetaData,
+    String,
+    Table,
+    Text,
+    UniqueConstraint,
+    func,
+    text,
+)
+from sqlalchemy.dialects.postgresql import JSONB
+
+#: Constraint names follow one convention, so migrations can name what they alter or drop.
+metadata = MetaData(
+    naming_convention={
+        "ix": "ix_%(table_name)s_%(column_0_N_name)s",
+        "uq": "uq_%(table_name)s_%(column_0_N_name)s",
+        "ck": "ck_%(table_name)s_%(constraint_name)s",
+        "fk": "fk_%(table_name)s_%(column_0_name)s_%(referred_table_name)s",
+        "pk": "pk_%(table_name)s",
+    }
+)
+
+JOB_STATES = ("queued", "running", "succeeded", "failed", "cancelled")
+TERMINAL_JOB_STATES = ("succeeded", "failed", "cancelled")
+SCENE_STATES = ("uploading", "ready", "deleting")
+PRIORITIES = ("interactive", "bulk")
+ID = String(40)
+TENANT = String(64)
+Document = JSON().with_variant(JSONB(), "postgresql")
+
+
+def _when(name: str, *, nullable: bool = False) -> Column:
+    return Column(
+        name, DateTime(timezone=True), nullable=nullable, server_default=None if nullable else func.now()
+    )
+
+
+def _in(column: str, values: tuple[str, ...]) -> str:
+    return f"{column} IN ({', '.join(repr(v) for v in values)})"
+
+
+scenes = Table(
+    "scenes",
+    metadata,
+    Column("id", ID, primary_key=True),
+    Column("tenant", TENANT, nullable=False),
+    Column("name", String(255)),
+    Column("state", String(16), nullable=False),
+    Column("files", Integer, nullable=False, server_default="0"),
+    Column("bytes", BigInteger, nullable=False, server_default="0"),
+    Column("summary", Document, nullable=False, server_default=text("'{}'")),
+    Column("pending_uploads", Document, nullable=False, server_default=text("'[]'")),
+    _when("created_at"),
+    _when("updated_at"),
+    CheckConstraint(_in("state", SCENE_STATES), name="state"),
+    Index(None, "tenant", "created_at", "id"),
+)
+
+batches = Table(
+    "batches",
+    metadata,
+    Column("id", ID, primary_key=True),
+    Column("tenant", TENANT, nullable=False),
+    Column("priority", String(16), nullable=False),
+    Column("callback_url", Text),
+    Column("job_count", Integer, nullable=False),
+    Column("callback_enqueued", Boolean, nullable=False, server_default=text("false")),
+    _when("created_at"),
+    _when("finished_at", nullable=True),
+    CheckConstraint(_in("priority", PRIORITIES), name="priority"),
+    Index(None, "tenant", "created_at", "id"),
+)
+
+jobs = Table(
+    "jobs",
+    metadata,
+    Column("id", ID, primary_key=True),
+    Column("tenant", TENANT, nullable=False),
+    Column("scene_id", ID, nullable=False),  # no foreign key: a job's record outlives its scene
+    Column("batch_id", ID, ForeignKey("batches.id", ondelete="CASCADE")),
+    Column("state", String(16), nullable=False, server_default="queued"),
+    Column("priority", String(16), nullable=False),
+    Column("tasks", Document, nullable=False),
+    Column("parameters", Document, nullable=False, server_default=text("'{}'")),
+    Column("model_profile", String(64), nullable=False),
+    Column("stage", String(32)),
+    Column("stages_done", Document, nullable=False, server_default=text("'[]'")),
+    Column("timings", Document, nullable=False, server_default=text("'{}'")),
+    Column("stage_reports", Document, nullable=False, server_default=text("'{}'")),
+    Column("usage", Document, nullable=False, server_default=text("'{}'")),
+    Column("error", Text),
+    Column("cancel_requested", Boolean, nullable=False, server_default=text("false")),
+    Column("stage_runs", Integer, nullable=False, server_default="0"),
+    Column("callback_url", Text),
+    Column("retry_of", ID),
+    _when("created_at"),
+    _when("updated_at"),
+    _when("dispatched_at", nullable=True),
+    _when("started_at", nullable=True),
+    _when("finished_at", nullable=True),
+    CheckConstraint(_in("state", JOB_STATES), name="state"),
+    CheckConstraint(_in("priority", PRIORITIES), name="priority"),
+    Index(None, "tenant", "created_at", "id"),
+    Index(None, "tenant", "state", "created_at", "id"),
+    Index(None, "batch_id", "id"),
+    Index(None, "scene_id"),
+    # The waiting queue: a tenant's undispatched jobs, interactive first, oldest first. Partial, so
+    # it holds only waiting work however many finished jobs the table keeps.
+    Index(
+        "ix_jobs_waiting",
+        "tenant",
+        "priority",
+        "created_at",
+        "id",
+        postgresql_where=text("state = 'queued' AND dispatched_at IS NULL"),
+    ),
+)
+
+idempotency_keys = Table(
+    "idempotency_keys",
+    metadata,
+    Column("tenant", TENANT, primary_key=True),
+    Column("endpoint", String(64), primary_key=True),
+    Column("key", String(255), primary_key=True),
+    Column("body_sha256", String(64), nullable=False),
+    Column("target_id", ID, nullable=False),
+    _when("created_at"),
+)
+
+callback_outbox = Table(
+    "callback_outbox",
+    metadata,
+    Column("id", BigInteger, primary_key=True, autoincrement=True),
+    Column("tenant", TENANT, nullable=False),
+    Column("url", Text, nullable=False),
+    Column("event", Document, nullable=False),
+    Column("attempts", Integer, nullable=False, server_default="0"),
+    _when("next_attempt_at"),
+    _when("claimed_until", nullable=True),
+    _when("delivered_at", nullable=True),
+    Column("last_error", Text),
+    _when("created_at"),
+    Index("ix_callback_outbox_due", "next_attempt_at", postgresql_where=text("delivered_at IS NULL")),
+)
+
+usage_ledger = Table(
+    "usage_ledger",
+    metadata,
+    Column("id", BigInteger, primary_key=True, autoincrement=True),
+    Column("tenant", TENANT, nullable=False),
+    Column("job_id", ID, nullable=False),
+    Column("state", String(16), nullable=False),
+    Column("cpu_s", Double, nullable=False, server_default="0"),
+    Column("gpu_s", Double, nullable=False, server_default="0"),
+    Column("bytes_stored", BigInteger, nullable=False, server_default="0"),
+    _when("recorded_at"),
+    UniqueConstraint("job_id"),  # a job is accounted once, whoever ends it
+    Index(None, "tenant", "recorded_at"),
+)

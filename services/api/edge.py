@@ -201,7 +201,11 @@ def install_handlers(app: FastAPI, retry_after_s: int) -> None:
         a bucket key or a server path by any route never reaches the client with it."""
         if exc.status_code in (204, 304):
             return Response(status_code=exc.status_code, headers=exc.headers)
-        return problem(exc.status_code, redact_locations(str(exc.detail)), headers=dict(exc.headers) if exc.headers else None)
+        return problem(
+            exc.status_code,
+            redact_locations(str(exc.detail)),
+            headers=dict(exc.headers) if exc.headers else None,
+        )
 
     async def _outage(request: Request, exc: Exception) -> JSONResponse:
         backend = "object storage" if isinstance(exc, StorageError) else "the queue (Redis)"

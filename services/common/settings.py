@@ -20,6 +20,9 @@ from pydantic_settings import BaseSettings, SettingsConfigDict
 GiB = 1024**3
 MiB = 1024**2
 
+#: The claim on a callback event outlasts the attempt's deadline (`callback_timeout_s`) by this.
+CALLBACK_LEASE_MARGIN_S = 30.0
+
 #: Tenant names become storage prefixes (``tenants/<tenant>/``), so they are restricted to a safe set.
 TENANT_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$"
 
@@ -38,7 +41,6 @@ class ServiceSettings(BaseSettings):
         description="PostgreSQL URL of the service's records (scenes, jobs, batches, idempotency keys, "
         "callback outbox, usage ledger), in SQLAlchemy form with the psycopg 3 driver.",
     )
-
     # ---- queue ---------------------------------------------------------------------------------
     redis_url: str = Field(
         "redis://127.0.0.1:6379/0",
@@ -257,10 +259,39 @@ class ServiceSettings(BaseSettings):
     )
     callback_allow_private: bool = Field(
         False,
-        description="Allow callback URLs that name or resolve to loopback, private, link-local or "
-        "reserved addresses (off: a tenant cannot make the service call its own network).",
+        description="Allow callback URLs that name or resolve to addresses that are not globally "
+        "routable (loopback, private, link-local, shared, reserved, ...; unspecified and multicast "
+        "stay refused). Off: a tenant cannot make the service call its own network.",
     )
-    callback_timeout_s: float = Field(10.0, gt=0, le=120, description="Timeout of one callback POST.")
+    callback_timeout_s: float = Field(
+        10.0,
+        gt=0,
+        le=120,
+        description="Deadline of one callback attempt as a whole: resolving the host, connecting, "
+        "sending and reading the answer (a receiver that drips bytes is cut off at it). The claim "
+        "on the event lasts this plus CALLBACK_LEASE_MARGIN_S (`callback_lease_s`).",
+    )
+    callback_max_response_bytes: int = Field(
+        64 * 1024,
+        ge=0,
+        le=16 * MiB,
+        description="At most this much of a receiver's answer is read; then the connection is closed "
+        "(only the status matters).",
+    )
+    callback_threads: int = Field(
+        4,
+        ge=1,
+        le=64,
+        description="Callback attempts in flight at once per worker process (its delivery threads).",
+    )
+    callback_per_destination: int = Field(
+        2,
+        ge=1,
+        le=64,
+        description="Callback attempts in flight at once per worker process to one host:port, so a "
+        "slow receiver holds at most this many delivery threads and delays only its own events (keep it "
+        "below BFIELDS_CALLBACK_THREADS).",
+    )
     callback_max_attempts: int = Field(
         12, ge=1, le=100, description="Attempts per callback before it is dropped (logged)."
     )
@@ -327,6 +358,13 @@ class ServiceSettings(BaseSettings):
             if not weight > 0 or weight == float("inf"):
                 raise ValueError(f"BFIELDS_TENANT_WEIGHTS: weight of {tenant!r} must be a positive number")
         return v
+
+    @property
+    def callback_lease_s(self) -> float:
+        """How long a claimed callback event stays claimed: the attempt's deadline plus a margin
+        for the bookkeeping around it, so an attempt never outlives its claim (derived, not set,
+        so the two cannot be configured out of order)."""
+        return self.callback_timeout_s + CALLBACK_LEASE_MARGIN_S
 
     def weight(self, tenant: str) -> float:
         """The tenant's fair-share weight (1 unless BFIELDS_TENANT_WEIGHTS names it)."""

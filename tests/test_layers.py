@@ -40,8 +40,17 @@ LAYERS: list[set[str]] = [
 """The library's packages, top down. Members of one set share a floor and must not import each
 other; a package may import itself and any floor below."""
 
-SERVICE_LAYERS: list[set[str]] = [{"client"}, {"api"}, {"worker"}, {"common"}, {"__init__"}]
-"""The service's packages, top down: the API may enqueue through the worker's Celery app."""
+SERVICE_LAYERS: list[set[str]] = [
+    {"client", "admin"},
+    {"api"},
+    {"worker"},
+    {"common"},
+    {"records"},
+    {"__init__"},
+]
+"""The service's packages, top down: the API may enqueue through the worker's Celery app; the
+operator's `admin` commands sit beside the user's client; the records schema is below everything
+that reads or writes it."""
 
 
 def module_name(package: str, path: Path) -> str:

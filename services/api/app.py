@@ -24,6 +24,7 @@ from bayesian_fields_service.common.api_keys import ApiKeyRing
 from bayesian_fields_service.common.jobs import JobStore
 from bayesian_fields_service.common.settings import ServiceSettings, apply_log_level, get_settings
 from bayesian_fields_service.common.storage import build_store
+from bayesian_fields_service.records.database import open_records
 from bayesian_fields_service.worker.celery_app import make_celery
 from bayesian_fields_service.worker.dispatch import Dispatcher
 
@@ -87,7 +88,9 @@ def create_app(settings: ServiceSettings | None = None) -> FastAPI:
         settings=settings,
         store=store,
         redis=client,
-        jobs=JobStore(store, client),
+        jobs=JobStore(
+            store, client, open_records(settings.database_url, migrate_first=settings.migrate_on_start)
+        ),
         key_ring=ApiKeyRing.from_settings(settings),
         celery=celery,
     )

@@ -1,27 +1,20 @@
-"""Job records: the manifest in the bucket is the truth, Redis holds only live progress.
+"""Job records: a row of the `jobs` table is the truth, Redis holds only live progress.
 
-Why two places: the bucket survives everything (a Redis restart, a redeploy), so a job is never
-lost, while stage/progress updates arrive many times a second and belong in Redis. A read merges
-the two: the manifest gives the record, the Redis hash overlays the live stage and progress while
-the job is active. Terminal states are sticky: once a manifest says succeeded/failed/cancelled no
-later write (a late worker, a duplicate delivery) turns it back into an active one.
+Why two places: the records database survives everything (a Redis restart, a redeploy), so a
+job is never lost, while stage/progress updates arrive many times a second and belong in Redis.
+A read merges the two: the row gives the record, the Redis hash overlays the live stage and
+progress while the job is active. Terminal states are sticky: every write reads the row under
+``SELECT ... FOR UPDATE`` and merges (`_merge`), so once a row says succeeded/failed/cancelled no
+later write (a late worker, a duplicate delivery) turns it back into an active one, and the API's
+cancel and a worker's stage update, serialised by the row lock, never lose each other's fields.
 
-Layout (keys of the tenant's store, i.e. under ``tenants/<tenant>/``):
-  jobs/<id>/manifest.json          the `JobRecord`
-  jobs/<id>/stages/, jobs/<id>/result/   written by the pipeline (job_prefix = ``jobs/<id>/``)
-  index/jobs/<id>                  empty marker, so listing jobs never walks result files
-  index/jobs-by-state/<state>/<id> empty marker per job in its current manifest state, and
-  index/jobs-by-scene/<scene>/<id> per job of a scene: a filtered page lists these keys and reads
-                                   only the manifests it returns (not every manifest until the
-                                   page fills); ``index/jobs-by.json`` says they are complete
-  idempotency/<sha256(key)>.json   Idempotency-Key -> job id (survives Redis restarts)
-  batches/<id>.json                a `BatchRecord`
-and in the global store ``active/<tenant>/<id>`` markers for queued/running jobs, which the
-worker's recovery scan reads to re-enqueue jobs a Redis restart dropped, and ``pending/<tenant>/<id>``
-markers for jobs stored but not yet enqueued: the API deletes it right after the enqueue, so one
-that outlives the recovery grace period is a submission whose API stopped half-way (recovery
-enqueues it: see `worker.recovery`; a retry with the same Idempotency-Key finds it, since
-`create` stores the key with the job).
+Tables (`records.tables`): ``jobs`` (one row per job; ``submitted`` is false from the insert until
+the first message is queued, so a row that stays false past the grace period is a submission
+whose API stopped half-way: recovery submits it), ``batches`` (the job list in submission order),
+``idempotency_keys`` (tenant, endpoint, key -> job or batch id, inserted in the job's own
+transaction). The bucket keeps what is large: ``jobs/<id>/stages/`` and ``jobs/<id>/result/``,
+written by the pipeline (job_prefix = ``jobs/<id>/``); no manifest, index marker or idempotency
+object is written there any more.
 
 Redis also holds the per-tenant quota set (`bayesian_fields_service.common.quota`): taken before a job is
 stored, given back here on every terminal state.
@@ -30,7 +23,6 @@ stored, given back here on every terminal state.
 from __future__ import annotations
 
 import builtins
-import hashlib
 import logging
 import re
 import secrets
@@ -42,9 +34,11 @@ from typing import Any
 
 import redis
 from pydantic import BaseModel, Field, computed_field, model_validator
+from sqlalchemy import Connection, Engine, delete, func, insert, select, update
+from sqlalchemy.dialects.postgresql import insert as pg_insert
 
 from bayesian_fields_core.job.stage_table import STAGE_TABLE, STAGES
-from bayesian_fields_core.job.store import ArtifactNotFound, Store, get_json, put_json
+from bayesian_fields_core.job.store import Store
 from bayesian_fields_service.common.callbacks import on_job_terminal
 from bayesian_fields_service.common.fair_queue import Priority, dispatched_key
 from bayesian_fields_service.common.quota import TenantQuota
@@ -52,6 +46,7 @@ from bayesian_fields_service.common.redis_text import text
 from bayesian_fields_service.common.sanitize import redact_locations, scrub
 from bayesian_fields_service.common.storage import tenant_store
 from bayesian_fields_service.common.usage import JobUsage
+from bayesian_fields_service.records.tables import batches, idempotency_keys, jobs
 
 log = logging.getLogger(__name__)
 
@@ -93,7 +88,7 @@ def id_age_s(ident: str) -> float:
 
 
 class JobRecord(BaseModel):
-    """One job as stored in ``jobs/<id>/manifest.json`` (and returned by the API)."""
+    """One job as stored in its `jobs` row (and returned by the API)."""
 
     id: str = Field(examples=["j_0192f3a1b2c3d4e5f6a7b8"])
     tenant: str = Field(examples=["acme"])
@@ -167,7 +162,7 @@ class JobRecord(BaseModel):
 
 
 class BatchRecord(BaseModel):
-    """A group of jobs submitted together (``batches/<id>.json``)."""
+    """A group of jobs submitted together (a `batches` row)."""
 
     id: str
     tenant: str
@@ -211,18 +206,6 @@ def _merge(old: JobRecord, new: JobRecord) -> JobRecord:
     )
 
 
-#: Marker: the tenant's by-state / by-scene job indexes cover every job (see `_build_filter_index`).
-_INDEX_DONE = "index/jobs-by.json"
-
-
-def _state_index(state: JobState, job_id: str) -> str:
-    return f"index/jobs-by-state/{state.value}/{job_id}"
-
-
-def _scene_index(scene_id: str, job_id: str) -> str:
-    return f"index/jobs-by-scene/{scene_id}/{job_id}"
-
-
 def _redacted(record: JobRecord) -> JobRecord:
     """The record with its error message free of paths and bucket keys (`redact_locations`)."""
     if not record.error:
@@ -231,19 +214,49 @@ def _redacted(record: JobRecord) -> JobRecord:
     return record if clean == record.error else record.model_copy(update={"error": clean})
 
 
-class JobStore:
-    """Reads and writes job records (bucket manifests + Redis live state + cancel flags)."""
+#: `JobRecord` fields kept in a `jobs` column of the same name.
+_COLUMNS = (
+    "id", "tenant", "scene_id", "batch_id", "state", "priority", "tasks", "parameters", "model_profile",
+    "stage", "progress", "stages_done", "timings", "stage_reports", "usage", "error", "cancel_requested",
+    "stage_runs", "callback_url", "idempotency_key", "created_at", "updated_at", "started_at", "finished_at",
+)  # fmt: skip
 
-    def __init__(self, store: Store, redis_client: redis.Redis) -> None:
+_ACTIVE_STATES = (JobState.queued.value, JobState.running.value)
+
+#: Idempotency endpoints (the `idempotency_keys.endpoint` column).
+JOBS_ENDPOINT = "jobs"
+BATCHES_ENDPOINT = "batches"
+
+
+def _row_of(record: JobRecord) -> dict[str, Any]:
+    """The `jobs` columns of a record (JSON-ready values; read-only fields dropped)."""
+    data = _redacted(record).model_dump(mode="json", exclude=_READ_ONLY)
+    row = {name: data[name] for name in _COLUMNS}
+    for name in ("created_at", "updated_at", "started_at", "finished_at"):
+        row[name] = getattr(record, name)
+    return row
+
+
+def _record_of(row: Any) -> JobRecord:
+    """A `JobRecord` from a `jobs` row mapping (scrubbed: a record stored before the edge
+    refused lone surrogates must stay servable)."""
+    data = {name: row[name] for name in _COLUMNS}
+    return _redacted(JobRecord.model_validate(scrub(data)))
+
+
+class JobStore:
+    """Reads and writes job records (`jobs` rows + Redis live state + cancel flags).
+
+    `store` is the bucket (job artifacts live under each tenant's ``jobs/<id>/``); `database` the
+    records engine (`records.database.engine`)."""
+
+    def __init__(self, store: Store, redis_client: redis.Redis, database: Engine) -> None:
         self.store = store
         self.redis = redis_client
+        self.database = database
         self.quota = TenantQuota(redis_client)
 
     # ---- keys ----------------------------------------------------------------------------------
-    @staticmethod
-    def manifest_key(job_id: str) -> str:
-        return f"jobs/{job_id}/manifest.json"
-
     @staticmethod
     def live_key(tenant: str, job_id: str) -> str:
         return f"bf:job:{tenant}:{job_id}"
@@ -252,103 +265,122 @@ class JobStore:
     def cancel_key(tenant: str, job_id: str) -> str:
         return f"bf:cancel:{tenant}:{job_id}"
 
-    @staticmethod
-    def active_key(tenant: str, job_id: str) -> str:
-        return f"active/{tenant}/{job_id}"
-
-    @staticmethod
-    def pending_key(tenant: str, job_id: str) -> str:
-        return f"pending/{tenant}/{job_id}"
-
     def tenant(self, tenant: str) -> Store:
         return tenant_store(self.store, tenant)
 
-    # ---- manifests -----------------------------------------------------------------------------
+    # ---- rows ----------------------------------------------------------------------------------
     def load(self, tenant: str, job_id: str) -> JobRecord | None:
-        """The stored manifest (no live overlay), or None."""
-        try:
-            data = get_json(self.tenant(tenant), self.manifest_key(job_id))
-        except ArtifactNotFound:
-            return None
-        # scrub: a manifest stored before the edge refused lone surrogates must stay servable
-        return _redacted(JobRecord.model_validate(scrub(data)))
+        """The stored record (no live overlay), or None."""
+        with self.database.connect() as conn:
+            row = (
+                conn.execute(select(jobs).where(jobs.c.tenant == tenant, jobs.c.id == job_id))
+                .mappings()
+                .first()
+            )
+        return _record_of(row) if row is not None else None
 
-    def _write(self, record: JobRecord) -> None:
-        put_json(
-            self.tenant(record.tenant),
-            self.manifest_key(record.id),
-            _redacted(record).model_dump(mode="json", exclude=_READ_ONLY),
+    @staticmethod
+    def _locked(conn: Connection, tenant: str, job_id: str) -> JobRecord | None:
+        row = (
+            conn.execute(select(jobs).where(jobs.c.tenant == tenant, jobs.c.id == job_id).with_for_update())
+            .mappings()
+            .first()
         )
+        return _record_of(row) if row is not None else None
 
     def create(self, record: JobRecord) -> None:
-        """Persist a new job: pending + active markers, manifest, listing index, live hash.
+        """Persist a new job (row not yet `submitted`, its Idempotency-Key row in the same
+        transaction) and its live hash.
 
         The caller has taken the job's quota slot, enqueues it next and then calls
-        `mark_enqueued`; if it dies in between, recovery finds the pending marker."""
-        ts = self.tenant(record.tenant)
-        self.store.put_bytes(self.pending_key(record.tenant, record.id), b"")
-        self.store.put_bytes(self.active_key(record.tenant, record.id), b"")
-        self._write(record)
-        ts.put_bytes(f"index/jobs/{record.id}", b"")
-        ts.put_bytes(_scene_index(record.scene_id, record.id), b"")
-        ts.put_bytes(_state_index(record.state, record.id), b"")
-        if record.idempotency_key:  # before the enqueue: a retry after a crash finds this job
-            self.remember_idempotent(record.tenant, record.idempotency_key, record.id)
-        self.touch_live(record)
+        `mark_enqueued`; if it dies in between, recovery finds the unsubmitted row."""
+        self.create_many([record])
+
+    def create_many(self, records: builtins.list[JobRecord]) -> None:
+        """`create` for many jobs in one transaction (a batch's new jobs)."""
+        if not records:
+            return
+        with self.database.begin() as conn:
+            conn.execute(insert(jobs), [{**_row_of(r), "submitted": False} for r in records])
+            keyed = [r for r in records if r.idempotency_key]
+            if keyed:  # before the enqueue: a retry after a crash finds this job
+                conn.execute(
+                    insert(idempotency_keys),
+                    [{"tenant": r.tenant, "endpoint": JOBS_ENDPOINT, "key": r.idempotency_key,
+                      "body_sha256": "", "target_id": r.id} for r in keyed],
+                )  # fmt: skip
+        pipe = self.redis.pipeline()
+        for record in records:
+            self._queue_live(pipe, record)
+        pipe.execute()
 
     def mark_enqueued(self, record: JobRecord) -> None:
         """The job's first stage message is in the queue: it is no longer a half-done submission."""
-        self.store.delete(self.pending_key(record.tenant, record.id))
+        self.mark_submitted(record.tenant, [record.id])
+
+    def mark_submitted(self, tenant: str, job_ids: builtins.list[str]) -> None:
+        with self.database.begin() as conn:
+            conn.execute(
+                update(jobs).where(jobs.c.tenant == tenant, jobs.c.id.in_(job_ids)).values(submitted=True)
+            )
 
     def discard_unsubmitted(self, record: JobRecord) -> None:
         """Undo `create` after a failed enqueue, as far as the backends allow (best effort: what
-        an outage leaves behind carries a pending marker, so recovery fails it instead of running
-        it). Never raises."""
-        ts = self.tenant(record.tenant)
+        an outage leaves behind stays unsubmitted, so recovery fails it instead of running it).
+        Never raises."""
+        failed = {"state": JobState.failed.value, "finished_at": utcnow(), "submitted": True,
+                  "error": "submission failed: the queue was unavailable; submit again"}  # fmt: skip
         steps = (
-            lambda: self._write(record.model_copy(update={
-                "state": JobState.failed, "finished_at": utcnow(),
-                "error": "submission failed: the queue was unavailable; submit again"})),
-            lambda: ts.delete(f"index/jobs/{record.id}"),
-            lambda: ts.delete(_scene_index(record.scene_id, record.id)),
-            lambda: ts.delete(_state_index(record.state, record.id)),
-            lambda: self.store.delete(self.active_key(record.tenant, record.id)),
-            lambda: self.store.delete(self.pending_key(record.tenant, record.id)),
+            lambda: self._discard_rows(record, failed),
             lambda: self.redis.delete(self.live_key(record.tenant, record.id)),
             lambda: self.quota.release(record.tenant, [record.id]),
-            lambda: self._forget_idempotent(record),
-        )  # fmt: skip
+        )
         for step in steps:
             try:
                 step()
             except Exception:  # an outage is why we are here; recovery repairs the rest
                 continue
 
+    def _discard_rows(self, record: JobRecord, failed: dict[str, Any]) -> None:
+        with self.database.begin() as conn:
+            conn.execute(
+                update(jobs)
+                .where(
+                    jobs.c.tenant == record.tenant, jobs.c.id == record.id, jobs.c.state.in_(_ACTIVE_STATES)
+                )
+                .values(**failed)
+            )
+            if record.idempotency_key:  # the client's retry with the key makes a new job
+                conn.execute(
+                    delete(idempotency_keys).where(
+                        idempotency_keys.c.tenant == record.tenant,
+                        idempotency_keys.c.endpoint == JOBS_ENDPOINT,
+                        idempotency_keys.c.key == record.idempotency_key,
+                        idempotency_keys.c.target_id == record.id,
+                    )
+                )
+
     def release_slot(self, record: JobRecord) -> None:
-        """A terminal job no longer counts against its tenant's quota (markers and Redis set)."""
-        self.store.delete(self.active_key(record.tenant, record.id))
-        self.store.delete(self.pending_key(record.tenant, record.id))
+        """A terminal job no longer counts against its tenant's quota (Redis admission sets)."""
         self.quota.release(record.tenant, [record.id])
         self.redis.zrem(dispatched_key(record.tenant), record.id)
 
-    def _manifest_lock(self, tenant: str, job_id: str) -> Any:
-        """The short Redis lock every manifest write holds (read, merge, write)."""
-        return self.redis.lock(f"bf:mlock:{tenant}:{job_id}", timeout=30, blocking_timeout=30)
-
     def save(self, record: JobRecord) -> JobRecord:
-        """Write `record`, merged with what is stored (see `_merge`) under a short Redis lock so the
+        """Write `record`, merged with the stored row (see `_merge`) under the row's lock so the
         API's cancel and a worker's stage update never lose each other's fields.
 
         A job whose cancel was accepted never becomes *succeeded*: a success written after (or
         racing with) an accepted cancel is stored as *cancelled* (`request_cancel` sets the flag
-        under the same lock, so the two are ordered). The caller removes the result
+        under the same row lock, so the two are ordered). The caller removes the result
         (`pipeline.discard_result`) when the saved state is cancelled."""
-        with self._manifest_lock(record.tenant, record.id):
-            merged = self._merge_and_write(record)
+        with self.database.begin() as conn:
+            old = self._locked(conn, record.tenant, record.id)
+            merged = self._merge_and_write(conn, old, record)
+        if merged.state.terminal and (old is None or not old.state.terminal):
+            self._notify_terminal(merged)
         return self._after_write(merged)
 
-    def _merge_and_write(self, record: JobRecord) -> JobRecord:
-        old = self.load(record.tenant, record.id)
+    def _merge_and_write(self, conn: Connection, old: JobRecord | None, record: JobRecord) -> JobRecord:
         merged = _merge(old, record) if old is not None else record
         if (
             merged.state == JobState.succeeded
@@ -363,14 +395,13 @@ class JobStore:
                 }
             )
         merged.updated_at = utcnow()
-        self._write(merged)
-        if merged.state.terminal and (old is None or not old.state.terminal):
-            self._notify_terminal(merged)
-        if old is not None and old.state != merged.state:
-            # new entry first: a crash in between leaves a duplicate the listing filters out
-            ts = self.tenant(merged.tenant)
-            ts.put_bytes(_state_index(merged.state, merged.id), b"")
-            ts.delete(_state_index(old.state, merged.id))
+        row = _row_of(merged)
+        if old is None:
+            conn.execute(insert(jobs).values(**row))
+        else:
+            conn.execute(
+                update(jobs).where(jobs.c.tenant == merged.tenant, jobs.c.id == merged.id).values(**row)
+            )
         return merged
 
     def _notify_terminal(self, record: JobRecord) -> None:
@@ -392,8 +423,12 @@ class JobStore:
         ``phase`` is 'waiting' (a message is queued for the next stage) or 'active' (a worker is
         executing a stage and holds its lock, see `set_progress`); recovery treats 'active'
         without a lock as a crashed worker."""
-        key = self.live_key(record.tenant, record.id)
         pipe = self.redis.pipeline()
+        self._queue_live(pipe, record)
+        pipe.execute()
+
+    def _queue_live(self, pipe: Any, record: JobRecord) -> None:
+        key = self.live_key(record.tenant, record.id)
         pipe.hset(
             key,
             mapping={
@@ -408,7 +443,6 @@ class JobStore:
             pipe.expire(key, FINISHED_HASH_TTL_S)
         else:
             pipe.persist(key)
-        pipe.execute()
 
     def set_progress(self, record: JobRecord, stage: str, fraction: float) -> None:
         """Live progress of a running stage (Redis only; cheap enough to call per frame)."""
@@ -433,37 +467,53 @@ class JobStore:
         return bool(self.redis.exists(self.live_key(tenant, job_id)))
 
     def get(self, tenant: str, job_id: str) -> JobRecord | None:
-        """The manifest with the live stage/progress overlaid while the job is active."""
+        """The record with the live stage/progress overlaid while the job is active."""
         record = self.load(tenant, job_id)
-        if record is None or record.state.terminal:
-            return record
-        live = self.redis.hgetall(self.live_key(tenant, job_id))
-        if live:
-            state = JobState(text(live.get(b"state", record.state.value.encode())))
-            update: dict[str, Any] = {"progress": max(record.progress, float(live.get(b"progress", 0)))}
-            if not state.terminal:
-                update["state"] = state
-            if live.get(b"stage"):
-                update["stage"] = text(live[b"stage"])
-            record = record.model_copy(update=update)
-        return record
+        return self._with_live(record) if record is not None else None
+
+    def get_many(self, tenant: str, job_ids: builtins.list[str]) -> dict[str, JobRecord]:
+        """Records of `job_ids` (those that exist), live overlay included: one query and one
+        Redis round trip however many ids."""
+        if not job_ids:
+            return {}
+        with self.database.connect() as conn:
+            rows = conn.execute(
+                select(jobs).where(jobs.c.tenant == tenant, jobs.c.id.in_(job_ids))
+            ).mappings()
+            records = [_record_of(r) for r in rows]
+        return {r.id: r for r in self._with_live_many(records)}
+
+    def _with_live(self, record: JobRecord) -> JobRecord:
+        return self._with_live_many([record])[0]
+
+    def _with_live_many(self, records: builtins.list[JobRecord]) -> builtins.list[JobRecord]:
+        active = [r for r in records if not r.state.terminal]
+        if not active:
+            return records
+        pipe = self.redis.pipeline()
+        for record in active:
+            pipe.hgetall(self.live_key(record.tenant, record.id))
+        overlays = dict(zip((r.id for r in active), pipe.execute(), strict=True))
+        return [_overlaid(r, overlays[r.id]) if r.id in overlays else r for r in records]
 
     # ---- cancellation --------------------------------------------------------------------------
     def request_cancel(self, tenant: str, job_id: str) -> JobRecord | None:
         """Flag the job for cancellation; a job no worker has started is cancelled at once.
 
-        Under the manifest lock: a job that is already terminal is returned unchanged (the cancel
-        is not accepted: ``cancel_requested`` stays false), and a cancel that is accepted is seen
-        by the worker's final save, which then stores *cancelled* instead of *succeeded*."""
-        with self._manifest_lock(tenant, job_id):
-            record = self.load(tenant, job_id)
+        Under the row lock: a job that is already terminal is returned unchanged (the cancel is
+        not accepted: ``cancel_requested`` stays false), and a cancel that is accepted is seen by
+        the worker's final save, which then stores *cancelled* instead of *succeeded*."""
+        with self.database.begin() as conn:
+            record = self._locked(conn, tenant, job_id)
             if record is None or record.state.terminal:
                 return record
             self.redis.set(self.cancel_key(tenant, job_id), b"1", ex=FINISHED_HASH_TTL_S * 7)
-            update: dict[str, Any] = {"cancel_requested": True}
+            update_: dict[str, Any] = {"cancel_requested": True}
             if record.state == JobState.queued:
-                update.update(state=JobState.cancelled, finished_at=utcnow(), error="cancelled by request")
-            merged = self._merge_and_write(record.model_copy(update=update))
+                update_.update(state=JobState.cancelled, finished_at=utcnow(), error="cancelled by request")
+            merged = self._merge_and_write(conn, record, record.model_copy(update=update_))
+        if merged.state.terminal:
+            self._notify_terminal(merged)
         return self._after_write(merged)
 
     def is_cancel_requested(self, tenant: str, job_id: str) -> bool:
@@ -471,11 +521,6 @@ class JobStore:
         return bool(self.redis.exists(self.cancel_key(tenant, job_id)))
 
     # ---- listing -------------------------------------------------------------------------------
-    def list_ids(self, tenant: str) -> list[str]:
-        """Job ids of a tenant, newest first."""
-        prefix = "index/jobs/"
-        return sorted((k[len(prefix) :] for k in self.tenant(tenant).list(prefix)), reverse=True)
-
     def list(
         self,
         tenant: str,
@@ -485,115 +530,130 @@ class JobStore:
         batch_id: str | None = None,
         limit: int = 50,
         cursor: str | None = None,
-    ) -> tuple[list[JobRecord], str | None]:
+    ) -> tuple[builtins.list[JobRecord], str | None]:
         """A page of jobs, newest first; `cursor` is the last id of the previous page.
 
-        With a state or scene filter the candidates come from the filter's index (both: their
-        intersection), so the manifests read are the page's own (plus any whose live state
-        moved on since the index was written: the record is always checked against the filter)."""
-        out: list[JobRecord] = []
-        if state is None and scene_id is None:
-            candidates = self.list_ids(tenant)
-        else:
-            candidates = self._indexed_ids(tenant, state, scene_id)
-        ids = [i for i in candidates if cursor is None or i < cursor]
-        for n, job_id in enumerate(ids):
-            record = self.get(tenant, job_id)
-            if record is None:
-                continue
-            if state is not None and record.state != state:
-                continue
-            if scene_id is not None and record.scene_id != scene_id:
-                continue
-            if batch_id is not None and record.batch_id != batch_id:
-                continue
-            out.append(record)
-            if len(out) == limit:
-                return out, (job_id if n + 1 < len(ids) else None)
-        return out, None
-
-    def _indexed_ids(self, tenant: str, state: JobState | None, scene_id: str | None) -> builtins.list[str]:
+        Keyset over the (tenant, id) order of the rows (ids begin with their creation time). The
+        live overlay can move a queued row to running, so a running filter reads queued rows too
+        and keeps those Redis says run; every other filter is the row's own."""
         if scene_id is not None and not re.fullmatch(r"s_[0-9a-f]{22}", scene_id):
-            return []  # not an id the service issues: no scene, no jobs (and no odd storage key)
-        ts = self.tenant(tenant)
-        if not ts.exists(_INDEX_DONE):
-            self._build_filter_index(tenant)
-        sets = []
-        if state is not None:
-            # a running job's manifest may still say queued (Redis has the live state)
-            states = [JobState.queued, JobState.running] if state == JobState.running else [state]
-            sets.append(
-                {k.rsplit("/", 1)[1] for s in states for k in ts.list(f"index/jobs-by-state/{s.value}/")}
-            )
+            return [], None  # not an id the service issues: no scene, no jobs
+        query = select(jobs).where(jobs.c.tenant == tenant)
+        if state == JobState.running:
+            query = query.where(jobs.c.state.in_(_ACTIVE_STATES))
+        elif state is not None:
+            query = query.where(jobs.c.state == state.value)
         if scene_id is not None:
-            sets.append({k.rsplit("/", 1)[1] for k in ts.list(f"index/jobs-by-scene/{scene_id}/")})
-        return sorted(set.intersection(*sets), reverse=True)
+            query = query.where(jobs.c.scene_id == scene_id)
+        if batch_id is not None:
+            query = query.where(jobs.c.batch_id == batch_id)
+        out: builtins.list[JobRecord] = []
+        position = cursor
+        chunk = limit + 1
+        while True:
+            page = query if position is None else query.where(jobs.c.id < position)
+            with self.database.connect() as conn:
+                rows = conn.execute(page.order_by(jobs.c.id.desc()).limit(chunk)).mappings().all()
+            records = self._with_live_many([_record_of(r) for r in rows])
+            for n, record in enumerate(records):
+                if state is not None and record.state != state:
+                    continue
+                out.append(record)
+                if len(out) == limit:
+                    more = n + 1 < len(records) or len(rows) == chunk
+                    return out, (record.id if more else None)
+            if len(rows) < chunk:
+                return out, None
+            position = records[-1].id
 
-    def _build_filter_index(self, tenant: str) -> None:
-        """One-off backfill for jobs stored before the filter index existed (reads each once)."""
-        ts = self.tenant(tenant)
-        for job_id in self.list_ids(tenant):
-            record = self.load(tenant, job_id)
-            if record is not None:
-                ts.put_bytes(_scene_index(record.scene_id, job_id), b"")
-                ts.put_bytes(_state_index(record.state, job_id), b"")
-        put_json(ts, _INDEX_DONE, {"version": 1, "built_at": utcnow().isoformat()})
+    def count_active(self, tenant: str | None = None) -> int:
+        """Queued or running jobs (of one tenant, or of all)."""
+        query = select(func.count()).select_from(jobs).where(jobs.c.state.in_(_ACTIVE_STATES))
+        if tenant is not None:
+            query = query.where(jobs.c.tenant == tenant)
+        with self.database.connect() as conn:
+            return int(conn.execute(query).scalar_one())
 
     def active_jobs(self) -> builtins.list[tuple[str, str]]:
-        """(tenant, job id) of every job whose manifest was last seen queued or running."""
-        return self._markers("active/")
+        """(tenant, job id) of every job whose row says queued or running."""
+        return self._pairs(jobs.c.state.in_(_ACTIVE_STATES))
 
     def pending_jobs(self) -> builtins.list[tuple[str, str]]:
         """(tenant, job id) of every job stored but not (yet) confirmed enqueued."""
-        return self._markers("pending/")
+        return self._pairs(~jobs.c.submitted)
 
-    def _markers(self, prefix: str) -> builtins.list[tuple[str, str]]:
-        pairs = []
-        for key in self.store.list(prefix):
-            parts = key.split("/")
-            if len(parts) == 3:
-                pairs.append((parts[1], parts[2]))
-        return pairs
+    def _pairs(self, condition: Any) -> builtins.list[tuple[str, str]]:
+        with self.database.connect() as conn:
+            rows = conn.execute(select(jobs.c.tenant, jobs.c.id).where(condition).order_by(jobs.c.id))
+            return [(r.tenant, r.id) for r in rows]
 
     # ---- idempotency ---------------------------------------------------------------------------
-    @staticmethod
-    def _idem_key(key: str) -> str:
-        return f"idempotency/{hashlib.sha256(key.encode()).hexdigest()}.json"
+    def _idempotent(self, tenant: str, endpoint: str, key: str) -> str | None:
+        with self.database.connect() as conn:
+            return conn.execute(
+                select(idempotency_keys.c.target_id).where(
+                    idempotency_keys.c.tenant == tenant,
+                    idempotency_keys.c.endpoint == endpoint,
+                    idempotency_keys.c.key == key,
+                )
+            ).scalar_one_or_none()
+
+    def _remember(self, tenant: str, endpoint: str, key: str, target_id: str) -> None:
+        statement = pg_insert(idempotency_keys).values(
+            tenant=tenant, endpoint=endpoint, key=key, body_sha256="", target_id=target_id
+        )
+        with self.database.begin() as conn:
+            conn.execute(statement.on_conflict_do_nothing())
 
     def idempotent_job(self, tenant: str, key: str) -> str | None:
-        try:
-            return str(get_json(self.tenant(tenant), self._idem_key(key))["job_id"])
-        except ArtifactNotFound:
-            return None
+        return self._idempotent(tenant, JOBS_ENDPOINT, key)
 
     def remember_idempotent(self, tenant: str, key: str, job_id: str) -> None:
-        put_json(self.tenant(tenant), self._idem_key(key), {"job_id": job_id})
-
-    @staticmethod
-    def _batch_idem_key(key: str) -> str:
-        return f"idempotency/batches/{hashlib.sha256(key.encode()).hexdigest()}.json"
+        self._remember(tenant, JOBS_ENDPOINT, key, job_id)
 
     def idempotent_batch(self, tenant: str, key: str) -> str | None:
-        try:
-            return str(get_json(self.tenant(tenant), self._batch_idem_key(key))["batch_id"])
-        except ArtifactNotFound:
-            return None
+        return self._idempotent(tenant, BATCHES_ENDPOINT, key)
 
     def remember_idempotent_batch(self, tenant: str, key: str, batch_id: str) -> None:
-        put_json(self.tenant(tenant), self._batch_idem_key(key), {"batch_id": batch_id})
-
-    def _forget_idempotent(self, record: JobRecord) -> None:
-        """Drop the key of a submission that was undone, so the client's retry makes a new job."""
-        key = record.idempotency_key
-        if key and self.idempotent_job(record.tenant, key) == record.id:
-            self.tenant(record.tenant).delete(self._idem_key(key))
+        self._remember(tenant, BATCHES_ENDPOINT, key, batch_id)
 
     # ---- batches -------------------------------------------------------------------------------
     def save_batch(self, batch: BatchRecord) -> None:
-        put_json(self.tenant(batch.tenant), f"batches/{batch.id}.json", batch.model_dump(mode="json"))
+        """Insert or update a batch's row (its job list and retried map included)."""
+        values = {
+            "id": batch.id, "tenant": batch.tenant, "priority": batch.priority, "callback_url": batch.callback_url,
+            "job_count": len(batch.job_ids), "idempotency_key": batch.idempotency_key,
+            "job_ids": batch.job_ids, "retried": batch.retried, "created_at": batch.created_at,
+        }  # fmt: skip
+        statement = pg_insert(batches).values(**values)
+        changed = {k: statement.excluded[k] for k in ("job_count", "job_ids", "retried", "callback_url")}
+        with self.database.begin() as conn:
+            conn.execute(statement.on_conflict_do_update(index_elements=[batches.c.id], set_=changed))
 
     def load_batch(self, tenant: str, batch_id: str) -> BatchRecord | None:
-        try:
-            return BatchRecord.model_validate(get_json(self.tenant(tenant), f"batches/{batch_id}.json"))
-        except ArtifactNotFound:
+        with self.database.connect() as conn:
+            row = (
+                conn.execute(select(batches).where(batches.c.tenant == tenant, batches.c.id == batch_id))
+                .mappings()
+                .first()
+            )
+        if row is None:
             return None
+        return BatchRecord(
+            id=row["id"], tenant=row["tenant"], job_ids=list(row["job_ids"]), created_at=row["created_at"],
+            priority=row["priority"], idempotency_key=row["idempotency_key"], callback_url=row["callback_url"],
+            retried=dict(row["retried"]),
+        )  # fmt: skip
+
+
+def _overlaid(record: JobRecord, live: dict[bytes, bytes]) -> JobRecord:
+    """`record` with a live Redis hash's stage and progress (an empty hash changes nothing)."""
+    if not live:
+        return record
+    state = JobState(text(live.get(b"state", record.state.value.encode())))
+    update_: dict[str, Any] = {"progress": max(record.progress, float(live.get(b"progress", 0)))}
+    if not state.terminal:
+        update_["state"] = state
+    if live.get(b"stage"):
+        update_["stage"] = text(live[b"stage"])
+    return record.model_copy(update=update_)

@@ -66,9 +66,9 @@ class TenantQuota:
         return int(self.client.zcard(quota_key(tenant)))
 
     def repair(self, tenant: str, active_ids: set[str], *, older_than_s: float) -> tuple[int, int]:
-        """Make the set agree with the durable truth, the `active/` markers of the bucket.
+        """Make the set agree with the durable truth, the active rows of the jobs table.
 
-        Ids with a marker are (re-)added; ids without one are dropped once older than
+        Ids of active rows are (re-)added; other ids are dropped once older than
         `older_than_s` (a younger one may be a reservation whose job is being written right now).
         Returns (added, dropped)."""
         key = quota_key(tenant)

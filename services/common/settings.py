@@ -41,6 +41,12 @@ class ServiceSettings(BaseSettings):
         description="PostgreSQL URL of the service's records (scenes, jobs, batches, idempotency keys, "
         "callback outbox, usage ledger), in SQLAlchemy form with the psycopg 3 driver.",
     )
+    migrate_on_start: bool = Field(
+        True,
+        description="Bring the records database to the newest schema when a process starts (under "
+        "the migration lock, so replicas starting together are safe); false where an init step runs "
+        "`bfields-service migrate` and processes must not alter the schema.",
+    )
     # ---- queue ---------------------------------------------------------------------------------
     redis_url: str = Field(
         "redis://127.0.0.1:6379/0",

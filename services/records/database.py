@@ -8,6 +8,7 @@ others wait and then find nothing to do. Never by hand: `bfields-service migrate
 
 from __future__ import annotations
 
+import os
 from functools import lru_cache
 from pathlib import Path
 
@@ -25,7 +26,42 @@ MIGRATION_LOCK = 0x62666965_6C647331  # "bfields1": the advisory lock key every 
 @lru_cache(maxsize=8)
 def engine(url: str) -> Engine:
     """One pooled engine per database URL per process (`postgresql+psycopg://...`)."""
-    return create_engine(url, pool_pre_ping=True, pool_size=10, max_overflow=10, future=True)
+    created = create_engine(url, pool_pre_ping=True, pool_size=10, max_overflow=10, future=True)
+    _ENGINES.append(created)
+    return created
+
+
+def _forget_engines_after_fork() -> None:
+    """A forked child (a prefork Celery worker) must not use its parent's pooled connections:
+    drop them without closing (they are the parent's) and let the child build its own."""
+    for cached in list(_ENGINES):
+        cached.dispose(close=False)
+    _ENGINES.clear()
+    engine.cache_clear()
+
+
+_ENGINES: list[Engine] = []
+os.register_at_fork(after_in_child=_forget_engines_after_fork)
+
+
+def dispose_all() -> None:
+    """Close every engine of this process (tests dropping their database; process shutdown)."""
+    for cached in list(_ENGINES):
+        cached.dispose()
+    _ENGINES.clear()
+    engine.cache_clear()
+
+
+_MIGRATED: set[str] = set()
+
+
+def open_records(url: str, *, migrate_first: bool) -> Engine:
+    """The engine a service process uses, after bringing the schema to head once per process when
+    `migrate_first` (the `migrate_on_start` setting; see `migrate` for why that is safe)."""
+    if migrate_first and url not in _MIGRATED:
+        migrate(url)
+        _MIGRATED.add(url)
+    return engine(url)
 
 
 def alembic_config() -> Config:

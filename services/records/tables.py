@@ -87,6 +87,10 @@ batches = Table(
     Column("callback_url", Text),
     Column("job_count", Integer, nullable=False),
     Column("callback_enqueued", Boolean, nullable=False, server_default=text("false")),
+    Column("idempotency_key", String(255)),
+    # The batch's jobs in submission order, and failed job -> the job that retried it (revision 0002).
+    Column("job_ids", Document, nullable=False, server_default=text("'[]'")),
+    Column("retried", Document, nullable=False, server_default=text("'{}'")),
     _when("created_at"),
     _when("finished_at", nullable=True),
     CheckConstraint(_in("priority", PRIORITIES), name="priority"),
@@ -106,6 +110,7 @@ jobs = Table(
     Column("parameters", Document, nullable=False, server_default=text("'{}'")),
     Column("model_profile", String(64), nullable=False),
     Column("stage", String(32)),
+    Column("progress", Double, nullable=False, server_default="0"),
     Column("stages_done", Document, nullable=False, server_default=text("'[]'")),
     Column("timings", Document, nullable=False, server_default=text("'{}'")),
     Column("stage_reports", Document, nullable=False, server_default=text("'{}'")),
@@ -115,6 +120,10 @@ jobs = Table(
     Column("stage_runs", Integer, nullable=False, server_default="0"),
     Column("callback_url", Text),
     Column("retry_of", ID),
+    Column("idempotency_key", String(255)),
+    # False from the insert until the job's first message is in the queue: a row that stays false
+    # past the grace period is a submission whose API stopped half-way (recovery submits it).
+    Column("submitted", Boolean, nullable=False, server_default=text("true")),
     _when("created_at"),
     _when("updated_at"),
     _when("dispatched_at", nullable=True),
@@ -136,6 +145,9 @@ jobs = Table(
         "id",
         postgresql_where=text("state = 'queued' AND dispatched_at IS NULL"),
     ),
+    # What recovery scans: the active jobs, and the submissions not yet confirmed.
+    Index("ix_jobs_active", "tenant", "id", postgresql_where=text("state IN ('queued', 'running')")),
+    Index("ix_jobs_unsubmitted", "tenant", "id", postgresql_where=text("NOT submitted")),
 )
 
 idempotency_keys = Table(

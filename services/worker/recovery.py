@@ -1,8 +1,7 @@
 """Re-enqueue jobs that Redis forgot (a Redis restart without persistence loses every queued
-message and every live hash, but the manifests in the bucket remain).
+message and every live hash, but the job rows in the records database remain).
 
-A job is *orphaned* when its manifest is queued/running (an ``active/<tenant>/<id>`` marker
-exists), no lock on any of its stages is held, and Redis either has no live hash for it (Redis
+A job is *orphaned* when its row is queued/running, no lock on any of its stages is held, and Redis either has no live hash for it (Redis
 lost it) or its hash says a stage is executing (phase 'active': the worker died and its lock
 expired). The second case recovers a SIGKILLed worker's job after the lock TTL (a minute) rather
 than after the broker's visibility timeout (hours). A third case is a job the
@@ -17,16 +16,16 @@ stage re-creates its lock within one heartbeat, so a live job is never sent twic
 duplicate slip through anyway, stages are idempotent (finished markers are skipped) and guarded
 by the per-stage lock, so the cost is time, never a wrong result.
 
-Two repairs ride on the same scan. A job with a *pending* marker older than `grace_s` was stored
+Two repairs ride on the same scan. A job whose row is not yet `submitted` after `grace_s` was stored
 by an API that stopped (died, or lost Redis) between storing it and confirming its enqueue. The
 job is complete and valid (the API validated it and took its quota slot before storing it), so a
 batch service runs it: the scan submits it to the tenant's fair-share queue itself, as long as
-its manifest is still queued with no stage done, and drops the marker. A job that already waits
+its row is still queued with no stage done, and marks it submitted. A job that already waits
 in the fair-share queue or was dispatched counts as submitted: `FairQueue.submit` leaves it
 alone (one Lua script checks both), so it is never queued, run or listed twice.
-A client that retries with the same Idempotency-Key gets this job back (the key is stored with
-the job, before the enqueue); one that retries without a key asked for a second job. And each
-tenant's quota set is made to agree with the ``active/`` markers (`TenantQuota.repair`), so a
+A client that retries with the same Idempotency-Key gets this job back (the key's row is inserted
+with the job's, before the enqueue); one that retries without a key asked for a second job. And each
+tenant's quota set is made to agree with the active rows (`TenantQuota.repair`), so a
 Redis wipe or a crash never leaks or loses a slot for long.
 
 Every worker runs the scan in a daemon thread (started on `worker_ready`); a Redis lock makes
@@ -104,8 +103,7 @@ def recover_orphans(
             elif now - float(first_seen) < grace_s:
                 continue
             record = jobs.load(tenant, job_id)
-            if record is None or record.state.terminal:
-                jobs.store.delete(jobs.active_key(tenant, job_id))
+            if record is None or record.state.terminal:  # ended since the scan read the rows
                 continue
             fair.requeue(tenant, record.priority, job_id)  # phase 'waiting' again, front of its queue
             client.delete(suspect)
@@ -122,24 +120,21 @@ def recover_orphans(
 def _enqueue_unsubmitted(
     fair: FairQueue, jobs: JobStore, grace_s: float, requeued: list[str]
 ) -> set[tuple[str, str]]:
-    """Submit the jobs whose submission never confirmed it (pending marker past `grace_s`) to the
+    """Submit the jobs whose submission never confirmed it (unsubmitted past `grace_s`) to the
     fair-share queue, appending their ids to `requeued`; a job already waiting there or
-    dispatched is only relieved of its marker.
+    dispatched is only marked submitted.
 
     Returns the (tenant, job id) still pending but younger than `grace_s` (left to the API)."""
     waiting: set[tuple[str, str]] = set()
     for tenant, job_id in jobs.pending_jobs():
-        # Age from the id (it starts with its creation time): the API writes the pending marker
-        # before the manifest, so a young job may have no manifest yet and must be left alone.
+        # Age from the id (it starts with its creation time): a young unsubmitted job is one whose
+        # API is enqueueing it right now and must be left alone.
         if id_age_s(job_id) < grace_s:
             waiting.add((tenant, job_id))
             continue
         record = jobs.load(tenant, job_id)
         if record is None or record.state.terminal:
-            jobs.store.delete(jobs.pending_key(tenant, job_id))
-            if record is None:  # the manifest was never written: only the markers and slot remain
-                jobs.store.delete(jobs.active_key(tenant, job_id))
-                jobs.quota.release(tenant, [job_id])
+            jobs.mark_submitted(tenant, [job_id])
             continue
         if record.state == JobState.queued and not record.stages_done and not fair.contains(tenant, job_id):
             jobs.touch_live(record)  # known to Redis (phase 'waiting') before it can be dispatched
@@ -148,7 +143,7 @@ def _enqueue_unsubmitted(
                 log.warning(
                     "submitted job %s/%s: stored by an API that stopped before submitting it", tenant, job_id
                 )
-        jobs.store.delete(jobs.pending_key(tenant, job_id))  # submitted now, or it already was
+        jobs.mark_submitted(tenant, [job_id])  # submitted now, or it already was
     return waiting
 
 

@@ -48,6 +48,7 @@ from bayesian_fields_service.common.pause_points import pause
 from bayesian_fields_service.common.redis_text import text
 from bayesian_fields_service.common.settings import ServiceSettings
 from bayesian_fields_service.common.storage import build_store, tenant_store
+from bayesian_fields_service.records.database import open_records
 from bayesian_fields_service.worker.accounting import StageMeter, account_job_end, account_stage
 from bayesian_fields_service.worker.celery_app import app
 from bayesian_fields_service.worker.metrics import observe_job, observe_stage
@@ -85,7 +86,8 @@ class _Runtime:
         self.redis = redis.Redis.from_url(
             self.settings.redis_url, socket_timeout=10, socket_connect_timeout=5
         )
-        self.jobs = JobStore(self.store, self.redis)
+        database = open_records(self.settings.database_url, migrate_first=self.settings.migrate_on_start)
+        self.jobs = JobStore(self.store, self.redis, database)
         self.scene_cache = scene_cache(self.settings)
 
     def models(self, profile: str) -> Models:

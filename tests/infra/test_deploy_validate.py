@@ -66,18 +66,22 @@ def compose_copy(tmp_path: Path) -> Path:
     return tmp_path / "docker-compose.yml"
 
 
+#: The passwords compose refuses to start without.
+PASSWORDS = {"MINIO_ROOT_PASSWORD": "test-password-123", "POSTGRES_PASSWORD": "pg-password-456"}
+
+
 def test_compose_config_is_valid(compose_copy: Path) -> None:
-    env = {"MINIO_ROOT_PASSWORD": "test-password-123"}
+    env = PASSWORDS
     result = run_compose(compose_copy, "config", "-q", env_extra=env)
     assert result.returncode == 0, result.stderr
     services = run_compose(compose_copy, "--profile", "cpu-only", "config", "--services", env_extra=env)
     assert set(services.stdout.split()) == {
-        "redis", "minio", "minio-init", "api", "gpu-worker", "cpu-worker", "gpu-queue-on-cpu"
+        "postgres", "redis", "minio", "minio-init", "api", "gpu-worker", "cpu-worker", "gpu-queue-on-cpu"
     }  # fmt: skip
 
 
 def test_compose_resolved_config(compose_copy: Path) -> None:
-    env = {"MINIO_ROOT_PASSWORD": "test-password-123"}
+    env = PASSWORDS
     result = run_compose(compose_copy, "config", "--format", "json", env_extra=env)
     assert result.returncode == 0, result.stderr
     cfg = json.loads(result.stdout)["services"]
@@ -90,22 +94,33 @@ def test_compose_resolved_config(compose_copy: Path) -> None:
         svc = cfg[name]
         assert svc["environment"]["BFIELDS_S3_SECRET_ACCESS_KEY"] == "test-password-123"
         assert svc["environment"]["BFIELDS_REDIS_URL"] == "redis://redis:6379/0"
+        assert svc["environment"]["BFIELDS_DATABASE_URL"] == (
+            "postgresql+psycopg://bfields:pg-password-456@postgres:5432/bfields"
+        )
+        assert svc["depends_on"]["postgres"]["condition"] == "service_healthy"
         assert svc["depends_on"]["minio-init"]["condition"] == "service_completed_successfully"
         assert svc["depends_on"]["redis"]["condition"] == "service_healthy"
         assert any(v["target"] == "/models" and v.get("read_only") for v in svc["volumes"])
-    assert "healthcheck" in cfg["api"] and "healthcheck" in cfg["redis"] and "healthcheck" in cfg["minio"]
+    assert all("healthcheck" in cfg[name] for name in ("api", "redis", "minio", "postgres"))
+    assert any(v["target"] == "/var/lib/postgresql/data" for v in cfg["postgres"]["volumes"])
 
 
 def test_compose_requires_minio_password(compose_copy: Path) -> None:
-    result = run_compose(compose_copy, "config", "-q")
+    result = run_compose(compose_copy, "config", "-q", env_extra={"POSTGRES_PASSWORD": "x"})
     assert result.returncode != 0
     assert "MINIO_ROOT_PASSWORD" in result.stderr
+
+
+def test_compose_requires_postgres_password(compose_copy: Path) -> None:
+    result = run_compose(compose_copy, "config", "-q", env_extra={"MINIO_ROOT_PASSWORD": "x"})
+    assert result.returncode != 0
+    assert "POSTGRES_PASSWORD" in result.stderr
 
 
 def test_compose_broken_copy_fails(compose_copy: Path) -> None:
     text = compose_copy.read_text()
     compose_copy.write_text(text.replace("condition: service_healthy", "condition: sometime_later", 1))
-    result = run_compose(compose_copy, "config", "-q", env_extra={"MINIO_ROOT_PASSWORD": "x"})
+    result = run_compose(compose_copy, "config", "-q", env_extra=PASSWORDS)
     assert result.returncode != 0, "an invalid depends_on condition must be rejected"
 
 

@@ -23,6 +23,7 @@ from bayesian_fields_service.client import BFieldsClient
 from bayesian_fields_service.client.api import ClientError, RetryPolicy
 from bayesian_fields_service.common.fair_queue import FairQueue
 from bayesian_fields_service.common.jobs import JobRecord, JobState, JobStore, new_id
+from bayesian_fields_service.records.database import engine
 from tests.integration.fixtures.s3_server import S3Server
 from tests.integration.fixtures.services import ApiServer
 
@@ -112,7 +113,7 @@ def test_a_batch_of_1000_is_accepted_with_defaults_paged_retried_and_cancelled(
         assert paged == ids
 
         # retry: a failed job is submitted again, as a new job in its place
-        jobs = JobStore(s3_server.store(), r)
+        jobs = JobStore(s3_server.store(), r, engine(idle.env["BFIELDS_DATABASE_URL"]))
         failed = jobs.load("tenant-a", ids[5])
         assert failed is not None
         jobs.save(failed.model_copy(update={"state": JobState.failed, "error": "simulated failure"}))
@@ -375,12 +376,12 @@ def test_dispatcher_dying_between_move_and_send_and_api_dying_before_confirming(
     """Two crash windows made deterministic: (1) a dispatcher moved a job to the dispatched set and
     died before sending it (the state its Lua move leaves is written here directly, since the
     live dispatchers would send the job first); (2) an API queued a job and died before removing
-    its pending marker (the earlier attempt's bug: recovery queued it again and the batch listed
+    its row as unsubmitted (the earlier attempt's bug: recovery queued it again and the batch listed
     43 jobs for 40). Each job runs once and is listed once."""
     assert busy.api is not None
     r = busy.redis
     fair = FairQueue(r, "gpu")
-    jobs = JobStore(s3_server.store(), r)
+    jobs = JobStore(s3_server.store(), r, engine(busy.env["BFIELDS_DATABASE_URL"]))
     params = PipelineParams.model_validate(PARAMS).model_dump(mode="json", exclude_unset=True)
 
     def stored(tasks: list[str]) -> JobRecord:
@@ -395,12 +396,12 @@ def test_dispatcher_dying_between_move_and_send_and_api_dying_before_confirming(
         r.zadd("bf:dispatched:tenant-b", {moved.id: time.time()})
         r.hset(f"bf:job:tenant-b:{moved.id}", mapping={"phase": "dispatching", "updated": time.time()})
         jobs.mark_enqueued(moved)
-        unconfirmed = stored(["green blob"])  # (2): queued, pending marker left behind
+        unconfirmed = stored(["green blob"])  # (2): queued, left unsubmitted
         fair.submit("tenant-b", unconfirmed.priority, [unconfirmed.id])
         for record in (moved, unconfirmed):
             final = wait_job(b, record.id, 240)
             assert final["state"] == "succeeded" and final["stage_runs"] == 3, final
-        assert not jobs.store.exists(jobs.pending_key("tenant-b", unconfirmed.id))
+        assert ("tenant-b", unconfirmed.id) not in jobs.pending_jobs()
         listed = [j["id"] for j in b.get("/v1/jobs", params={"limit": 500}).json()["items"]]
         assert listed.count(moved.id) == 1 and listed.count(unconfirmed.id) == 1
         assert fair.waiting("tenant-b") == 0 and r.zcard("bf:dispatched:tenant-b") == 0

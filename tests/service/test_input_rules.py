@@ -4,14 +4,13 @@ hold such text, and the one error body (`Problem`) every refusal carries. Real H
 
 from __future__ import annotations
 
-import json
-
 import httpx
 import pytest
 
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_service.common.jobs import JobRecord, JobState
-from tests.integration.fixtures.s3_server import S3Server
+from bayesian_fields_service.records.database import engine
+from bayesian_fields_service.records.tables import jobs
 
 pytestmark = pytest.mark.integration
 
@@ -106,27 +105,26 @@ def test_whitespace_in_tasks_is_normalised(client_a: httpx.Client, stored_scene:
 
 
 def test_stored_records_with_bad_text_stay_readable_and_deletable(
-    client_a: httpx.Client, stored_scene: dict, s3_server: S3Server
+    client_a: httpx.Client, stored_scene: dict, svc_env: dict[str, str]
 ) -> None:
-    """A manifest written before the edge refused surrogates (old data), whose error message also
-    names a worker temp path and an internal bucket key: served scrubbed, listed, cancelled."""
+    """A stored record whose error message names a worker temp path and an internal bucket key
+    (written before messages were redacted on write): served redacted, listed, cancelled. (Lone
+    surrogates cannot reach a row: the edge refuses them and PostgreSQL's UTF-8 would too.)"""
     record = JobRecord(id="j_00000000000100000000aa", tenant="tenant-a", scene_id=stored_scene["id"],
                        tasks=["get mug"], state=JobState.queued)  # fmt: skip
-    data = record.model_dump(mode="json")
-    data["tasks"] = ["get \ud800 mug"]
-    data["error"] = (
+    error = (
         "fuse: internal error: FileNotFoundError: [Errno 2] No such file or directory: "
         "'/tmp/bfields-stage-8f3a/scenes/input/depth/d_0001.npy' (tenants/tenant-a/scenes/x/input/y.png)"
     )
-    store = s3_server.store()
-    prefix = "tenants/tenant-a/"
-    store.put_bytes(f"{prefix}jobs/{record.id}/manifest.json", json.dumps(data).encode())  # \ud800 escape
-    store.put_bytes(f"{prefix}index/jobs/{record.id}", b"")
-    store.put_bytes(f"active/tenant-a/{record.id}", b"")
+    row = {name: value for name, value in record.model_dump(mode="json").items() if name in jobs.c}
+    with engine(svc_env["BFIELDS_DATABASE_URL"]).begin() as conn:  # as an older API stored it
+        conn.execute(
+            jobs.insert().values(**{**row, "error": error, "created_at": record.created_at,
+                                    "updated_at": record.updated_at})
+        )  # fmt: skip
     got = client_a.get(f"/v1/jobs/{record.id}")
     assert got.status_code == 200, got.text
     job = got.json()
-    assert job["tasks"] == ["get \ufffd mug"]
     assert "/tmp" not in job["error"] and "tenants/" not in job["error"] and "d_0001.npy" in job["error"]
     # every page: the made-up id sorts oldest, behind every other job tenant-a has in the session
     listed_ids: list[str] = []

@@ -1,7 +1,7 @@
 """A job stored by an API that stopped before (or right after) enqueueing it runs, once.
 
 Simulated on the real stack: the test stores the job exactly as the API's submission does
-(quota slot, `JobStore.create`: pending marker, manifest, indexes, idempotency key) and then
+(quota slot, `JobStore.create`: an unsubmitted job row and its idempotency key) and then
 "dies": no enqueue, or an enqueue without the confirmation. The workers' recovery scan (every
 2 s, grace 3 s in these tests) must enqueue it; a duplicate message must not run any stage
 twice (`stage_runs` stays 3, one per stage); a retry with the Idempotency-Key gets the job back.
@@ -18,6 +18,7 @@ from celery import Celery
 
 from bayesian_fields_core.params import PipelineParams
 from bayesian_fields_service.common.jobs import JobRecord, JobStore, new_id
+from bayesian_fields_service.records.database import engine
 from bayesian_fields_service.worker.dispatch import enqueue_stages
 from tests.integration.fixtures.services import ApiServer
 
@@ -29,7 +30,8 @@ TENANT = "tenant-a"
 
 @pytest.fixture(scope="module")
 def jobs(svc_env: dict[str, str], s3_server: Any) -> JobStore:
-    return JobStore(s3_server.store(), redis.Redis.from_url(svc_env["BFIELDS_REDIS_URL"]))
+    redis_client = redis.Redis.from_url(svc_env["BFIELDS_REDIS_URL"])
+    return JobStore(s3_server.store(), redis_client, engine(svc_env["BFIELDS_DATABASE_URL"]))
 
 
 def _store_like_the_api(jobs: JobStore, scene_id: str, idem: str | None = None) -> JobRecord:
@@ -68,7 +70,7 @@ def test_a_job_never_enqueued_is_enqueued_by_recovery_and_runs_once(
         job = _wait(client, record.id, timeout_s=180)
     assert job["state"] == "succeeded", job
     assert job["stage_runs"] == 3 and job["attempts"] == 3, job
-    assert not jobs.store.exists(jobs.pending_key(TENANT, record.id))
+    assert (TENANT, record.id) not in jobs.pending_jobs()
 
 
 @pytest.mark.usefixtures("workers")

@@ -65,7 +65,7 @@ class ServiceCollector(Collector):
         depth = GaugeMetricFamily(
             "bfields_queue_depth", "Messages waiting in a Celery queue.", labels=["queue"]
         )
-        active = GaugeMetricFamily("bfields_jobs_active", "Jobs whose manifest is queued or running.")
+        active = GaugeMetricFamily("bfields_jobs_active", "Jobs whose record is queued or running.")
         stage_h = HistogramMetricFamily(
             "bfields_stage_seconds", "Duration of finished stages.", labels=["stage"]
         )
@@ -102,7 +102,7 @@ class ServiceCollector(Collector):
                     wait_h.add_metric([tenant], h[0], h[1])
         except redis.RedisError:
             return
-        active.add_metric([], len(s.jobs.active_jobs()))
+        active.add_metric([], s.jobs.count_active())
         yield from (depth, active, stage_h, job_h, waiting, wait_h)
 
 

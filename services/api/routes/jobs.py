@@ -55,7 +55,7 @@ router = APIRouter(prefix="/v1", tags=["jobs"])
 
 #: Model profiles a job may name. The workers map "default" to BFIELDS_MODEL_PROFILE.
 MODEL_PROFILES = ("default",)
-#: Threads a request uses for many small bucket calls (a batch's manifests, markers, indexes).
+#: Threads a request uses for many small per-job calls (a batch's idempotency lookups, cancels).
 IO_THREADS = 16
 
 T = TypeVar("T")
@@ -174,20 +174,17 @@ def _submit(state: AppState, records: list[JobRecord]) -> None:
     failure every job of the request is undone (best effort, see `JobStore.discard_unsubmitted`)
     and the error propagates (503), so a client's retry never runs the same work twice.
 
-    Order: every job is stored (with its pending marker) before any is queued, then all are queued
-    in one atomic call, then the markers go. An API that dies before the queueing leaves pending
-    markers: recovery submits those jobs; one that dies after it leaves markers of jobs already
-    queued, which recovery only removes (`FairQueue.submit` is idempotent)."""
+    Order: every job's row is inserted (not yet `submitted`) in one transaction before any is
+    queued, then all are queued in one atomic call, then one UPDATE marks them submitted. An API
+    that dies before the queueing leaves unsubmitted rows: recovery submits those jobs; one that
+    dies after it leaves rows of jobs already queued, which recovery only marks
+    (`FairQueue.submit` is idempotent)."""
     if not records:
         return
     done: list[JobRecord] = []
-
-    def create(record: JobRecord) -> None:
-        state.jobs.create(record)
-        done.append(record)
-
     try:
-        _parallel(create, records)
+        state.jobs.create_many(records)
+        done = list(records)
         state.enqueue(records)
     except BaseException:
         try:  # the queueing may have reached Redis before it failed; the dispatcher drops the rest
@@ -201,13 +198,10 @@ def _submit(state: AppState, records: list[JobRecord]) -> None:
             log.warning("could not release the quota slots of a failed submission; recovery will")
         raise
 
-    def confirm(record: JobRecord) -> None:
-        try:
-            state.jobs.mark_enqueued(record)
-        except Exception:  # queued: it will run; recovery drops the marker
-            log.warning("job %s/%s queued but its pending marker stays", record.tenant, record.id)
-
-    _parallel(confirm, records)
+    try:
+        state.jobs.mark_submitted(records[0].tenant, [r.id for r in records])
+    except Exception:  # queued: they will run; recovery marks them
+        log.warning("%d jobs of %s queued but not yet marked submitted", len(records), records[0].tenant)
 
 
 @router.post(
@@ -412,7 +406,7 @@ def submit_batch(
 def _submit_batch(state: AppState, tenant: str, body: BatchRequest,
                   pairs: list[tuple[str, list[str], str | None]], batch_key: str | None) -> BatchStatus:  # fmt: skip
     batch_id = new_id("b_")
-    # Items whose idempotency key names an earlier job reuse it (a re-run manifest makes no job).
+    # Items whose idempotency key names an earlier job reuse it (a re-run batch file makes no job).
     earlier = _parallel(lambda p: _earlier_job(state, tenant, p[2]), pairs)
     with scene_lock(
         state.redis, tenant, [s for (s, _, _), e in zip(pairs, earlier, strict=True) if e is None]
@@ -463,7 +457,9 @@ def _status_of(batch: BatchRecord, jobs: Sequence[JobRecord | None], *, created:
 def _batch_jobs(
     state: AppState, batch: BatchRecord, ids: Sequence[str] | None = None
 ) -> list[JobRecord | None]:
-    return _parallel(lambda j: state.jobs.get(batch.tenant, j), batch.job_ids if ids is None else ids)
+    wanted = list(batch.job_ids if ids is None else ids)
+    found = state.jobs.get_many(batch.tenant, wanted)
+    return [found.get(j) for j in wanted]
 
 
 def _batch_status(
@@ -534,8 +530,8 @@ def list_batch_jobs(
 def cancel_batch(batch_id: str, tenant: Tenant, state: State) -> BatchStatus:
     batch = _load_batch(state, tenant, batch_id)
     state.fair.remove(tenant, batch.job_ids)  # no waiting job of the batch is dispatched from now on
-    # each job's record as its cancel left it (read and written under its manifest lock): no
-    # second read of every manifest, which took a 1,000-job batch past a client's timeout
+    # each job's record as its cancel left it (read and written under its row lock): no second
+    # read of every job
     jobs = _parallel(lambda j: state.jobs.request_cancel(tenant, j), batch.job_ids)
     return _status_of(batch, jobs, with_jobs=False)
 

@@ -167,13 +167,25 @@ class _Opener:
             target = resolve_inside(
                 self.path.parent, name, what=f"glTF buffers[{index}].uri", source=str(self.path)
             )
-            if not target.is_file():
-                raise self.fail(f"glTF buffers[{index}].uri names {name!r}, which is not a file beside it")
-            f = open(target, "rb")  # noqa: SIM115 - kept open for the rows; closed by GltfSource
-            self.files.append(f)
-            region = _Region(f, 0, target.stat().st_size)
+            region = self._file_beside(index, name, target)
         self.regions[index] = region
         return region
+
+    def _file_beside(self, index: int, name: str, target: Path) -> _Region:
+        """The buffer file `target`, opened. Why the OSError: a name the filesystem refuses
+        (a component over 255 bytes: ENAMETOOLONG) fails in `is_file` itself, not as "no file"."""
+        try:
+            if not target.is_file():
+                raise self.fail(
+                    f"glTF buffers[{index}].uri names {name[:80]!r}, which is not a file beside it"
+                )
+            f = open(target, "rb")  # noqa: SIM115 - kept open for the rows; closed by GltfSource
+        except OSError as exc:
+            raise self.fail(
+                f"glTF buffers[{index}].uri names {name[:80]!r}, which cannot be opened ({exc.strerror or exc})"
+            ) from None
+        self.files.append(f)
+        return _Region(f, 0, target.stat().st_size)
 
     def column(self, attribute: str, index: int, n: int | None, types: tuple[str, ...]) -> _Column:
         """Accessor `index` for `attribute`, checked against its view and buffer (no reads)."""

@@ -16,7 +16,7 @@ import numpy as np
 
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.scene.formats.common import colour_to_dc, gaussians, require_count
-from bayesian_fields_core.scene.formats.ply_tables import element_tables
+from bayesian_fields_core.scene.formats.ply_tables import check_unique, element_tables
 from bayesian_fields_core.scene.formats.source import SplatSource
 from bayesian_fields_core.scene.ply import read_ply_elements
 from bayesian_fields_core.scene.types import Gaussians
@@ -36,6 +36,7 @@ class RgbPlySource(SplatSource):
 
     def __init__(self, path: Path, max_gaussians: int) -> None:
         fmt, elements, offset = read_ply_elements(path)
+        check_unique(path, elements, formats="RGB splat PLY")  # the layout was recognised by name
         if not elements or elements[0][0] != "vertex":
             raise InputError("the vertex element must come first", source=str(path))
         n = elements[0][1]

@@ -27,6 +27,7 @@ def element_tables(
     if fmt not in BYTE_ORDER:
         raise InputError(f"{formats} must be binary, not {fmt}", source=str(path))
     order = BYTE_ORDER[fmt]
+    check_unique(path, elements, formats=formats)
     tables: dict[str, RecordTable] = {}
     for name, count, props in elements:
         if any(p[1] == "list" for p in props):
@@ -35,3 +36,20 @@ def element_tables(
         tables[name] = RecordTable(f, offset, dtype, count, what=f"{name!r} data", source=path)
         offset += dtype.itemsize * count
     return tables
+
+
+def check_unique(path: Path, elements: list[tuple[str, int, list]], *, formats: str) -> None:
+    """Refuse an element named twice or a property named twice within an element. Why: a
+    reader looks elements and properties up by name (the second `vertex` or `min_x` would be
+    silently ignored, or numpy refuses the record type with a ValueError far from the header)."""
+    names = [name for name, _, _ in elements]
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise InputError(f"{formats} header declares element {twice[0]!r} more than once", source=str(path))
+    for name, _, props in elements:
+        props_named = [p[0] for p in props]
+        again = sorted({n for n in props_named if props_named.count(n) > 1})
+        if again:
+            raise InputError(
+                f"{formats} element {name!r} declares property {again[0]!r} more than once", source=str(path)
+            )

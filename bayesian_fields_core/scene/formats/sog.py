@@ -24,8 +24,10 @@ from __future__ import annotations
 
 import io
 import logging
+import lzma
 import struct
 import zipfile
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -49,6 +51,19 @@ MAX_IMAGE_BYTES = MAX_IMAGE_PIXELS * 4 + (1 << 20)
 each image is also held to the raw RGBA of the most pixels its count allows, plus 1 MiB."""
 MAX_MEMBERS = 64
 """Most entries a .sog zip may list (it holds meta.json and a handful of images)."""
+ZIP_FAILURES = (
+    zipfile.BadZipFile,
+    zipfile.LargeZipFile,
+    NotImplementedError,
+    RuntimeError,
+    OSError,
+    EOFError,
+    zlib.error,
+    lzma.LZMAError,
+)
+"""What `zipfile` raises on a damaged archive or member: a bad CRC or local header
+(BadZipFile), an unknown or encrypted method (NotImplementedError, RuntimeError), offsets past
+the file (OSError from seek), corrupt deflate / bzip2 / lzma data (zlib.error, OSError, LZMAError)."""
 STRIP_ROWS = 256
 """Image rows converted to RGBA at a time while a decoded image is copied into the store."""
 
@@ -66,8 +81,10 @@ class _Members:
             _check_zip_directory(path)
             try:
                 self.archive = zipfile.ZipFile(path)
-            except zipfile.BadZipFile:
-                raise InputError("not a SOG file (not a zip archive)", source=str(path)) from None
+            except ZIP_FAILURES as exc:
+                raise InputError(
+                    f"not a SOG file (not a readable zip archive: {exc})", source=str(path)
+                ) from None
 
     def read(self, name: str, limit: int) -> bytes:
         """Member `name`, refused when it declares (or turns out) more than `limit` bytes."""
@@ -82,8 +99,11 @@ class _Members:
                 f"SOG member {name!r} declares {info.file_size} bytes; at most {limit} are read",
                 source=str(self.path),
             )
-        with self.archive.open(info) as member:
-            data = member.read(limit + 1)
+        try:
+            with self.archive.open(info) as member:
+                data = member.read(limit + 1)
+        except ZIP_FAILURES as exc:
+            raise InputError(f"SOG member {name!r} cannot be read ({exc})", source=str(self.path)) from None
         if len(data) > limit:
             raise InputError(f"SOG member {name!r} inflates past {limit} bytes", source=str(self.path))
         return data

@@ -23,6 +23,7 @@ from __future__ import annotations
 import gzip
 import io
 import struct
+import zlib
 from pathlib import Path
 from typing import BinaryIO
 
@@ -47,6 +48,9 @@ FRACTIONAL_BITS = (1, 23)
 """Fractional bits a position may use: the positions are 24-bit signed fixed point, so 0 would
 make every coordinate an integer up to 8.4 M and 24 or more leave no integer bit (Niantic's
 writer uses 12). Outside this range the file is refused rather than read as nonsense."""
+GZIP_FAILURES = (OSError, EOFError, zlib.error)
+"""What `gzip` raises on a corrupt stream: a bad header or CRC (BadGzipFile, an OSError), an
+early end (EOFError) and deflate data that does not decode (`zlib.error`, not an OSError)."""
 MAX_DEFLATE_RATIO = 1032
 """Deflate's largest possible expansion (one 258-byte match per 2 bits): a gzip stream of `c`
 bytes cannot hold more than about `c * MAX_DEFLATE_RATIO` bytes, so a header declaring more
@@ -124,7 +128,7 @@ def _open_gzip(path: Path, f: BinaryIO, store: ByteStore, max_gaussians: int) ->
     with gzip.GzipFile(fileobj=f, mode="rb") as stream:
         try:
             head = stream.read(16)
-        except (OSError, EOFError) as exc:
+        except GZIP_FAILURES as exc:
             raise InputError(f"corrupt SPZ gzip stream ({exc})", source=str(path)) from None
         version, n, degree, frac = _header(head, path, max_gaussians)
         sh_dim = sh_coefficient_count(degree) - 1
@@ -140,7 +144,7 @@ def _open_gzip(path: Path, f: BinaryIO, store: ByteStore, max_gaussians: int) ->
             if width:
                 try:
                     store.write(name, file_chunks(stream, n * width), n * width, source=path)  # type: ignore[arg-type]
-                except (OSError, EOFError) as exc:
+                except GZIP_FAILURES as exc:
                     raise InputError(f"corrupt SPZ gzip stream ({exc})", source=str(path)) from None
     return SpzSource(path, store, n, degree, version, frac)
 

@@ -86,6 +86,18 @@ def _zip_patched(offset_in_central: int, fmt: str, value: int) -> sm.Mutant:
     return sm.Mutant("patched zip", {"splat.sog": bytes(data)}, "splat.sog")
 
 
+def _local_name_not_utf8() -> sm.Mutant:
+    """The first member's local header flags its name UTF-8 (bit 11) and the name is not."""
+    import struct
+
+    data = bytearray((sm.FIXTURES / "tabletop.sog").read_bytes())
+    at = data.find(b"PK\x03\x04")
+    (flags,) = struct.unpack_from("<H", data, at + 6)
+    struct.pack_into("<H", data, at + 6, flags | 0x800)
+    data[at + 30] = 0xFF
+    return sm.Mutant("zip local name not utf-8", {"splat.sog": bytes(data)}, "splat.sog")
+
+
 REGRESSIONS: list[tuple[str, Callable[[], sm.Mutant], str]] = [
     ("gltf uri too long for the filesystem (OSError ENAMETOOLONG)",
      lambda: _by_name(sm.gltf_mutants("sh3.glb"), f"sh3.gltf uri={'x' * 40!r}"),
@@ -101,6 +113,8 @@ REGRESSIONS: list[tuple[str, Callable[[], sm.Mutant], str]] = [
     ("sog zip whose directory offset is past the end (OSError from seek)",
      lambda: _by_name(sm.sog_mutants(), "tabletop.sog zip end record directory offset=huge"),
      "SOG member 'meta.json' cannot be read"),
+    ("sog member whose local name is flagged UTF-8 and is not (UnicodeDecodeError; found by the fuzz target)",
+     _local_name_not_utf8, "cannot be read"),
     ("compressed PLY property declared twice (numpy ValueError)",
      lambda: _by_name(sm.compressed_ply_mutants("tabletop.compressed.ply"), "tabletop.compressed.ply line 23 doubled"),
      "element 'vertex' declares property 'packed_position' more than once"),

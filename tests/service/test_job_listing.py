@@ -55,3 +55,14 @@ def test_filtered_pages_hold_exactly_the_matching_jobs(
         assert set(others) <= set(seen) and keep not in seen
     finally:
         client_a.delete(f"/v1/jobs/{keep}")
+
+
+@pytest.mark.parametrize(
+    "cursor",
+    ["\x13\x00abc", "j_" + "0" * 21 + "\x00", "j_zz", "' OR 1=1 --", "j_" + "a" * 40],
+)
+def test_a_cursor_the_route_never_returned_is_a_422(client_a: httpx.Client, cursor: str) -> None:
+    """schemathesis sent a cursor holding a NUL byte, which PostgreSQL refuses in text (500)."""
+    answer = client_a.get("/v1/jobs", params={"cursor": cursor, "limit": 3})
+    assert answer.status_code == 422, answer.text
+    assert "cursor" in answer.text

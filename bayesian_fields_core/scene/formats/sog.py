@@ -60,10 +60,12 @@ ZIP_FAILURES = (
     EOFError,
     zlib.error,
     lzma.LZMAError,
+    UnicodeDecodeError,
 )
 """What `zipfile` raises on a damaged archive or member: a bad CRC or local header
 (BadZipFile), an unknown or encrypted method (NotImplementedError, RuntimeError), offsets past
-the file (OSError from seek), corrupt deflate / bzip2 / lzma data (zlib.error, OSError, LZMAError)."""
+the file (OSError from seek), corrupt deflate / bzip2 / lzma data (zlib.error, OSError, LZMAError),
+a name flagged UTF-8 that is not (UnicodeDecodeError, found by the reader fuzz target)."""
 STRIP_ROWS = 256
 """Image rows converted to RGBA at a time while a decoded image is copied into the store."""
 

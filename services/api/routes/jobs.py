@@ -274,7 +274,10 @@ def list_jobs(
     job_state: Annotated[JobState | None, Query(alias="state")] = None,
     scene_id: str | None = None,
     limit: Annotated[int, Query(ge=1, le=500)] = 50,
-    cursor: Annotated[str | None, Query(description="next_cursor of the previous page")] = None,
+    cursor: Annotated[
+        str | None,
+        Query(pattern=r"^j_[0-9a-f]{22}$", description="next_cursor of the previous page (a job id)"),
+    ] = None,
 ) -> JobList:
     items, next_cursor = state.jobs.list(
         tenant, state=job_state, scene_id=scene_id, limit=limit, cursor=cursor

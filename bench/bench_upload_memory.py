@@ -99,6 +99,14 @@ def _vm_hwm_mib(pid: int) -> float:
     raise RuntimeError("no VmHWM in /proc status")
 
 
+def _bench_database() -> str:
+    """A new database on the machine's PostgreSQL (dropped at this process's exit)."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    from tests.integration.fixtures.postgres import create_database
+
+    return create_database()
+
+
 def measure_api(path: Path, workdir: Path) -> tuple[float, float, int, str]:
     """(API peak MiB after start, after the upload, HTTP status, answer) for one upload of `path`."""
     import io
@@ -119,6 +127,8 @@ def measure_api(path: Path, workdir: Path) -> tuple[float, float, int, str]:
         "BFIELDS_API_KEYS": json.dumps({"bench-key": "bench"}),
         "BFIELDS_MAX_UPLOAD_BYTES": str(8 * 2**30),
         "TMPDIR": str(workdir),
+        # the records live in PostgreSQL (issue 28): a database of the bench's own on the machine's server
+        "BFIELDS_DATABASE_URL": os.environ.get("BFIELDS_DATABASE_URL") or _bench_database(),
     }
     uvicorn = Path(sys.executable).parent / "uvicorn"
     argv = [

@@ -10,7 +10,8 @@ sometimes with only part of its files, and with a record the orphan sweeper hono
   every route (404), whatever objects are still on their way out, and the sweeper removes what
   is left of it (`sweeper.sweep_bucket`). Ids are never reused, so a tombstone never hides a
   new scene; tombstones are empty objects and are kept.
-- **Scene lock.** The steps that decide a scene's fate run under one short Redis lock per scene:
+- **Scene lock.** The steps that decide a scene's fate run under one lock per scene, a
+  PostgreSQL session lock (`records.locks`: released with the session, untouched by a Redis loss):
   `delete` checks for active jobs and writes the tombstone; `complete` checks the tombstone and
   writes the ready record; a job submission checks the scene and stores the job. So a delete
   either comes before the ready record (the completion sees the tombstone, removes what it copied
@@ -25,17 +26,18 @@ from __future__ import annotations
 import contextlib
 from collections.abc import Iterable, Iterator
 
-import redis
 from fastapi import HTTPException, status
+from sqlalchemy import Engine
 
 from bayesian_fields_core.job.store import Store
+from bayesian_fields_service.records.locks import LockBusy, lock_key, session_locks
 
-#: Longest a scene lock is held before Redis drops it: its critical sections are a few requests.
-LOCK_TIMEOUT_S = 60.0
+#: Scene locks per tenant: a scene takes the slot its id hashes to, so a batch over thousands of
+#: scenes holds at most this many advisory locks (PostgreSQL's lock table is shared and bounded);
+#: two scenes in one slot only wait for each other's short critical sections.
+SCENE_LOCK_SLOTS = 256
 #: Longest a request waits for another's critical section on the same scene before a 503.
 LOCK_WAIT_S = 30.0
-#: Longest a completion claim lives if its API process dies before releasing it.
-CLAIM_TTL_S = 900
 
 
 def tombstone_key(scene_id: str) -> str:
@@ -56,37 +58,30 @@ def gone(scene_id: str) -> HTTPException:
 
 
 @contextlib.contextmanager
-def scene_lock(client: redis.Redis, tenant: str, scene_ids: Iterable[str]) -> Iterator[None]:
-    """Hold the lock of every scene in `scene_ids` (taken in sorted order: no deadlock between
-    two batches naming the same scenes). 503 when another request holds one for too long."""
-    held: list[redis.lock.Lock] = []
+def scene_lock(database: Engine, tenant: str, scene_ids: Iterable[str]) -> Iterator[None]:
+    """Hold the lock of every scene in `scene_ids` (one database session; `records.locks` takes
+    them in key order, so two batches naming the same scenes never deadlock). 503 when another
+    request holds one for longer than `LOCK_WAIT_S`."""
+    slots = {("scene", tenant, str(lock_key(s) % SCENE_LOCK_SLOTS)) for s in scene_ids}
     try:
-        for scene_id in sorted(set(scene_ids)):
-            lock = client.lock(
-                f"bf:scene-lock:{tenant}:{scene_id}", timeout=LOCK_TIMEOUT_S, blocking_timeout=LOCK_WAIT_S
-            )
-            if not lock.acquire():
-                raise HTTPException(
-                    status.HTTP_503_SERVICE_UNAVAILABLE,
-                    f"scene {scene_id!r} is busy with another change; retry",
-                    headers={"Retry-After": "2"},
-                )
-            held.append(lock)
-        yield
-    finally:
-        for lock in reversed(held):
-            with contextlib.suppress(redis.RedisError):
-                lock.release()
+        with session_locks(database, sorted(slots), wait_s=LOCK_WAIT_S):
+            yield
+    except LockBusy:
+        raise HTTPException(
+            status.HTTP_503_SERVICE_UNAVAILABLE,
+            "a scene of this request is busy with another change; retry",
+            headers={"Retry-After": "2"},
+        ) from None
 
 
 @contextlib.contextmanager
-def completion_claim(client: redis.Redis, tenant: str, scene_id: str) -> Iterator[None]:
-    """Let one `complete` of the scene run at a time (409 for another meanwhile)."""
-    key = f"bf:scene-completing:{tenant}:{scene_id}"
-    if not client.set(key, b"1", nx=True, ex=CLAIM_TTL_S):
-        raise HTTPException(status.HTTP_409_CONFLICT, f"scene {scene_id!r} is already being completed")
+def completion_claim(database: Engine, tenant: str, scene_id: str) -> Iterator[None]:
+    """Let one `complete` of the scene run at a time (409 for another meanwhile): a database
+    session lock, so an API process that dies mid-completion gives the claim up with its session."""
     try:
-        yield
-    finally:
-        with contextlib.suppress(redis.RedisError):
-            client.delete(key)
+        with session_locks(database, [("scene-completion", tenant, scene_id)], wait_s=None):
+            yield
+    except LockBusy:
+        raise HTTPException(
+            status.HTTP_409_CONFLICT, f"scene {scene_id!r} is already being completed"
+        ) from None

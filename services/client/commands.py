@@ -178,7 +178,7 @@ def batch(manifest: str | Path, *, server: str | None = None, api_key: str | Non
           out: str | Path | None = None, poll_s: float = 2.0, priority: str = "bulk") -> int:  # fmt: skip
     """Upload the manifest's scenes, submit scenes x task lists as one batch, follow it with a
     progress bar. Every item carries an Idempotency-Key derived from the item (`item_key`) and
-    the batch one derived from all of them, so a re-run manifest (after a crash, a 429 that ran
+    the batch one derived from the whole body, so a re-run manifest (after a crash, a 429 that ran
     out of retries, a Ctrl-C) creates no job twice."""
     path = Path(manifest)
     spec = _manifest(path)
@@ -202,9 +202,12 @@ def batch(manifest: str | Path, *, server: str | None = None, api_key: str | Non
             "model_profile": model_profile,
             "priority": priority,
         }
+        # the batch's key names the whole body (an Idempotency-Key stands for one request): the same
+        # manifest, scenes and priority again is the same batch; anything else a new batch, whose
+        # unchanged items still reuse their jobs through their own keys
         batch_key = (
             "bfields-batch-"
-            + hashlib.sha256("\n".join(i["idempotency_key"] for i in items).encode()).hexdigest()[:40]
+            + hashlib.sha256(json.dumps(body, sort_keys=True, ensure_ascii=True).encode()).hexdigest()[:40]
         )
         state = client.submit_batch(body, idempotency_key=batch_key)
         print(state["id"])

@@ -1,12 +1,12 @@
 """Callbacks: an HMAC-signed POST to a job's or a batch's ``callback_url`` on its terminal state.
 
 Delivery is *at least once*, never on the job's path:
-- when a job's manifest turns terminal (`JobStore` calls `on_job_terminal` under the manifest lock,
-  once per transition), the event is put in a Redis outbox: the body in ``bf:cb:items`` (by event
+- when a job's row turns terminal (`JobStore` calls `on_job_terminal` after the row's
+  transaction, once per transition), the event is put in a Redis outbox: the body in ``bf:cb:items`` (by event
   id; HSETNX, so a repeated transition adds nothing) and the id in the ``bf:cb:due`` sorted set,
   scored by when it is due;
-- a batch's event is added when its last job turns terminal (``bf:batch-states:<tenant>:<id>``
-  holds each finished job's state; the event once per distinct outcome);
+- a batch's event is added when its last active job turns terminal: the records database decides
+  that (`batch_records.finished_batches`, in the transaction of the state change), once per finish;
 - every worker runs a `CallbackSender`: a dispatcher thread that *claims* due events (one Lua call
   per event moves its score `callback_lease_s` ahead, so two workers never send one event at the
   same time) and hands each to a small pool of delivery threads (`callback_threads`), at most
@@ -44,7 +44,6 @@ import random
 import threading
 import time
 from collections import Counter
-from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from concurrent.futures import wait as wait_futures
 from datetime import datetime
@@ -152,45 +151,45 @@ class TerminalJob(Protocol):
     def state(self) -> Any: ...
 
 
-class BatchInfo(Protocol):
+class FinishedBatch(Protocol):
+    """What `on_batch_finished` reads of a batch whose last active job just ended."""
+
     id: str
-    job_ids: list[str]
+    tenant: str
     callback_url: str | None
+    total: int
+    counts: dict[str, int]
+    finished_at: datetime | None
 
 
 def _iso(when: datetime | None) -> str | None:
     return when.isoformat() if when is not None else None
 
 
-def on_job_terminal(
-    client: redis.Redis, job: TerminalJob, load_batch: Callable[[str, str], BatchInfo | None]
-) -> None:
-    """The job's event (when it has a callback_url) and, when it is its batch's last, the batch's."""
+def on_job_terminal(client: redis.Redis, job: TerminalJob) -> None:
+    """The job's event, when it has a callback_url."""
+    if not job.callback_url:
+        return
     state = str(getattr(job.state, "value", job.state))
     finished = _iso(job.finished_at)
-    if job.callback_url:
-        enqueue(client, job.callback_url, {
-            "event_id": f"job:{job.id}:{state}:{finished}", "type": "job.finished",
-            "job_id": job.id, "tenant": job.tenant, "scene_id": job.scene_id, "batch_id": job.batch_id,
-            "state": state, "error": job.error, "finished_at": finished,
-        })  # fmt: skip
-    if not job.batch_id:
+    enqueue(client, job.callback_url, {
+        "event_id": f"job:{job.id}:{state}:{finished}", "type": "job.finished",
+        "job_id": job.id, "tenant": job.tenant, "scene_id": job.scene_id, "batch_id": job.batch_id,
+        "state": state, "error": job.error, "finished_at": finished,
+    })  # fmt: skip
+
+
+def on_batch_finished(client: redis.Redis, batch: FinishedBatch) -> None:
+    """The batch's event, when it has a callback_url. The records decide that the batch finished
+    (`batch_records.finished_batches`, once per finish: a retry opens it again), so the event id
+    carries the finish time and a retried batch that finishes again sends a second event."""
+    if not batch.callback_url:
         return
-    states_key = f"bf:batch-states:{job.tenant}:{job.batch_id}"
-    client.hset(states_key, job.id, state)
-    client.expire(states_key, 30 * 24 * 3600)
-    batch = load_batch(job.tenant, job.batch_id)
-    if batch is None or not batch.callback_url:
-        return
-    states = {text(k): text(v) for k, v in client.hgetall(states_key).items()}
-    if not set(batch.job_ids) <= set(states):
-        return
-    counts = Counter(states[j] for j in batch.job_ids)
-    outcome = hashlib.sha256(json.dumps(sorted(states.items())).encode()).hexdigest()[:16]
+    finished = _iso(batch.finished_at)
     enqueue(client, batch.callback_url, {
-        "event_id": f"batch:{batch.id}:finished:{outcome}", "type": "batch.finished",
-        "batch_id": batch.id, "tenant": job.tenant, "jobs": len(batch.job_ids), "counts": dict(counts),
-        "finished_at": finished,
+        "event_id": f"batch:{batch.id}:finished:{finished}", "type": "batch.finished",
+        "batch_id": batch.id, "tenant": batch.tenant, "jobs": batch.total,
+        "counts": {k: v for k, v in batch.counts.items() if v}, "finished_at": finished,
     })  # fmt: skip
 
 

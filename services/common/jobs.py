@@ -10,8 +10,9 @@ cancel and a worker's stage update, serialised by the row lock, never lose each 
 
 Tables (`records.tables`): ``jobs`` (one row per job; ``submitted`` is false from the insert until
 the first message is queued, so a row that stays false past the grace period is a submission
-whose API stopped half-way: recovery submits it), ``batches`` (the job list in submission order),
-``idempotency_keys`` (tenant, endpoint, key -> job or batch id, inserted in the job's own
+whose API stopped half-way: recovery submits it), ``batches`` and ``batch_jobs`` (a batch's
+counts and its jobs in submission order; `batch_records`), ``idempotency_keys`` (tenant,
+endpoint, key -> job or batch id and the sha256 of the request body, inserted in the job's own
 transaction). The bucket keeps what is large: ``jobs/<id>/stages/`` and ``jobs/<id>/result/``,
 written by the pipeline (job_prefix = ``jobs/<id>/``); no manifest, index marker or idempotency
 object is written there any more.
@@ -23,30 +24,34 @@ stored, given back here on every terminal state.
 from __future__ import annotations
 
 import builtins
+import hashlib
+import json
 import logging
 import re
 import secrets
 import time
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from datetime import UTC, datetime
 from enum import StrEnum
-from typing import Any
+from typing import Any, cast
 
 import redis
 from pydantic import BaseModel, Field, computed_field, model_validator
-from sqlalchemy import Connection, Engine, delete, func, insert, select, update
-from sqlalchemy.dialects.postgresql import insert as pg_insert
+from sqlalchemy import ARRAY, Connection, Engine, delete, func, insert, select, update
+from sqlalchemy import cast as sql_cast
 
 from bayesian_fields_core.job.stage_table import STAGE_TABLE, STAGES
 from bayesian_fields_core.job.store import Store
-from bayesian_fields_service.common.callbacks import on_job_terminal
+from bayesian_fields_service.common import batch_records
+from bayesian_fields_service.common.batch_records import BatchRecord
+from bayesian_fields_service.common.callbacks import on_batch_finished, on_job_terminal
 from bayesian_fields_service.common.fair_queue import Priority, dispatched_key
 from bayesian_fields_service.common.quota import TenantQuota
 from bayesian_fields_service.common.redis_text import text
 from bayesian_fields_service.common.sanitize import redact_locations, scrub
 from bayesian_fields_service.common.storage import tenant_store
 from bayesian_fields_service.common.usage import JobUsage
-from bayesian_fields_service.records.tables import batches, idempotency_keys, jobs
+from bayesian_fields_service.records.tables import ID, idempotency_keys, jobs
 
 log = logging.getLogger(__name__)
 
@@ -68,6 +73,19 @@ class JobState(StrEnum):
     @property
     def terminal(self) -> bool:
         return self in (JobState.succeeded, JobState.failed, JobState.cancelled)
+
+
+def job_digest(
+    scene_id: str | None, tasks: builtins.list[str], parameters: dict[str, Any], model_profile: str
+) -> str:
+    """sha256 of what a job asks for, as its Idempotency-Key row keeps it: the same key sent again
+    with another scene, task list, parameters or model profile is a different request (422).
+
+    A batch item's key is digested without its scene (`scene_id` None): the client derives an
+    item's key from the scene *folder* it names, and a re-run manifest uploads that folder again
+    under a new scene id, which is still the same work."""
+    data = {"scene_id": scene_id, "tasks": tasks, "parameters": parameters, "model_profile": model_profile}
+    return hashlib.sha256(json.dumps(data, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
 
 
 def utcnow() -> datetime:
@@ -115,7 +133,8 @@ class JobRecord(BaseModel):
     started_at: datetime | None = None
     finished_at: datetime | None = None
     idempotency_key: str | None = None
-    batch_id: str | None = None
+    batch_id: str | None = Field(None, description="The batch that created this job.")
+    retry_of: str | None = Field(None, description="The failed job this one retried (batch retry).")
     priority: Priority = Field(
         "interactive",
         description="Fair-share class: within a tenant's queue 'interactive' jobs go ahead of 'bulk' "
@@ -161,21 +180,6 @@ class JobRecord(BaseModel):
         return [s for s in STAGES if s not in self.stages_done]
 
 
-class BatchRecord(BaseModel):
-    """A group of jobs submitted together (a `batches` row)."""
-
-    id: str
-    tenant: str
-    job_ids: list[str]
-    created_at: datetime = Field(default_factory=utcnow)
-    priority: Priority = "bulk"
-    idempotency_key: str | None = None
-    callback_url: str | None = None
-    retried: dict[str, str] = Field(
-        default_factory=dict, description="Failed job id -> the job that retried it (in job_ids now)."
-    )
-
-
 #: Fields of a `JobRecord` computed when it is read, never stored.
 _READ_ONLY = {"queue_position", "estimated_start"}
 
@@ -218,7 +222,8 @@ def _redacted(record: JobRecord) -> JobRecord:
 _COLUMNS = (
     "id", "tenant", "scene_id", "batch_id", "state", "priority", "tasks", "parameters", "model_profile",
     "stage", "progress", "stages_done", "timings", "stage_reports", "usage", "error", "cancel_requested",
-    "stage_runs", "callback_url", "idempotency_key", "created_at", "updated_at", "started_at", "finished_at",
+    "stage_runs", "callback_url", "retry_of", "idempotency_key", "created_at", "updated_at", "started_at",
+    "finished_at",
 )  # fmt: skip
 
 _ACTIVE_STATES = (JobState.queued.value, JobState.running.value)
@@ -296,20 +301,41 @@ class JobStore:
         `mark_enqueued`; if it dies in between, recovery finds the unsubmitted row."""
         self.create_many([record])
 
-    def create_many(self, records: builtins.list[JobRecord]) -> None:
-        """`create` for many jobs in one transaction (a batch's new jobs)."""
-        if not records:
-            return
+    def create_many(
+        self,
+        records: builtins.list[JobRecord],
+        *,
+        digests: dict[str, str] | None = None,
+        batch: BatchRecord | None = None,
+        batch_job_ids: builtins.list[str] | None = None,
+        batch_digest: str = "",
+        retry_in: str | None = None,
+    ) -> None:
+        """`create` for many jobs in one transaction (a batch's new jobs, with the batch's row, its
+        links and its Idempotency-Key row when `batch` is given; with `retry_in`, jobs that take
+        the place of the failed jobs they retry in that batch). `digests` (job id -> sha256 of what
+        was asked, `job_digest`) and `batch_digest` are kept with the Idempotency-Key rows so a
+        reuse of a key with another body is refused."""
+        digests = digests or {}
         with self.database.begin() as conn:
-            conn.execute(insert(jobs), [{**_row_of(r), "submitted": False} for r in records])
-            keyed = [r for r in records if r.idempotency_key]
-            if keyed:  # before the enqueue: a retry after a crash finds this job
-                conn.execute(
-                    insert(idempotency_keys),
-                    [{"tenant": r.tenant, "endpoint": JOBS_ENDPOINT, "key": r.idempotency_key,
-                      "body_sha256": "", "target_id": r.id} for r in keyed],
-                )  # fmt: skip
-        pipe = self.redis.pipeline()
+            if batch is not None:
+                batch_records.insert_batch(conn, batch, len(batch_job_ids or records))
+            if records:
+                batch_records.copy_rows(conn, jobs, [{**_row_of(r), "submitted": False} for r in records])
+            keyed = [  # before the enqueue: a retry after a crash finds these jobs
+                {"tenant": r.tenant, "endpoint": JOBS_ENDPOINT, "key": r.idempotency_key,
+                 "body_sha256": digests.get(r.id, ""), "target_id": r.id}
+                for r in records if r.idempotency_key
+            ]  # fmt: skip
+            batch_records.remember_keys(conn, keyed, replace=retry_in is not None)
+            if batch is not None:
+                batch_records.insert_links(conn, batch.id, batch_job_ids or [r.id for r in records])
+                if batch.idempotency_key:
+                    batch_records.remember_key(conn, batch.tenant, BATCHES_ENDPOINT, batch.idempotency_key,
+                                               batch_digest, batch.id)  # fmt: skip
+            if retry_in is not None:
+                batch_records.replace_jobs(conn, retry_in, {r.retry_of: r.id for r in records if r.retry_of})
+        pipe = self.redis.pipeline(transaction=False)
         for record in records:
             self._queue_live(pipe, record)
         pipe.execute()
@@ -321,7 +347,9 @@ class JobStore:
     def mark_submitted(self, tenant: str, job_ids: builtins.list[str]) -> None:
         with self.database.begin() as conn:
             conn.execute(
-                update(jobs).where(jobs.c.tenant == tenant, jobs.c.id.in_(job_ids)).values(submitted=True)
+                update(jobs)
+                .where(jobs.c.tenant == tenant, jobs.c.id == func.any(sql_cast(job_ids, ARRAY(ID))))
+                .values(submitted=True)
             )
 
     def discard_unsubmitted(self, record: JobRecord) -> None:
@@ -376,8 +404,10 @@ class JobStore:
         with self.database.begin() as conn:
             old = self._locked(conn, record.tenant, record.id)
             merged = self._merge_and_write(conn, old, record)
-        if merged.state.terminal and (old is None or not old.state.terminal):
-            self._notify_terminal(merged)
+            ended = merged.state.terminal and (old is None or not old.state.terminal)
+            finished = batch_records.finished_batches(conn, [merged.id]) if ended else []
+        if ended:
+            self._notify_terminal([merged], finished)
         return self._after_write(merged)
 
     def _merge_and_write(self, conn: Connection, old: JobRecord | None, record: JobRecord) -> JobRecord:
@@ -404,12 +434,16 @@ class JobStore:
             )
         return merged
 
-    def _notify_terminal(self, record: JobRecord) -> None:
-        """Callbacks and batch completion (`callbacks.on_job_terminal`); never fails the write."""
+    def _notify_terminal(self, records: builtins.list[JobRecord], finished: builtins.list[BatchRecord]) -> None:
+        """Callbacks of jobs that ended and of batches that finished with them (the records
+        decided both in the write's transaction); never fails the write."""
         try:
-            on_job_terminal(self.redis, record, self.load_batch)
+            for record in records:
+                on_job_terminal(self.redis, record)
+            for batch in finished:
+                on_batch_finished(self.redis, batch)
         except redis.RedisError as exc:
-            log.warning("job %s/%s: terminal notification not queued: %s", record.tenant, record.id, exc)
+            log.warning("terminal notification of %d jobs not queued: %s", len(records), exc)
 
     def _after_write(self, merged: JobRecord) -> JobRecord:
         if merged.state.terminal:
@@ -512,9 +546,31 @@ class JobStore:
             if record.state == JobState.queued:
                 update_.update(state=JobState.cancelled, finished_at=utcnow(), error="cancelled by request")
             merged = self._merge_and_write(conn, record, record.model_copy(update=update_))
+            finished = batch_records.finished_batches(conn, [merged.id]) if merged.state.terminal else []
         if merged.state.terminal:
-            self._notify_terminal(merged)
+            self._notify_terminal([merged], finished)
         return self._after_write(merged)
+
+    def cancel_batch(self, tenant: str, batch_id: str) -> builtins.list[JobRecord]:
+        """`request_cancel` for every active job of a batch: one UPDATE (`batch_records.
+        cancel_jobs`), then the Redis side in pipelines (cancel flags for the workers, live
+        hashes, admission slots of the jobs cancelled at once). Returns the changed records."""
+        with self.database.begin() as conn:
+            rows = batch_records.cancel_jobs(conn, tenant, batch_id)
+            changed = [_record_of(r) for r in rows]
+            ended = [r for r in changed if r.state.terminal]
+            finished = batch_records.finished_batches(conn, [r.id for r in ended])
+        pipe = self.redis.pipeline(transaction=False)
+        for record in changed:
+            pipe.set(self.cancel_key(tenant, record.id), b"1", ex=FINISHED_HASH_TTL_S * 7)
+            self._queue_live(pipe, record)
+        if ended:
+            pipe.zrem(dispatched_key(tenant), *[r.id for r in ended])
+        pipe.execute()
+        if ended:
+            self.quota.release(tenant, [r.id for r in ended])
+        self._notify_terminal(ended, finished)
+        return changed
 
     def is_cancel_requested(self, tenant: str, job_id: str) -> bool:
         """Cheap check for workers between frames (a Redis GET)."""
@@ -588,62 +644,84 @@ class JobStore:
             return [(r.tenant, r.id) for r in rows]
 
     # ---- idempotency ---------------------------------------------------------------------------
-    def _idempotent(self, tenant: str, endpoint: str, key: str) -> str | None:
+    def _idempotent(self, tenant: str, endpoint: str, key: str) -> tuple[str, str] | None:
+        """(target id, sha256 of the body it was first sent with) of an Idempotency-Key."""
         with self.database.connect() as conn:
-            return conn.execute(
-                select(idempotency_keys.c.target_id).where(
+            row = conn.execute(
+                select(idempotency_keys.c.target_id, idempotency_keys.c.body_sha256).where(
                     idempotency_keys.c.tenant == tenant,
                     idempotency_keys.c.endpoint == endpoint,
                     idempotency_keys.c.key == key,
                 )
-            ).scalar_one_or_none()
+            ).first()
+        return (row.target_id, row.body_sha256) if row is not None else None
 
-    def _remember(self, tenant: str, endpoint: str, key: str, target_id: str) -> None:
-        statement = pg_insert(idempotency_keys).values(
-            tenant=tenant, endpoint=endpoint, key=key, body_sha256="", target_id=target_id
-        )
-        with self.database.begin() as conn:
-            conn.execute(statement.on_conflict_do_nothing())
-
-    def idempotent_job(self, tenant: str, key: str) -> str | None:
+    def idempotent_job(self, tenant: str, key: str) -> tuple[str, str] | None:
         return self._idempotent(tenant, JOBS_ENDPOINT, key)
 
-    def remember_idempotent(self, tenant: str, key: str, job_id: str) -> None:
-        self._remember(tenant, JOBS_ENDPOINT, key, job_id)
+    def idempotent_jobs(self, tenant: str, keys: builtins.list[str]) -> dict[str, tuple[str, str]]:
+        """`idempotent_job` for many keys in one query: key -> (job id, digest)."""
+        if not keys:
+            return {}
+        with self.database.connect() as conn:
+            rows = conn.execute(
+                select(idempotency_keys.c.key, idempotency_keys.c.target_id, idempotency_keys.c.body_sha256).where(
+                    idempotency_keys.c.tenant == tenant,
+                    idempotency_keys.c.endpoint == JOBS_ENDPOINT,
+                    idempotency_keys.c.key.in_(keys),
+                )
+            )
+            return {r.key: (r.target_id, r.body_sha256) for r in rows}
 
-    def idempotent_batch(self, tenant: str, key: str) -> str | None:
+    def idempotent_batch(self, tenant: str, key: str) -> tuple[str, str] | None:
         return self._idempotent(tenant, BATCHES_ENDPOINT, key)
 
-    def remember_idempotent_batch(self, tenant: str, key: str, batch_id: str) -> None:
-        self._remember(tenant, BATCHES_ENDPOINT, key, batch_id)
+    def forget_idempotent_batch(self, tenant: str, key: str, batch_id: str) -> None:
+        """Drop a batch's Idempotency-Key row (its submission failed: a retry makes a new batch)."""
+        with self.database.begin() as conn:
+            conn.execute(
+                delete(idempotency_keys).where(
+                    idempotency_keys.c.tenant == tenant,
+                    idempotency_keys.c.endpoint == BATCHES_ENDPOINT,
+                    idempotency_keys.c.key == key,
+                    idempotency_keys.c.target_id == batch_id,
+                )
+            )
 
     # ---- batches -------------------------------------------------------------------------------
-    def save_batch(self, batch: BatchRecord) -> None:
-        """Insert or update a batch's row (its job list and retried map included)."""
-        values = {
-            "id": batch.id, "tenant": batch.tenant, "priority": batch.priority, "callback_url": batch.callback_url,
-            "job_count": len(batch.job_ids), "idempotency_key": batch.idempotency_key,
-            "job_ids": batch.job_ids, "retried": batch.retried, "created_at": batch.created_at,
-        }  # fmt: skip
-        statement = pg_insert(batches).values(**values)
-        changed = {k: statement.excluded[k] for k in ("job_count", "job_ids", "retried", "callback_url")}
-        with self.database.begin() as conn:
-            conn.execute(statement.on_conflict_do_update(index_elements=[batches.c.id], set_=changed))
-
     def load_batch(self, tenant: str, batch_id: str) -> BatchRecord | None:
+        """The batch's row: its counts as the records hold them (`live_batch` adds live progress)."""
         with self.database.connect() as conn:
-            row = (
-                conn.execute(select(batches).where(batches.c.tenant == tenant, batches.c.id == batch_id))
-                .mappings()
-                .first()
-            )
-        if row is None:
-            return None
-        return BatchRecord(
-            id=row["id"], tenant=row["tenant"], job_ids=list(row["job_ids"]), created_at=row["created_at"],
-            priority=row["priority"], idempotency_key=row["idempotency_key"], callback_url=row["callback_url"],
-            retried=dict(row["retried"]),
-        )  # fmt: skip
+            return batch_records.load_batch(conn, tenant, batch_id)
+
+    def live_batch(self, batch: BatchRecord) -> BatchRecord:
+        """`batch` with its dispatched jobs' live state and progress: only the tenant's dispatched
+        jobs (at most its dispatch bound) can differ from their rows, so this reads a few rows
+        and hashes whatever the batch's size."""
+        if batch.finished:
+            return batch
+        dispatched = [text(cast(bytes, j)) for j in self.redis.zrange(dispatched_key(batch.tenant), 0, -1)]
+        if not dispatched:
+            return batch
+        with self.database.connect() as conn:
+            rows = batch_records.batch_job_rows(conn, batch.id, states=_ACTIVE_STATES, job_ids=dispatched)
+        stored = [_record_of(r) for _, r in rows]
+        counts = dict(batch.counts)
+        progress = batch.active_progress
+        for old, live in zip(stored, self._with_live_many(stored), strict=True):
+            counts[old.state.value] -= 1
+            counts[live.state.value] = counts.get(live.state.value, 0) + 1
+            progress += (live.progress if not live.state.terminal else 0.0) - old.progress
+        return batch.model_copy(update={"counts": counts, "active_progress": progress})
+
+    def batch_jobs(
+        self, batch: BatchRecord, *, start: int = 0, limit: int | None = None, states: Sequence[str] | None = None
+    ) -> builtins.list[tuple[int, JobRecord]]:
+        """(position, record) of the batch's jobs in submission order, live overlay included."""
+        with self.database.connect() as conn:
+            rows = batch_records.batch_job_rows(conn, batch.id, start=start, limit=limit, states=states)
+        records = self._with_live_many([_record_of(r) for _, r in rows])
+        return [(p, rec) for (p, _), rec in zip(rows, records, strict=True)]
 
 
 def _overlaid(record: JobRecord, live: dict[bytes, bytes]) -> JobRecord:

@@ -123,7 +123,7 @@ class ServiceSettings(BaseSettings):
     max_tasks: int = Field(256, gt=0, description="Most task prompts in one job.")
     max_task_chars: int = Field(200, gt=0, description="Longest task prompt, in characters.")
     max_batch_jobs: int = Field(
-        5000, gt=0, description="Most jobs in one batch submission (accepted whole, or refused whole)."
+        50_000, gt=0, description="Most jobs in one batch submission (accepted whole, or refused whole)."
     )
 
     # ---- jobs ------------------------------------------------------------------------------------
@@ -147,7 +147,7 @@ class ServiceSettings(BaseSettings):
         "max_waiting_jobs_per_tenant.",
     )
     max_waiting_jobs_per_tenant: int = Field(
-        10_000,
+        100_000,
         gt=0,
         description="Jobs a tenant may have waiting beyond those dispatched: a submission is refused "
         "with 429 + Retry-After only when the tenant's unfinished jobs would exceed this plus "

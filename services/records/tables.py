@@ -5,7 +5,7 @@ batch, count a queue range), written as such; rows come back as plain mappings t
 domain layer turns into its pydantic records. Indexes follow what the API filters, pages and
 counts by: a tenant's jobs by creation (keyset paging on (created_at, id)), by state, by batch
 and by scene; the waiting queue by (tenant, priority, created_at). The first migration
-(`migrations/versions/0001_records.py`) creates exactly this schema; a test compares the two.
+and those after it (`migrations/versions/`) create exactly this schema; a test compares the two.
 """
 
 from __future__ import annotations
@@ -88,9 +88,11 @@ batches = Table(
     Column("job_count", Integer, nullable=False),
     Column("callback_enqueued", Boolean, nullable=False, server_default=text("false")),
     Column("idempotency_key", String(255)),
-    # The batch's jobs in submission order, and failed job -> the job that retried it (revision 0002).
-    Column("job_ids", Document, nullable=False, server_default=text("'[]'")),
-    Column("retried", Document, nullable=False, server_default=text("'{}'")),
+    # How many of the batch's jobs are in each state, and the summed progress of its active ones:
+    # kept by triggers on `jobs` and `batch_jobs` (revision 0003) in the transaction of every change,
+    # so a batch's status is this one row.
+    *(Column(state, Integer, nullable=False, server_default="0") for state in JOB_STATES),
+    Column("active_progress", Double, nullable=False, server_default="0"),
     _when("created_at"),
     _when("finished_at", nullable=True),
     CheckConstraint(_in("priority", PRIORITIES), name="priority"),
@@ -135,6 +137,7 @@ jobs = Table(
     Index(None, "tenant", "state", "created_at", "id"),
     Index(None, "batch_id", "id"),
     Index(None, "scene_id"),
+    Index(None, "retry_of"),
     # The waiting queue: a tenant's undispatched jobs, interactive first, oldest first. Partial, so
     # it holds only waiting work however many finished jobs the table keeps.
     Index(
@@ -148,6 +151,17 @@ jobs = Table(
     # What recovery scans: the active jobs, and the submissions not yet confirmed.
     Index("ix_jobs_active", "tenant", "id", postgresql_where=text("state IN ('queued', 'running')")),
     Index("ix_jobs_unsubmitted", "tenant", "id", postgresql_where=text("NOT submitted")),
+)
+
+batch_jobs = Table(
+    "batch_jobs",
+    metadata,
+    # A batch's jobs in submission order; a retry replaces a failed job in its slot. A job can sit
+    # in several batches (a re-run manifest's batch takes the earlier job of an unchanged item).
+    Column("batch_id", ID, ForeignKey("batches.id", ondelete="CASCADE"), primary_key=True),
+    Column("position", Integer, primary_key=True),
+    Column("job_id", ID, ForeignKey("jobs.id"), nullable=False),
+    Index(None, "job_id"),
 )
 
 idempotency_keys = Table(

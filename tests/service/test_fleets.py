@@ -187,7 +187,7 @@ def test_rerunning_a_manifest_creates_no_job(
     key = api.keys["tenant-b"]
     assert batch(manifest, server=api.base_url, api_key=key, wait=False, priority="interactive") == 0
     first = capsys.readouterr().out.strip().splitlines()[-1]
-    assert batch(manifest, server=api.base_url, api_key=key, wait=False) == 0
+    assert batch(manifest, server=api.base_url, api_key=key, wait=False, priority="interactive") == 0
     second = capsys.readouterr().out.strip().splitlines()[-1]
     assert second == first  # the same batch: its key matched
     # one more task list: the three earlier items are reused, one job is new

@@ -207,3 +207,45 @@ def test_cli_batch_submits_scenes_x_task_lists(
     from bayesian_fields_service.client.commands import _run
 
     assert _run(batch, manifest=bad, server=api.base_url, api_key=api.keys["tenant-a"], wait=False) == 2
+
+
+def test_an_idempotency_key_sent_again_with_another_body_is_a_422_naming_it(
+    client_a: httpx.Client, stored_scene: dict
+) -> None:
+    """The IETF Idempotency-Key draft: a key stands for one request. The same body again is the
+    same job (200); another task list, scene or parameters under that key is refused, and the
+    first job is untouched. Batches and batch items alike."""
+    key = f"reuse-{uuid.uuid4()}"
+    first = _submit(client_a, stored_scene["id"], headers={"Idempotency-Key": key})
+    try:
+        assert first.status_code == 202, first.text
+        again = client_a.post("/v1/jobs", json={"scene_id": stored_scene["id"], "tasks": ["another task"]},
+                              headers={"Idempotency-Key": key})  # fmt: skip
+        assert again.status_code == 422 and key in again.text, again.text
+        params = client_a.post(
+            "/v1/jobs",
+            json={"scene_id": stored_scene["id"], "tasks": TASKS, "parameters": {"max_frames": 3}},
+            headers={"Idempotency-Key": key},
+        )
+        assert params.status_code == 422 and key in params.text, params.text
+        assert client_a.get(f"/v1/jobs/{first.json()['id']}").json()["tasks"] == TASKS
+
+        batch_key = f"batch-{uuid.uuid4()}"
+        body = {"scene_ids": [stored_scene["id"]], "task_lists": [["red blob"]]}
+        made = client_a.post("/v1/batches", json=body, headers={"Idempotency-Key": batch_key})
+        assert made.status_code == 202, made.text
+        same = client_a.post("/v1/batches", json=body, headers={"Idempotency-Key": batch_key})
+        assert same.status_code == 200 and same.json()["id"] == made.json()["id"]
+        other = {"scene_ids": [stored_scene["id"]], "task_lists": [["green blob"]]}
+        refused = client_a.post("/v1/batches", json=other, headers={"Idempotency-Key": batch_key})
+        assert refused.status_code == 422 and batch_key in refused.text, refused.text
+        client_a.post(f"/v1/batches/{made.json()['id']}/cancel")
+
+        item = {"scene_id": stored_scene["id"], "tasks": ["blue blob"], "idempotency_key": f"item-{uuid.uuid4()}"}
+        kept = client_a.post("/v1/batches", json={"items": [item]})
+        assert kept.status_code == 202, kept.text
+        reused = client_a.post("/v1/batches", json={"items": [{**item, "tasks": ["green blob"]}]})
+        assert reused.status_code == 422 and item["idempotency_key"] in reused.text, reused.text
+        client_a.post(f"/v1/batches/{kept.json()['id']}/cancel")
+    finally:
+        client_a.delete(f"/v1/jobs/{first.json()['id']}")

@@ -199,3 +199,45 @@ def test_submission_crashed_before_enqueue_is_enqueued_by_recovery(
         assert r.zscore("bf:active:tenant-a", record.id) is None
     finally:
         worker.stop()
+
+
+def test_a_batch_whose_queueing_failed_is_made_anew_by_the_retry_with_its_key(
+    tmp_path: Path, private_redis: RedisServer, scene_dir: Path
+) -> None:
+    """Redis goes away after a batch's rows are written and before its jobs are queued: the
+    answer is a 503, the rows left are failed jobs, and the Idempotency-Key does not point at that
+    batch, so the client's retry with the same key and body makes a new batch that runs."""
+    s3 = S3Server(tmp_path / "s3").start()
+    keys = {"tenant-o": "key-o-" + secrets.token_urlsafe(12)}
+    env = build_service_env(tmp_path / "env", private_redis.url(), s3.env(), keys,
+                            {"BFIELDS_TEST_PAUSE_POINTS": "true"})  # fmt: skip
+    api = ApiServer(env=env, log_dir=tmp_path / "api", keys=keys).start()
+    r = redis.Redis.from_url(private_redis.url())
+    try:
+        with api.client("tenant-o") as client:
+            scene_id = _upload(client, scene_dir)
+            body = {"scene_ids": [scene_id], "task_lists": [["a"], ["b"], ["c"]]}
+            key = {"Idempotency-Key": f"outage-batch-{secrets.token_hex(4)}"}
+            r.set("bf:test:pause:submit:created", scene_id)
+            with ThreadPoolExecutor(1) as pool:
+                # the undo after the outage retries each Redis call before it gives up: a long read
+                pending = pool.submit(client.post, "/v1/batches", json=body, headers=key, timeout=150)
+                deadline = time.monotonic() + 30
+                while not r.exists(f"bf:test:reached:submit:created:{scene_id}"):
+                    assert time.monotonic() < deadline, "the submission never reached its pause point"
+                    time.sleep(0.05)
+                r.delete("bf:test:pause:submit:created")  # disarmed: the retry passes (AOF keeps keys)
+                private_redis.stop()  # between the rows and the queue
+                failed = pending.result(timeout=180)
+            assert failed.status_code == 503, failed.text
+            private_redis.start()
+            r = redis.Redis.from_url(private_redis.url())
+            again = client.post("/v1/batches", json=body, headers=key)
+            assert again.status_code == 202 and again.json()["created"] == 3, again.text
+            states = {j["state"] for j in client.get("/v1/jobs", params={"limit": 500}).json()["items"]}
+            assert states == {"failed", "queued"}  # the first batch's rows failed; the retry's wait
+            same = client.post("/v1/batches", json=body, headers=key)
+            assert same.status_code == 200 and same.json()["id"] == again.json()["id"]
+    finally:
+        api.stop()
+        s3.stop()

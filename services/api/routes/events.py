@@ -27,8 +27,8 @@ from fastapi.responses import StreamingResponse
 from starlette.concurrency import run_in_threadpool
 
 from bayesian_fields_service.api.state import ERRORS, AppState, State, Tenant, check_id, not_found
-from bayesian_fields_service.common.jobs import BatchRecord, JobStore
-from bayesian_fields_service.common.redis_text import text
+from bayesian_fields_service.common.batch_records import BatchRecord
+from bayesian_fields_service.common.jobs import JobStore
 
 router = APIRouter(prefix="/v1", tags=["batches"])
 
@@ -38,24 +38,17 @@ TERMINAL = ("succeeded", "failed", "cancelled")
 JobView = tuple[str, str, int]  # state, stage, whole percent
 
 
-def snapshot(jobs: JobStore, batch: BatchRecord, known: dict[str, JobView]) -> dict[str, JobView]:
-    """Every job's (state, stage, percent): live hashes in one round trip, manifests for the rest."""
-    pipe = jobs.redis.pipeline()
-    for job_id in batch.job_ids:
-        pipe.hgetall(jobs.live_key(batch.tenant, job_id))
-    views: dict[str, JobView] = {}
-    for job_id, live in zip(batch.job_ids, pipe.execute(), strict=True):
-        if live:
-            state = text(live.get(b"state", b"queued"))
-            pct = 100 if state == "succeeded" else int(float(live.get(b"progress", 0)))
-            views[job_id] = (state, text(live.get(b"stage", b"")), pct)
-        elif job_id in known and known[job_id][0] in TERMINAL:
-            views[job_id] = known[job_id]  # expired hash of a finished job: it stays finished
-        else:
-            record = jobs.load(batch.tenant, job_id)
-            if record is not None:
-                views[job_id] = (record.state.value, record.stage or "", int(record.progress))
-    return views
+def snapshot(jobs: JobStore, batch: BatchRecord) -> dict[str, JobView]:
+    """Every job's (state, stage, percent): the batch's rows in one query, live hashes of the
+    active ones in one round trip (`JobStore.batch_jobs`)."""
+    return {
+        job.id: (
+            job.state.value,
+            job.stage or "",
+            100 if job.state.value == "succeeded" else int(job.progress),
+        )
+        for _, job in jobs.batch_jobs(batch)
+    }
 
 
 def _event(name: str, seq: int, data: dict[str, Any]) -> str:
@@ -70,7 +63,7 @@ async def stream(request: Request, state: AppState, batch: BatchRecord) -> Async
     while time.monotonic() - started < state.settings.events_max_s:
         if await request.is_disconnected():
             return
-        views = await run_in_threadpool(snapshot, state.jobs, batch, known)
+        views = await run_in_threadpool(snapshot, state.jobs, batch)
         changed = {j: v for j, v in views.items() if known.get(j) != v}
         known.update(views)
         for job_id, (job_state, stage, pct) in changed.items():
@@ -78,7 +71,7 @@ async def stream(request: Request, state: AppState, batch: BatchRecord) -> Async
             yield _event(
                 "job", seq, {"id": job_id, "state": job_state, "stage": stage or None, "progress": pct}
             )
-        finished = len(known) == len(batch.job_ids) and all(v[0] in TERMINAL for v in known.values())
+        finished = len(known) == batch.total and all(v[0] in TERMINAL for v in known.values())
         if changed or seq == 0:
             counts: dict[str, int] = {}
             for v in known.values():
@@ -86,7 +79,7 @@ async def stream(request: Request, state: AppState, batch: BatchRecord) -> Async
             progress = sum(100 if v[0] in TERMINAL else v[2] for v in known.values()) / max(len(known), 1)
             seq += 1
             yield _event("counts", seq, {
-                "counts": counts, "total": len(batch.job_ids), "progress": round(progress, 2), "finished": finished,
+                "counts": counts, "total": batch.total, "progress": round(progress, 2), "finished": finished,
             })  # fmt: skip
             last_sent = time.monotonic()
         if finished:

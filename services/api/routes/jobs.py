@@ -6,9 +6,11 @@ the tenant's fair-share queue (`common.fair_queue`); the dispatcher sends it to 
 
 from __future__ import annotations
 
+import hashlib
 import logging
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import AbstractContextManager, contextmanager
 from datetime import UTC, datetime, timedelta
 from pathlib import PurePosixPath
 from typing import Annotated, Any, TypeVar
@@ -45,9 +47,12 @@ from bayesian_fields_service.api.state import (
     check_id,
     not_found,
 )
+from bayesian_fields_service.common.batch_records import BatchRecord
 from bayesian_fields_service.common.fair_queue import Priority
-from bayesian_fields_service.common.jobs import BatchRecord, JobRecord, JobState, new_id
+from bayesian_fields_service.common.jobs import JobRecord, JobState, job_digest, new_id
+from bayesian_fields_service.common.pause_points import pause
 from bayesian_fields_service.common.quota import admission_limit
+from bayesian_fields_service.records.locks import LockBusy, session_lock
 from bayesian_fields_service.worker.metrics import JOB_KEY, read_histogram
 
 log = logging.getLogger(__name__)
@@ -100,9 +105,10 @@ def _build_job(state: AppState, tenant: str, scene_id: str, tasks: list[str], pa
                model_profile: str, batch_id: str | None = None, idem: str | None = None,
                priority: Priority = "interactive",
                scenes: dict[str, SceneRecord] | None = None,
-               callback_url: str | None = None) -> JobRecord:  # fmt: skip
+               callback_url: str | None = None, params: dict[str, Any] | None = None) -> JobRecord:  # fmt: skip
     """Validate a job request against the scene, tasks and parameters (`scenes` caches scene
-    records within one request)."""
+    records within one request and `params` the parameters checked against each scene, so a batch
+    validates once per distinct scene)."""
     if scenes is not None and scene_id in scenes:
         scene = scenes[scene_id]
     else:
@@ -116,25 +122,35 @@ def _build_job(state: AppState, tenant: str, scene_id: str, tasks: list[str], pa
     s = state.settings
     try:
         tasks = normalise_tasks(tasks, source="tasks", max_tasks=s.max_tasks, max_chars=s.max_task_chars)
-        validated = PipelineParams.model_validate(parameters)
     except InputError as exc:
         raise HTTPException(422, str(exc)) from None
-    except ValidationError as exc:
-        first = exc.errors()[0]
-        where = ".".join(str(p) for p in first["loc"])
-        raise HTTPException(422, f"parameters.{where}: {first['msg']}") from None
-    _check_params_against_scene(validated, scene.summary)
-    params = validated.model_dump(mode="json", exclude_unset=True)
+    checked = params.get(scene_id) if params is not None else None
+    if checked is None:
+        checked = _checked_params(parameters, scene)
+        if params is not None:
+            params[scene_id] = checked
     if model_profile not in MODEL_PROFILES:
         raise HTTPException(
             422,
             f"model_profile {model_profile!r} is unknown; available: {', '.join(MODEL_PROFILES)}",
         )
     return JobRecord(
-        id=new_id("j_"), tenant=tenant, scene_id=scene_id, tasks=tasks, parameters=params,
+        id=new_id("j_"), tenant=tenant, scene_id=scene_id, tasks=tasks, parameters=dict(checked),
         model_profile=model_profile, batch_id=batch_id, idempotency_key=idem, priority=priority,
         callback_url=checked_callback(state.settings, callback_url),
     )  # fmt: skip
+
+
+def _checked_params(parameters: dict[str, Any], scene: SceneRecord) -> dict[str, Any]:
+    """The parameters as stored (only those set), validated and checked against the scene (422)."""
+    try:
+        validated = PipelineParams.model_validate(parameters)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        where = ".".join(str(p) for p in first["loc"])
+        raise HTTPException(422, f"parameters.{where}: {first['msg']}") from None
+    _check_params_against_scene(validated, scene.summary)
+    return validated.model_dump(mode="json", exclude_unset=True)
 
 
 def _check_params_against_scene(params: PipelineParams, summary: dict[str, Any]) -> None:
@@ -169,39 +185,79 @@ def _reserve_slots(state: AppState, tenant: str, records: list[JobRecord]) -> No
         )
 
 
-def _submit(state: AppState, records: list[JobRecord]) -> None:
+def _submit(state: AppState, records: list[JobRecord], **create: Any) -> None:
     """Store jobs whose slots are reserved and put them in the tenant's fair-share queue. On any
     failure every job of the request is undone (best effort, see `JobStore.discard_unsubmitted`)
     and the error propagates (503), so a client's retry never runs the same work twice.
 
     Order: every job's row is inserted (not yet `submitted`) in one transaction before any is
-    queued, then all are queued in one atomic call, then one UPDATE marks them submitted. An API
-    that dies before the queueing leaves unsubmitted rows: recovery submits those jobs; one that
-    dies after it leaves rows of jobs already queued, which recovery only marks
-    (`FairQueue.submit` is idempotent)."""
-    if not records:
-        return
+    queued (with the batch's row and links, or a retry's new slots: `create` goes to
+    `JobStore.create_many`), then all are queued in one atomic call, then one UPDATE marks them
+    submitted. An API that dies before the queueing leaves unsubmitted rows: recovery submits
+    those jobs; one that dies after it leaves rows of jobs already queued, which recovery only
+    marks (`FairQueue.submit` is idempotent)."""
     done: list[JobRecord] = []
     try:
-        state.jobs.create_many(records)
+        state.jobs.create_many(records, **create)
         done = list(records)
-        state.enqueue(records)
+        if records:
+            pause(state.redis, state.settings.test_pause_points, "submit:created", records[0].scene_id)
+            state.enqueue(records)
     except BaseException:
-        try:  # the queueing may have reached Redis before it failed; the dispatcher drops the rest
-            state.fair.remove(records[0].tenant, [r.id for r in records])
-        except Exception:
-            log.warning("could not unqueue the jobs of a failed submission; the dispatcher will")
+        if records:
+            try:  # the queueing may have reached Redis before it failed; the dispatcher drops the rest
+                state.fair.remove(records[0].tenant, [r.id for r in records])
+            except Exception:
+                log.warning("could not unqueue the jobs of a failed submission; the dispatcher will")
         _parallel(state.jobs.discard_unsubmitted, done)
-        try:  # the slots of the jobs never created (recovery's quota repair covers a failure here)
-            state.jobs.quota.release(records[0].tenant, [r.id for r in records])
-        except Exception:
-            log.warning("could not release the quota slots of a failed submission; recovery will")
+        batch = create.get("batch")
+        if batch is not None and batch.idempotency_key:  # the client's retry with the key makes a new batch
+            try:
+                state.jobs.forget_idempotent_batch(batch.tenant, batch.idempotency_key, batch.id)
+            except Exception:
+                log.warning("could not forget the Idempotency-Key of failed batch %s", batch.id)
+        if records:
+            try:  # the slots of the jobs never created (recovery's quota repair covers a failure here)
+                state.jobs.quota.release(records[0].tenant, [r.id for r in records])
+            except Exception:
+                log.warning("could not release the quota slots of a failed submission; recovery will")
         raise
-
+    if not records:
+        return
     try:
         state.jobs.mark_submitted(records[0].tenant, [r.id for r in records])
     except Exception:  # queued: they will run; recovery marks them
         log.warning("%d jobs of %s queued but not yet marked submitted", len(records), records[0].tenant)
+
+
+#: How long a request waits for another request holding the same Idempotency-Key or batch retry.
+KEY_LOCK_WAIT_S = 60.0
+
+
+@contextmanager
+def _held(state: AppState, what: str, *names: str) -> Iterator[None]:
+    """A PostgreSQL session lock on `names` (`records.locks`): requests that must not overlap
+    (the same Idempotency-Key, one batch's retries) run one after another; 409 past the wait."""
+    try:
+        with session_lock(state.jobs.database, *names, wait_s=KEY_LOCK_WAIT_S):
+            yield
+    except LockBusy:
+        raise HTTPException(
+            status.HTTP_409_CONFLICT, f"{what} is being handled by another request; retry when it has finished"
+        ) from None
+
+
+def _key_lock(state: AppState, tenant: str, endpoint: str, key: str) -> AbstractContextManager[None]:
+    return _held(state, f"a request with Idempotency-Key {key!r}", tenant, f"idempotency:{endpoint}", key)
+
+
+def _key_reused(key: str, what: str) -> HTTPException:
+    """The IETF Idempotency-Key draft's rule: a key sent again with another body is an error."""
+    return HTTPException(
+        422,
+        f"Idempotency-Key {key!r} was first used with a different {what}; a key stands for one "
+        "request: send a new key for a new request",
+    )
 
 
 @router.post(
@@ -234,22 +290,24 @@ def submit_job(
     ] = None,
 ) -> JobAccepted:
     if idempotency_key:
+        digest = job_digest(body.scene_id, body.tasks, body.parameters, body.model_profile)
         # A short Redis lock serialises concurrent retries carrying the same key.
-        with state.redis.lock(f"bf:idem:{tenant}:{idempotency_key}", timeout=30, blocking_timeout=30):
+        with _key_lock(state, tenant, "jobs", idempotency_key):
             existing = state.jobs.idempotent_job(tenant, idempotency_key)
-            if existing is not None and (record := state.jobs.get(tenant, existing)) is not None:
+            if existing is not None and existing[1] and existing[1] != digest:
+                raise _key_reused(idempotency_key, "scene, task list, parameters or model profile")
+            if existing is not None and (record := state.jobs.get(tenant, existing[0])) is not None:
                 response.status_code = status.HTTP_200_OK
                 return JobAccepted(id=record.id, state=record.state, created=False)
-            with scene_lock(state.redis, tenant, [body.scene_id]):
+            with scene_lock(state.jobs.database, tenant, [body.scene_id]):
                 record = _build_job(state, tenant, body.scene_id, body.tasks, body.parameters,
                                     body.model_profile, idem=idempotency_key, priority=body.priority,
                                     callback_url=body.callback_url)  # fmt: skip
                 _reserve_slots(state, tenant, [record])
-                _submit(state, [record])
-            state.jobs.remember_idempotent(tenant, idempotency_key, record.id)
+                _submit(state, [record], digests={record.id: digest})
     else:
         # Under the scene lock: a concurrent delete either sees this job (409) or came first (404).
-        with scene_lock(state.redis, tenant, [body.scene_id]):
+        with scene_lock(state.jobs.database, tenant, [body.scene_id]):
             record = _build_job(state, tenant, body.scene_id, body.tasks, body.parameters, body.model_profile,
                                 priority=body.priority, callback_url=body.callback_url)  # fmt: skip
             _reserve_slots(state, tenant, [record])
@@ -395,80 +453,88 @@ def submit_batch(
     for scene_id, _, _ in pairs:  # before any lock: an id that cannot exist is a plain 404
         check_id("scene", scene_id, "s_")
     if idempotency_key:
-        with state.redis.lock(f"bf:idem-batch:{tenant}:{idempotency_key}", timeout=120, blocking_timeout=120):
+        digest = hashlib.sha256(body.model_dump_json().encode()).hexdigest()
+        with _key_lock(state, tenant, "batches", idempotency_key):
             earlier = state.jobs.idempotent_batch(tenant, idempotency_key)
-            if earlier is not None and (batch := state.jobs.load_batch(tenant, earlier)) is not None:
+            if earlier is not None and earlier[1] and earlier[1] != digest:
+                raise _key_reused(idempotency_key, "batch body")
+            if earlier is not None and (batch := state.jobs.load_batch(tenant, earlier[0])) is not None:
                 response.status_code = status.HTTP_200_OK
                 return _batch_status(state, batch, created=0)
-            result = _submit_batch(state, tenant, body, pairs, idempotency_key)
-            state.jobs.remember_idempotent_batch(tenant, idempotency_key, result.id)
-            return result
-    return _submit_batch(state, tenant, body, pairs, None)
+            return _submit_batch(state, tenant, body, pairs, idempotency_key, digest)
+    return _submit_batch(state, tenant, body, pairs, None, "")
 
 
 def _submit_batch(state: AppState, tenant: str, body: BatchRequest,
-                  pairs: list[tuple[str, list[str], str | None]], batch_key: str | None) -> BatchStatus:  # fmt: skip
+                  pairs: list[tuple[str, list[str], str | None]], batch_key: str | None,
+                  batch_digest: str) -> BatchStatus:  # fmt: skip
     batch_id = new_id("b_")
+    digests = [job_digest(None, t, body.parameters, body.model_profile) if k else "" for _, t, k in pairs]
     # Items whose idempotency key names an earlier job reuse it (a re-run batch file makes no job).
-    earlier = _parallel(lambda p: _earlier_job(state, tenant, p[2]), pairs)
+    known = state.jobs.idempotent_jobs(tenant, [k for _, _, k in pairs if k])
+    for (_, _, key), digest in zip(pairs, digests, strict=True):
+        if key in known and known[key][1] and known[key][1] != digest:
+            raise _key_reused(key, "item (tasks, parameters or model profile)")
+    found = state.jobs.get_many(tenant, [known[k][0] for _, _, k in pairs if k in known])
+    earlier = [found.get(known[k][0]) if k in known else None for _, _, k in pairs]
     with scene_lock(
-        state.redis, tenant, [s for (s, _, _), e in zip(pairs, earlier, strict=True) if e is None]
+        state.jobs.database, tenant, [s for (s, _, _), e in zip(pairs, earlier, strict=True) if e is None]
     ):
         scenes: dict[str, SceneRecord] = {}
+        params: dict[str, Any] = {}
         # Validate every job before submitting any, so a bad item never leaves half a batch queued.
         records = [
             e if e is not None else _build_job(state, tenant, s, t, body.parameters, body.model_profile,
-                                               batch_id=batch_id, idem=k, priority=body.priority, scenes=scenes)
+                                               batch_id=batch_id, idem=k, priority=body.priority, scenes=scenes,
+                                               params=params)
             for (s, t, k), e in zip(pairs, earlier, strict=True)
         ]  # fmt: skip
         new = [r for r in records if r.batch_id == batch_id]
         _reserve_slots(state, tenant, new)
-        batch = BatchRecord(id=batch_id, tenant=tenant, job_ids=[r.id for r in records],
-                            priority=body.priority, idempotency_key=batch_key,
+        batch = BatchRecord(id=batch_id, tenant=tenant, total=len(records), priority=body.priority,
+                            idempotency_key=batch_key,
                             callback_url=checked_callback(state.settings, body.callback_url))  # fmt: skip
-        try:
-            state.jobs.save_batch(batch)
-        except BaseException:
-            state.jobs.quota.release(tenant, [r.id for r in new])
-            raise
-        _submit(state, new)
+        by_new = {r.id: d for r, d in zip(records, digests, strict=True) if r.batch_id == batch_id and d}
+        _submit(state, new, digests=by_new, batch=batch, batch_job_ids=[r.id for r in records],
+                batch_digest=batch_digest)  # fmt: skip
     return _status_of(batch, records, created=len(new))
-
-
-def _earlier_job(state: AppState, tenant: str, key: str | None) -> JobRecord | None:
-    if not key:
-        return None
-    job_id = state.jobs.idempotent_job(tenant, key)
-    return state.jobs.get(tenant, job_id) if job_id is not None else None
 
 
 def _status_of(batch: BatchRecord, jobs: Sequence[JobRecord | None], *, created: int = 0,
                with_jobs: bool = True) -> BatchStatus:  # fmt: skip
+    """A batch's status from its jobs' records (when the answer lists them anyway)."""
     present = [j for j in jobs if j is not None]
     counts: dict[str, int] = {}
     for j in present:
         counts[j.state.value] = counts.get(j.state.value, 0) + 1
     progress = sum(100.0 if j.state.terminal else j.progress for j in present) / max(len(present), 1)
     return BatchStatus(
-        id=batch.id, created_at=batch.created_at, progress=round(progress, 2), counts=counts,
-        finished=all(j.state.terminal for j in present), total=len(batch.job_ids), created=created,
+        id=batch.id, created_at=batch.created_at or datetime.now(UTC), progress=round(progress, 2),
+        counts=counts, finished=all(j.state.terminal for j in present), total=batch.total, created=created,
         jobs=[BatchJob(id=j.id, scene_id=j.scene_id, tasks=j.tasks, state=j.state, stage=j.stage,
                        progress=j.progress, error=j.error) for j in present] if with_jobs else [],
     )  # fmt: skip
 
 
-def _batch_jobs(
-    state: AppState, batch: BatchRecord, ids: Sequence[str] | None = None
-) -> list[JobRecord | None]:
-    wanted = list(batch.job_ids if ids is None else ids)
-    found = state.jobs.get_many(batch.tenant, wanted)
-    return [found.get(j) for j in wanted]
+def _counted_status(state: AppState, batch: BatchRecord, *, created: int = 0) -> BatchStatus:
+    """A batch's status from its row's counts (kept by the records) and its dispatched jobs' live
+    progress: a few reads whatever the batch's size."""
+    live = state.jobs.live_batch(batch)
+    counts = {k: v for k, v in live.counts.items() if v}
+    terminal = sum(v for k, v in counts.items() if JobState(k).terminal)
+    progress = (100.0 * terminal + live.active_progress) / max(live.total, 1)
+    return BatchStatus(
+        id=batch.id, created_at=batch.created_at or datetime.now(UTC), progress=round(progress, 2),
+        counts=counts, finished=live.finished, total=live.total, created=created, jobs=[],
+    )  # fmt: skip
 
 
 def _batch_status(
     state: AppState, batch: BatchRecord, *, created: int = 0, with_jobs: bool = True
 ) -> BatchStatus:
-    return _status_of(batch, _batch_jobs(state, batch), created=created, with_jobs=with_jobs)
+    if not with_jobs:
+        return _counted_status(state, batch, created=created)
+    return _status_of(batch, [j for _, j in state.jobs.batch_jobs(batch)], created=created)
 
 
 def _load_batch(state: AppState, tenant: str, batch_id: str) -> BatchRecord:
@@ -514,11 +580,9 @@ def list_batch_jobs(
     batch = _load_batch(state, tenant, batch_id)
     if cursor is not None and not cursor.isdigit():
         raise HTTPException(422, f"cursor {cursor!r} is not one this route returned")
-    start = int(cursor or 0)
-    ids = batch.job_ids[start : start + limit]
-    items = [j for j in _batch_jobs(state, batch, ids) if j is not None]
-    nxt = str(start + limit) if start + limit < len(batch.job_ids) else None
-    return JobList(items=items, next_cursor=nxt)
+    rows = state.jobs.batch_jobs(batch, start=int(cursor or 0), limit=limit + 1)
+    nxt = str(rows[limit][0]) if len(rows) > limit else None
+    return JobList(items=[j for _, j in rows[:limit]], next_cursor=nxt)
 
 
 @router.post(
@@ -531,12 +595,10 @@ def list_batch_jobs(
     responses=ERRORS,
 )
 def cancel_batch(batch_id: str, tenant: Tenant, state: State) -> BatchStatus:
-    batch = _load_batch(state, tenant, batch_id)
-    state.fair.remove(tenant, batch.job_ids)  # no waiting job of the batch is dispatched from now on
-    # each job's record as its cancel left it (read and written under its row lock): no second
-    # read of every job
-    jobs = _parallel(lambda j: state.jobs.request_cancel(tenant, j), batch.job_ids)
-    return _status_of(batch, jobs, with_jobs=False)
+    _load_batch(state, tenant, batch_id)
+    changed = state.jobs.cancel_batch(tenant, batch_id)  # one UPDATE of every active job
+    state.fair.remove(tenant, [j.id for j in changed if j.state.terminal])  # the waiting ones leave their queue
+    return _counted_status(state, _load_batch(state, tenant, batch_id))
 
 
 @router.post(
@@ -548,33 +610,24 @@ def cancel_batch(batch_id: str, tenant: Tenant, state: State) -> BatchStatus:
     responses={**ERRORS, 409: {"model": Problem}, 429: {"model": Problem}},
 )
 def retry_batch(batch_id: str, tenant: Tenant, state: State) -> BatchStatus:
-    batch = _load_batch(state, tenant, batch_id)
-    with state.redis.lock(f"bf:batch-retry:{tenant}:{batch_id}", timeout=120, blocking_timeout=120):
+    _load_batch(state, tenant, batch_id)
+    with _held(state, f"the retry of batch {batch_id!r}", tenant, "batch-retry", batch_id):
         batch = _load_batch(state, tenant, batch_id)  # as it is now, under the lock
-        jobs = _batch_jobs(state, batch)
-        failed = [j for j in jobs if j is not None and j.state == JobState.failed]
-        if not failed:  # nothing to retry: no lock, no slot, no write, no empty submission
-            return _status_of(batch, jobs, created=0, with_jobs=False)
-        with scene_lock(state.redis, tenant, [j.scene_id for j in failed]):
+        if not batch.counts.get(JobState.failed.value):  # nothing to retry: no lock, no slot, no write
+            return _counted_status(state, batch)
+        failed = [j for _, j in state.jobs.batch_jobs(batch, states=[JobState.failed.value])]
+        with scene_lock(state.jobs.database, tenant, [j.scene_id for j in failed]):
             scenes: dict[str, SceneRecord] = {}
+            params: dict[str, Any] = {}
             again = [
                 _build_job(state, tenant, j.scene_id, j.tasks, j.parameters, j.model_profile,
-                           batch_id=batch.id, idem=j.idempotency_key, priority=j.priority, scenes=scenes)
+                           batch_id=batch.id, idem=j.idempotency_key, priority=j.priority, scenes=scenes,
+                           params=params).model_copy(update={"retry_of": j.id})
                 for j in failed
             ]  # fmt: skip
             _reserve_slots(state, tenant, again)
-            new_of = {old.id: new.id for old, new in zip(failed, again, strict=True)}
-            updated = batch.model_copy(update={
-                "job_ids": [new_of.get(j, j) for j in batch.job_ids],
-                "retried": {**batch.retried, **new_of},
-            })  # fmt: skip
-            try:
-                state.jobs.save_batch(updated)
-            except BaseException:
-                state.jobs.quota.release(tenant, [r.id for r in again])
-                raise
-            _submit(state, again)  # stores each item's idempotency key -> its new job
-            state.fair.remove(tenant, new_of)  # a failed job waits nowhere; make sure of it
-    by_id = {r.id: r for r in again}
-    return _status_of(updated, [by_id.get(j) or state.jobs.get(tenant, j) for j in updated.job_ids],
-                      created=len(again), with_jobs=False)  # fmt: skip
+            digests = {r.id: job_digest(None, r.tasks, f.parameters, r.model_profile)
+                       for r, f in zip(again, failed, strict=True) if r.idempotency_key}  # fmt: skip
+            _submit(state, again, digests=digests, retry_in=batch.id)  # each item's key -> its new job
+            state.fair.remove(tenant, [j.id for j in failed])  # a failed job waits nowhere; make sure of it
+    return _counted_status(state, _load_batch(state, tenant, batch_id), created=len(again))

@@ -264,7 +264,7 @@ def complete_upload(
     if record.state != SceneState.uploading:
         raise HTTPException(status.HTTP_409_CONFLICT, f"scene {scene_id!r} is already {record.state.value}")
     ts = state.tenant(tenant)
-    with completion_claim(state.redis, tenant, scene_id):
+    with completion_claim(state.jobs.database, tenant, scene_id):
         try:
             n, size, summary = _complete_files(state, tenant, record, body)
         except BaseException:
@@ -348,7 +348,7 @@ def _publish(
     scene_id = record.id
     ts = state.tenant(tenant)
     _pause(state, "complete:before_publish", scene_id)
-    with scene_lock(state.redis, tenant, [scene_id]):
+    with scene_lock(state.jobs.database, tenant, [scene_id]):
         _pause(state, "complete:publishing", scene_id)
         if is_deleted(ts, scene_id):
             ts.delete_prefix(f"scenes/{scene_id}/")
@@ -401,7 +401,7 @@ def delete_scene(scene_id: str, tenant: Tenant, state: State) -> Response:
     the sweeper removes."""
     record = _load_scene(state, tenant, scene_id)
     ts = state.tenant(tenant)
-    with scene_lock(state.redis, tenant, [scene_id]):
+    with scene_lock(state.jobs.database, tenant, [scene_id]):
         if is_deleted(ts, scene_id):
             raise not_found("scene", scene_id)
         for job_state in (JobState.queued, JobState.running):

@@ -1,0 +1,207 @@
+"""Fleet operations on a real stack (issue 28, item 2): submit, status, a page and cancel of one
+large batch, and what another tenant's requests cost meanwhile.
+
+The bench starts its own stack (a private redis-server, `rclone serve s3`, a PostgreSQL database of
+its own on the machine's server, one uvicorn API; no workers, so every job only waits, as in the
+issue's measurement) and uploads one tiny synthetic scene. For each size and each of `--repeats`
+rounds it:
+
+- submits one batch of that many items (`POST /v1/batches`, every item the scene with its own task
+  and, as `bfields batch` sends them, an Idempotency-Key per item and one for the batch)
+  -> `submit_s`;
+- reads its status without the job list (`GET /v1/batches/{id}?jobs=false`) -> `status_s`;
+- reads a page of 100 jobs from the middle of the batch (`GET /v1/batches/{id}/jobs`) -> `page_s`;
+- cancels it (`POST /v1/batches/{id}/cancel`) -> `cancel_s`.
+
+Figures are medians over the rounds (status and page: the median of 5 reads per round, then of the
+rounds). `--other-tenant` also measures tenant B's `GET /v1/jobs?limit=20` latency, idle and while
+A submits the largest batch, and prints the p50 / p99 of each.
+
+The machine's 1-minute load average is printed with each size. Usage (repository root):
+
+    python -m bench.bench_batch_ops --sizes 100,1000,5000
+    python -m bench.bench_batch_ops --sizes 5000,50000 --json bench/results/batch-ops.json --other-tenant
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import tempfile
+import threading
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+import httpx
+
+KEYS = {"tenant-a": "key-a", "tenant-b": "key-b"}  # tenant -> API key
+PAGE = 100
+
+
+@contextmanager
+def batch_stack(workdir: Path, max_batch: int) -> Iterator[Any]:
+    """Redis + S3 + PostgreSQL database + one API, no workers (jobs only wait)."""
+    from tests.integration.fixtures.s3_server import S3Server
+    from tests.service.private_stack import PrivateStack
+
+    extra = {
+        "BFIELDS_MAX_BATCH_JOBS": str(max_batch),
+        "BFIELDS_MAX_WAITING_JOBS_PER_TENANT": str(4 * max_batch),
+    }
+    s3 = S3Server(workdir / "s3").start()
+    stack = PrivateStack(workdir, s3.env(), dict(KEYS), extra)
+    try:
+        stack.start()
+        yield stack
+    finally:
+        stack.stop()
+        s3.stop()
+
+
+def _client(stack: Any, tenant: str, timeout_s: float) -> httpx.Client:
+    return httpx.Client(base_url=stack.api.base_url, headers=stack.api.headers(tenant), timeout=timeout_s)
+
+
+def _timed(fn: Callable[[], httpx.Response]) -> tuple[float, httpx.Response]:
+    t0 = time.perf_counter()
+    resp = fn()
+    return time.perf_counter() - t0, resp
+
+
+def _ok(resp: httpx.Response) -> httpx.Response:
+    if resp.status_code >= 400:
+        raise SystemExit(
+            f"{resp.request.method} {resp.request.url.path}: {resp.status_code} {resp.text[:300]}"
+        )
+    return resp
+
+
+def one_round(client: httpx.Client, scene_id: str, size: int, tag: str) -> dict[str, float]:
+    # as `bfields batch` sends them: an Idempotency-Key per item and one for the batch
+    items = [
+        {"scene_id": scene_id, "tasks": [f"{tag} task {i}"], "idempotency_key": f"bench-{tag}-{i}"}
+        for i in range(size)
+    ]
+    submit_s, resp = _timed(
+        lambda: client.post(
+            "/v1/batches", json={"items": items}, headers={"Idempotency-Key": f"bench-batch-{tag}"}
+        )
+    )
+    batch = _ok(resp).json()
+    assert batch["total"] == size and batch["created"] == size, batch
+    batch_id = batch["id"]
+
+    status = []
+    for _ in range(5):
+        dt, resp = _timed(lambda: client.get(f"/v1/batches/{batch_id}", params={"jobs": "false"}))
+        assert _ok(resp).json()["total"] == size
+        status.append(dt)
+
+    # the cursor of the middle page: walk there once (untimed), then time reads of that page
+    cursor: str | None = None
+    for _ in range(size // PAGE // 2):
+        cursor = _ok(client.get(f"/v1/batches/{batch_id}/jobs",
+                                params={"limit": PAGE, **({"cursor": cursor} if cursor else {})})).json()["next_cursor"]  # fmt: skip
+    pages = []
+    params: dict[str, Any] = {"limit": PAGE, **({"cursor": cursor} if cursor else {})}
+    for _ in range(5):
+        dt, resp = _timed(lambda: client.get(f"/v1/batches/{batch_id}/jobs", params=params))
+        assert len(_ok(resp).json()["items"]) == min(PAGE, size)
+        pages.append(dt)
+
+    cancel_s, resp = _timed(lambda: client.post(f"/v1/batches/{batch_id}/cancel"))
+    counts = _ok(resp).json()["counts"]
+    assert counts.get("cancelled", 0) == size, counts
+    return {"submit_s": submit_s, "status_s": statistics.median(status),
+            "page_s": statistics.median(pages), "cancel_s": cancel_s}  # fmt: skip
+
+
+def _latencies(client: httpx.Client, stop: threading.Event, out: list[float]) -> None:
+    while not stop.is_set():
+        dt, resp = _timed(lambda: client.get("/v1/jobs", params={"limit": 20}))
+        _ok(resp)
+        out.append(dt)
+        time.sleep(0.05)
+
+
+def _pct(values: list[float], q: float) -> float:
+    ordered = sorted(values)
+    return ordered[min(len(ordered) - 1, int(q * len(ordered)))]
+
+
+def other_tenant(stack: Any, scene_id: str, size: int) -> dict[str, float]:
+    """Tenant B's listing latency idle (10 s), then while tenant A submits a batch of `size`."""
+    client_a = _client(stack, "tenant-a", 600)
+    client_b = _client(stack, "tenant-b", 60)
+    idle: list[float] = []
+    stop = threading.Event()
+    thread = threading.Thread(target=_latencies, args=(client_b, stop, idle))
+    thread.start()
+    time.sleep(10)
+    stop.set()
+    thread.join()
+    busy: list[float] = []
+    stop = threading.Event()
+    thread = threading.Thread(target=_latencies, args=(client_b, stop, busy))
+    thread.start()
+    items = [{"scene_id": scene_id, "tasks": [f"other {i}"]} for i in range(size)]
+    _ok(client_a.post("/v1/batches", json={"items": items}))
+    stop.set()
+    thread.join()
+    return {"idle_p50_s": _pct(idle, 0.5), "idle_p99_s": _pct(idle, 0.99), "idle_n": len(idle),
+            "busy_p50_s": _pct(busy, 0.5), "busy_p99_s": _pct(busy, 0.99), "busy_n": len(busy)}  # fmt: skip
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--sizes", default="100,1000,5000", help="comma-separated batch sizes")
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--json", type=Path, help="write the per-size medians here")
+    parser.add_argument("--other-tenant", action="store_true", help="tenant B's latency during A's submit")
+    args = parser.parse_args()
+    sizes = [int(s) for s in args.sizes.split(",")]
+
+    from tests.service.private_stack import upload
+    from tests.service.scene_factory import make_scene
+
+    out: dict[str, Any] = {"sizes": {}, "repeats": args.repeats}
+    with (
+        tempfile.TemporaryDirectory(prefix="bench-batch-ops-") as tmp,
+        batch_stack(Path(tmp), max(sizes)) as stack,
+    ):
+        client = _client(stack, "tenant-a", 1200)
+        scene_id = upload(_client(stack, "tenant-a", 120), make_scene(Path(tmp) / "scene"))
+        print(
+            f"{'size':>7} {'submit s':>9} {'status s':>9} {'page s':>8} {'cancel s':>9}  load  rows/s submit"
+        )
+        for size in sizes:
+            rounds = [one_round(client, scene_id, size, f"r{r}s{size}") for r in range(args.repeats)]
+            med = {k: statistics.median(r[k] for r in rounds) for k in rounds[0]}
+            load = os.getloadavg()[0]
+            out["sizes"][str(size)] = {**med, "rounds": rounds, "load_1min": load}
+            print(f"{size:>7} {med['submit_s']:>9.3f} {med['status_s']:>9.4f} {med['page_s']:>8.4f} "
+                  f"{med['cancel_s']:>9.3f}  {load:4.1f}  {size / med['submit_s']:,.0f}")  # fmt: skip
+        if args.other_tenant:
+            figures = other_tenant(
+                stack, scene_id, max(s for s in sizes if s <= 5000) if min(sizes) <= 5000 else min(sizes)
+            )
+            out["other_tenant"] = figures
+            print(
+                f"tenant B GET /v1/jobs: idle p50 {figures['idle_p50_s'] * 1e3:.1f} ms p99 "
+                f"{figures['idle_p99_s'] * 1e3:.1f} ms (n={figures['idle_n']}); during A's submit p50 "
+                f"{figures['busy_p50_s'] * 1e3:.1f} ms p99 {figures['busy_p99_s'] * 1e3:.1f} ms "
+                f"(n={figures['busy_n']}); p99 ratio {figures['busy_p99_s'] / figures['idle_p99_s']:.2f}"
+            )
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(out, indent=2) + "\n")
+        print(f"wrote {args.json}")
+
+
+if __name__ == "__main__":
+    main()

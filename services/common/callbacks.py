@@ -1,21 +1,21 @@
 """Callbacks: an HMAC-signed POST to a job's or a batch's ``callback_url`` on its terminal state.
 
-Delivery is *at least once*, never on the job's path:
-- when a job's row turns terminal (`JobStore` calls `on_job_terminal` after the row's
-  transaction, once per transition), the event is put in a Redis outbox: the body in ``bf:cb:items`` (by event
-  id; HSETNX, so a repeated transition adds nothing) and the id in the ``bf:cb:due`` sorted set,
-  scored by when it is due;
-- a batch's event is added when its last active job turns terminal: the records database decides
-  that (`batch_records.finished_batches`, in the transaction of the state change), once per finish;
-- every worker runs a `CallbackSender`: a dispatcher thread that *claims* due events (one Lua call
-  per event moves its score `callback_lease_s` ahead, so two workers never send one event at the
-  same time) and hands each to a small pool of delivery threads (`callback_threads`), at most
-  `callback_per_destination` of them to one host:port, so a slow or hostile receiver holds only
-  its own share and delays only its own events. An attempt POSTs and on a 2xx deletes the event;
-  on anything else it reschedules it with exponential backoff (`callback_backoff_s` doubling,
-  jittered, at most `callback_backoff_max_s`) up to `callback_max_attempts`, then drops it with an
-  error log. A worker killed mid-POST leaves the claim, which falls due again after the lease: the
-  event is sent again (hence *at least once*). Receivers deduplicate on ``event_id`` (the body's
+Delivery is *at least once*, never on the job's path, through a **transactional outbox** in the
+records database (`callback_outbox`):
+- an event row is inserted in the same transaction as the state change that causes it: a job's row
+  turning terminal (`on_job_terminal`), or the batch's end that the same transaction decides
+  (`on_batch_finished`, `batch_records.finished_batches`); ``event_id`` is unique, so a repeated
+  transition adds nothing, and a crash before the commit loses both or neither;
+- every worker runs a `CallbackSender`: a dispatcher thread that reads due rows and *claims* one
+  (an UPDATE that moves its ``next_attempt_at`` `callback_lease_s` ahead only while it is still
+  due, so two workers never send one event at the same time) and hands each to a small pool of
+  delivery threads (`callback_threads`), at most `callback_per_destination` of them to one
+  host:port, so a slow or hostile receiver holds only its own share and delays only its own
+  events. An attempt POSTs and on a 2xx marks the row delivered; on anything else it reschedules
+  it with exponential backoff (`callback_backoff_s` doubling, jittered, at most
+  `callback_backoff_max_s`) up to `callback_max_attempts`, then marks it dropped with an error
+  log. A worker killed mid-POST leaves the claim, which falls due again after the lease: the event
+  is sent again (hence *at least once*). Receivers deduplicate on ``event_id`` (the body's
   idempotency key, also a header).
 - one attempt (resolve, connect, send, read the answer) ends by `callback_timeout_s` whatever the
   receiver does (`callback_delivery`), and the claim lasts that plus a margin
@@ -23,8 +23,8 @@ Delivery is *at least once*, never on the job's path:
   flight twice while its sender lives.
 The body is JSON; ``X-BFields-Timestamp`` is the Unix time of the attempt and
 ``X-BFields-Signature`` is ``sha256=`` + hex HMAC-SHA256(secret, timestamp + "." + body), so a
-receiver checks both the sender and the freshness. The outbox lives in Redis: run it with AOF
-persistence (as the queue itself needs) or a Redis loss also loses the undelivered callbacks.
+receiver checks both the sender and the freshness. Nothing of this is in Redis: losing Redis
+loses no callback.
 
 URLs are checked when a job is submitted and again before each POST by the same function
 (`callback_destinations.check_destination`): http or https only, no credentials, a valid host name,
@@ -46,11 +46,13 @@ import time
 from collections import Counter
 from concurrent.futures import Future, ThreadPoolExecutor
 from concurrent.futures import wait as wait_futures
-from datetime import datetime
-from typing import Any, Protocol, cast
+from datetime import datetime, timedelta
+from typing import Any, Protocol
 
 import httpcore
-import redis
+from sqlalchemy import Connection, Engine, and_, func, select, update
+from sqlalchemy.dialects.postgresql import insert as pg_insert
+from sqlalchemy.exc import DBAPIError
 
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_service.common.callback_delivery import TRANSPORT_ERRORS, post
@@ -59,47 +61,21 @@ from bayesian_fields_service.common.callback_destinations import (
     check_destination,
     parse_destination,
 )
-from bayesian_fields_service.common.redis_text import text
 from bayesian_fields_service.common.settings import ServiceSettings
+from bayesian_fields_service.records.tables import callback_outbox
 
 log = logging.getLogger(__name__)
 
-ITEMS = "bf:cb:items"
-DUE = "bf:cb:due"
-DEAD = "bf:cb:dead"
 SIGNATURE_HEADER = "X-BFields-Signature"
 TIMESTAMP_HEADER = "X-BFields-Timestamp"
 EVENT_HEADER = "X-BFields-Event-Id"
-#: Due ids the dispatcher reads at a time, and at most per pass, looking for events whose
+#: Due rows the dispatcher reads at a time, and at most per pass, looking for events whose
 #: destination has room: events queued for a busy receiver are skipped, not waited behind, so a
 #: backlog of up to SCAN_MAX of them for one slow receiver delays no one else's.
 SCAN_WINDOW = 256
 SCAN_MAX = 4096
-
-#: Claim the first due event: push its score `lease` seconds ahead and return its id.
-_CLAIM_FIRST = """
-local ids = redis.call('zrangebyscore', KEYS[1], '-inf', ARGV[1], 'LIMIT', 0, 1)
-if #ids == 0 then return false end
-redis.call('zadd', KEYS[1], ARGV[1] + ARGV[2], ids[1])
-return ids[1]
-"""
-
-#: Claim one named event if it is still due (another worker may have claimed it meanwhile).
-_CLAIM_ID = """
-local score = redis.call('zscore', KEYS[1], ARGV[1])
-if not score or tonumber(score) > tonumber(ARGV[2]) then return 0 end
-redis.call('zadd', KEYS[1], ARGV[2] + ARGV[3], ARGV[1])
-return 1
-"""
-
-#: Reschedule a failed event, only while it is still in the outbox: an event removed while its
-#: attempt was in flight must not come back.
-_RESCHEDULE = """
-if redis.call('hexists', KEYS[1], ARGV[1]) == 0 then return 0 end
-redis.call('hset', KEYS[1], ARGV[1], ARGV[2])
-redis.call('zadd', KEYS[2], ARGV[3], ARGV[1])
-return 1
-"""
+_OPEN = and_(callback_outbox.c.delivered_at.is_(None), callback_outbox.c.dropped_at.is_(None))
+"""An event neither delivered nor dropped."""
 
 
 # ---- URL rules -------------------------------------------------------------------------------
@@ -127,13 +103,15 @@ def verify(secret: str, timestamp: str, body: bytes, header: str, *, max_age_s: 
 
 
 # ---- the outbox ------------------------------------------------------------------------------
-def enqueue(client: redis.Redis, url: str, event: dict[str, Any]) -> bool:
-    """Put one event in the outbox (False when an event of that id is already there)."""
-    item = json.dumps({"url": url, "event": event, "attempts": 0})
-    if not client.hsetnx(ITEMS, event["event_id"], item):
-        return False
-    client.zadd(DUE, {event["event_id"]: time.time()})
-    return True
+def enqueue(conn: Connection, tenant: str, url: str, event: dict[str, Any]) -> bool:
+    """Put one event in the outbox in `conn`'s transaction (False when an event of that id is
+    already there)."""
+    statement = (
+        pg_insert(callback_outbox)
+        .values(tenant=tenant, url=url, event_id=event["event_id"], event=event)
+        .on_conflict_do_nothing(index_elements=[callback_outbox.c.event_id])
+    )
+    return bool(conn.execute(statement).rowcount)
 
 
 class TerminalJob(Protocol):
@@ -166,27 +144,27 @@ def _iso(when: datetime | None) -> str | None:
     return when.isoformat() if when is not None else None
 
 
-def on_job_terminal(client: redis.Redis, job: TerminalJob) -> None:
-    """The job's event, when it has a callback_url."""
+def on_job_terminal(conn: Connection, job: TerminalJob) -> None:
+    """The job's event, when it has a callback_url (in the transaction of its terminal write)."""
     if not job.callback_url:
         return
     state = str(getattr(job.state, "value", job.state))
     finished = _iso(job.finished_at)
-    enqueue(client, job.callback_url, {
+    enqueue(conn, job.tenant, job.callback_url, {
         "event_id": f"job:{job.id}:{state}:{finished}", "type": "job.finished",
         "job_id": job.id, "tenant": job.tenant, "scene_id": job.scene_id, "batch_id": job.batch_id,
         "state": state, "error": job.error, "finished_at": finished,
     })  # fmt: skip
 
 
-def on_batch_finished(client: redis.Redis, batch: FinishedBatch) -> None:
+def on_batch_finished(conn: Connection, batch: FinishedBatch) -> None:
     """The batch's event, when it has a callback_url. The records decide that the batch finished
     (`batch_records.finished_batches`, once per finish: a retry opens it again), so the event id
     carries the finish time and a retried batch that finishes again sends a second event."""
     if not batch.callback_url:
         return
     finished = _iso(batch.finished_at)
-    enqueue(client, batch.callback_url, {
+    enqueue(conn, batch.tenant, batch.callback_url, {
         "event_id": f"batch:{batch.id}:finished:{finished}", "type": "batch.finished",
         "batch_id": batch.id, "tenant": batch.tenant, "jobs": batch.total,
         "counts": {k: v for k, v in batch.counts.items() if v}, "finished_at": finished,
@@ -238,69 +216,88 @@ def attempt(
     return False, why
 
 
-def settle(client: redis.Redis, settings: ServiceSettings, event_id: str, item: dict[str, Any],
+def settle(database: Engine, settings: ServiceSettings, row_id: int, event_id: str, url: str, attempts: int,
            ok: bool, why: str) -> str:  # fmt: skip
-    """Record an attempt's outcome: delete a delivered event, reschedule a failed one with
-    backoff, or drop it (to ``bf:cb:dead``, logged) after `callback_max_attempts`."""
+    """Record an attempt's outcome: mark a delivered event, reschedule a failed one with backoff,
+    or drop it (marked, logged) after `callback_max_attempts`. Only an open row changes: one
+    settled or removed while its attempt was in flight is not brought back."""
+    mine = and_(callback_outbox.c.id == row_id, _OPEN)
     if ok:
-        pipe = client.pipeline()
-        pipe.hdel(ITEMS, event_id)
-        pipe.zrem(DUE, event_id)
-        pipe.execute()
-        return f"{event_id}: delivered"
-    item["attempts"] += 1
-    item["last_error"] = why
-    if item["attempts"] >= settings.callback_max_attempts:
-        log.error(
-            "callback %s to %s dropped after %d attempts: %s", event_id, item["url"], item["attempts"], why
-        )
-        pipe = client.pipeline()
-        pipe.lpush(DEAD, json.dumps(item))
-        pipe.ltrim(DEAD, 0, 999)
-        pipe.hdel(ITEMS, event_id)
-        pipe.zrem(DUE, event_id)
-        pipe.execute()
-        return f"{event_id}: dropped"
-    delay = _backoff(settings, item["attempts"])
-    log.warning("callback %s attempt %d failed (%s); next in %.1f s", event_id, item["attempts"], why, delay)
-    if not client.eval(_RESCHEDULE, 2, ITEMS, DUE, event_id, json.dumps(item), time.time() + delay):
-        return f"{event_id}: gone"  # removed while in flight (an operator, a test): not brought back
-    return f"{event_id}: retry"
+        values: dict[str, Any] = {"delivered_at": func.now(), "attempts": attempts + 1}
+        outcome = "delivered"
+    elif attempts + 1 >= settings.callback_max_attempts:
+        log.error("callback %s to %s dropped after %d attempts: %s", event_id, url, attempts + 1, why)
+        values = {"dropped_at": func.now(), "attempts": attempts + 1, "last_error": why}
+        outcome = "dropped"
+    else:
+        delay = _backoff(settings, attempts + 1)
+        log.warning("callback %s attempt %d failed (%s); next in %.1f s", event_id, attempts + 1, why, delay)
+        values = {"attempts": attempts + 1, "last_error": why,
+                  "next_attempt_at": func.now() + timedelta(seconds=delay)}  # fmt: skip
+        outcome = "retry"
+    with database.begin() as conn:
+        changed = conn.execute(update(callback_outbox).where(mine).values(**values)).rowcount
+    return f"{event_id}: {outcome if changed else 'gone'}"
 
 
-def _deliver_claimed(client: redis.Redis, settings: ServiceSettings, event_id: str, claimed_at: float,
+def _deliver_claimed(database: Engine, settings: ServiceSettings, row_id: int, claimed_at: float,
                      resolve: Resolver | None) -> str:  # fmt: skip
     """Attempt and settle an event this process has just claimed (at monotonic `claimed_at`)."""
-    raw = client.hget(ITEMS, event_id)
-    if raw is None:  # delivered by someone else meanwhile
-        client.zrem(DUE, event_id)
-        return f"{event_id}: gone"
-    item = json.loads(raw)
-    body = json.dumps(item["event"], sort_keys=True).encode()
+    with database.connect() as conn:
+        row = (
+            conn.execute(select(callback_outbox).where(callback_outbox.c.id == row_id, _OPEN))
+            .mappings()
+            .first()
+        )
+    if row is None:  # settled by someone else meanwhile
+        return f"{row_id}: gone"
+    body = json.dumps(row["event"], sort_keys=True).encode()
     deadline = claimed_at + settings.callback_timeout_s
-    ok, why = attempt(item["url"], event_id, body, settings, deadline=deadline, resolve=resolve)
-    return settle(client, settings, event_id, item, ok, why)
+    ok, why = attempt(row["url"], row["event_id"], body, settings, deadline=deadline, resolve=resolve)
+    return settle(database, settings, row_id, row["event_id"], row["url"], row["attempts"], ok, why)
+
+
+def _claim(database: Engine, settings: ServiceSettings, row_id: int) -> bool:
+    """Move a due row's next attempt `callback_lease_s` ahead, only if it is still due and open
+    (another worker may have claimed it meanwhile)."""
+    with database.begin() as conn:
+        return bool(
+            conn.execute(
+                update(callback_outbox)
+                .where(callback_outbox.c.id == row_id, _OPEN, callback_outbox.c.next_attempt_at <= func.now())
+                .values(next_attempt_at=func.now() + timedelta(seconds=settings.callback_lease_s))
+            ).rowcount
+        )
+
+
+def _due(database: Engine, offset: int, limit: int) -> list[tuple[int, str]]:
+    """(row id, url) of due events, oldest due first."""
+    with database.connect() as conn:
+        rows = conn.execute(
+            select(callback_outbox.c.id, callback_outbox.c.url)
+            .where(_OPEN, callback_outbox.c.next_attempt_at <= func.now())
+            .order_by(callback_outbox.c.next_attempt_at, callback_outbox.c.id)
+            .offset(offset)
+            .limit(limit)
+        )
+        return [(r.id, r.url) for r in rows]
 
 
 def deliver_one(
-    client: redis.Redis, settings: ServiceSettings, *, resolve: Resolver | None = None
+    database: Engine, settings: ServiceSettings, *, resolve: Resolver | None = None
 ) -> str | None:
     """Claim and POST the first due event in this thread; its id and outcome, or None when none
     is due (`CallbackSender` does the same through its bounded pool)."""
-    claimed_at = time.monotonic()
-    claimed = client.eval(_CLAIM_FIRST, 1, DUE, time.time(), settings.callback_lease_s)
-    if not claimed:
-        return None
-    return _deliver_claimed(client, settings, text(claimed), claimed_at, resolve)
+    for row_id, _ in _due(database, 0, 8):
+        claimed_at = time.monotonic()
+        if _claim(database, settings, row_id):
+            return _deliver_claimed(database, settings, row_id, claimed_at, resolve)
+    return None
 
 
-def destination_key(raw_item: bytes | str) -> str:
-    """host:port of a stored event's URL (what the per-destination bound counts); an item or URL
-    that no longer parses shares one key, and its attempt fails at the check."""
-    try:
-        url = json.loads(raw_item)["url"]
-    except (ValueError, KeyError, TypeError):
-        return "(invalid)"
+def destination_key(url: str) -> str:
+    """host:port of a stored event's URL (what the per-destination bound counts); a URL that no
+    longer parses shares one key, and its attempt fails at the check."""
     return _url_key(url) if isinstance(url, str) else "(invalid)"
 
 
@@ -322,9 +319,9 @@ class CallbackSender:
     attempts to the deadline occupies at most its own share of the threads."""
 
     def __init__(
-        self, client: redis.Redis, settings: ServiceSettings, *, resolve: Resolver | None = None
+        self, database: Engine, settings: ServiceSettings, *, resolve: Resolver | None = None
     ) -> None:
-        self.client = client
+        self.database = database
         self.settings = settings
         self.resolve = resolve
         self._stop = threading.Event()
@@ -363,8 +360,8 @@ class CallbackSender:
         while not self._stop.is_set():
             try:
                 self._dispatch()
-            except redis.RedisError as exc:
-                log.warning("callback delivery: Redis unavailable (%s)", exc)
+            except DBAPIError as exc:
+                log.warning("callback delivery: the records database is unavailable (%s)", exc)
             except Exception:  # never let the thread die: log and go on
                 log.exception("callback dispatch failed")
             self._wake.wait(self.settings.callback_poll_s)
@@ -376,47 +373,42 @@ class CallbackSender:
             free = self.settings.callback_threads - sum(self._busy.values())
         if free <= 0:
             return
-        now = time.time()
         for offset in range(0, SCAN_MAX, SCAN_WINDOW):
-            due = self.client.zrangebyscore(DUE, "-inf", now, start=offset, num=SCAN_WINDOW)
-            ids = [text(i) for i in cast("list[bytes | str]", due)]
-            if not ids:
+            due = _due(self.database, offset, SCAN_WINDOW)
+            if not due:
                 return
-            free = self._start_some(ids, free)
-            if free <= 0 or self._stop.is_set() or len(ids) < SCAN_WINDOW:
+            free = self._start_some(due, free)
+            if free <= 0 or self._stop.is_set() or len(due) < SCAN_WINDOW:
                 return
 
-    def _start_some(self, ids: list[str], free: int) -> int:
-        """Claim and start those of `ids` whose destination has room, up to `free`; what is left
-        of `free`. (Claiming shifts the due set, so a later page may skip or repeat an id: a skipped
-        one is found next pass, a repeated one is refused by its claim.)"""
-        for event_id, raw in zip(ids, self.client.hmget(ITEMS, ids), strict=True):
+    def _start_some(self, due: list[tuple[int, str]], free: int) -> int:
+        """Claim and start those of `due` whose destination has room, up to `free`; what is left
+        of `free`. (Claiming shifts the due rows, so a later page may skip or repeat a row: a
+        skipped one is found next pass, a repeated one is refused by its claim.)"""
+        for row_id, url in due:
             if free <= 0 or self._stop.is_set():
                 break
-            if raw is None:  # settled meanwhile (both keys go in one transaction), or an orphan
-                self.client.zrem(DUE, event_id)
-                continue
-            key = destination_key(raw)
+            key = destination_key(url)
             with self._lock:
                 if self._busy[key] >= self.settings.callback_per_destination:
                     continue
             claimed_at = time.monotonic()
-            if not self.client.eval(_CLAIM_ID, 1, DUE, event_id, time.time(), self.settings.callback_lease_s):
+            if not _claim(self.database, self.settings, row_id):
                 continue  # another worker claimed it first
             with self._lock:
                 self._busy[key] += 1
                 assert self._pool is not None
-                future = self._pool.submit(self._deliver, event_id, key, claimed_at)
+                future = self._pool.submit(self._deliver, row_id, key, claimed_at)
                 self._futures.add(future)
             free -= 1
         return free
 
-    def _deliver(self, event_id: str, key: str, claimed_at: float) -> str:
+    def _deliver(self, row_id: int, key: str, claimed_at: float) -> str:
         try:
-            outcome = _deliver_claimed(self.client, self.settings, event_id, claimed_at, self.resolve)
-        except Exception as exc:  # Redis gone mid-way: the claim expires and the event is retried
-            log.exception("callback %s delivery failed", event_id)
-            outcome = f"{event_id}: error {type(exc).__name__}"
+            outcome = _deliver_claimed(self.database, self.settings, row_id, claimed_at, self.resolve)
+        except Exception as exc:  # the database gone mid-way: the claim expires and the event is retried
+            log.exception("callback %s delivery failed", row_id)
+            outcome = f"{row_id}: error {type(exc).__name__}"
         finally:
             with self._lock:
                 self._busy[key] -= 1

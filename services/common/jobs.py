@@ -404,10 +404,8 @@ class JobStore:
         with self.database.begin() as conn:
             old = self._locked(conn, record.tenant, record.id)
             merged = self._merge_and_write(conn, old, record)
-            ended = merged.state.terminal and (old is None or not old.state.terminal)
-            finished = batch_records.finished_batches(conn, [merged.id]) if ended else []
-        if ended:
-            self._notify_terminal([merged], finished)
+            if merged.state.terminal and (old is None or not old.state.terminal):
+                self._queue_callbacks(conn, [merged])
         return self._after_write(merged)
 
     def _merge_and_write(self, conn: Connection, old: JobRecord | None, record: JobRecord) -> JobRecord:
@@ -434,16 +432,15 @@ class JobStore:
             )
         return merged
 
-    def _notify_terminal(self, records: builtins.list[JobRecord], finished: builtins.list[BatchRecord]) -> None:
-        """Callbacks of jobs that ended and of batches that finished with them (the records
-        decided both in the write's transaction); never fails the write."""
-        try:
-            for record in records:
-                on_job_terminal(self.redis, record)
-            for batch in finished:
-                on_batch_finished(self.redis, batch)
-        except redis.RedisError as exc:
-            log.warning("terminal notification of %d jobs not queued: %s", len(records), exc)
+    @staticmethod
+    def _queue_callbacks(conn: Connection, ended: builtins.list[JobRecord]) -> None:
+        """In the transaction that ended `ended`: their callback events and those of the batches
+        that finished with them (`batch_records.finished_batches`), rows of the outbox
+        (`callbacks`), committed with the change or not at all."""
+        for record in ended:
+            on_job_terminal(conn, record)
+        for batch in batch_records.finished_batches(conn, [r.id for r in ended]):
+            on_batch_finished(conn, batch)
 
     def _after_write(self, merged: JobRecord) -> JobRecord:
         if merged.state.terminal:
@@ -546,9 +543,8 @@ class JobStore:
             if record.state == JobState.queued:
                 update_.update(state=JobState.cancelled, finished_at=utcnow(), error="cancelled by request")
             merged = self._merge_and_write(conn, record, record.model_copy(update=update_))
-            finished = batch_records.finished_batches(conn, [merged.id]) if merged.state.terminal else []
-        if merged.state.terminal:
-            self._notify_terminal([merged], finished)
+            if merged.state.terminal:
+                self._queue_callbacks(conn, [merged])
         return self._after_write(merged)
 
     def cancel_batch(self, tenant: str, batch_id: str) -> builtins.list[JobRecord]:
@@ -559,7 +555,7 @@ class JobStore:
             rows = batch_records.cancel_jobs(conn, tenant, batch_id)
             changed = [_record_of(r) for r in rows]
             ended = [r for r in changed if r.state.terminal]
-            finished = batch_records.finished_batches(conn, [r.id for r in ended])
+            self._queue_callbacks(conn, ended)
         pipe = self.redis.pipeline(transaction=False)
         for record in changed:
             pipe.set(self.cancel_key(tenant, record.id), b"1", ex=FINISHED_HASH_TTL_S * 7)
@@ -569,7 +565,6 @@ class JobStore:
         pipe.execute()
         if ended:
             self.quota.release(tenant, [r.id for r in ended])
-        self._notify_terminal(ended, finished)
         return changed
 
     def is_cancel_requested(self, tenant: str, job_id: str) -> bool:

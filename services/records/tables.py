@@ -183,12 +183,20 @@ callback_outbox = Table(
     Column("url", Text, nullable=False),
     Column("event", Document, nullable=False),
     Column("attempts", Integer, nullable=False, server_default="0"),
-    _when("next_attempt_at"),
-    _when("claimed_until", nullable=True),
+    _when("next_attempt_at"),  # when it is due; while an attempt runs, the end of its claim
     _when("delivered_at", nullable=True),
     Column("last_error", Text),
     _when("created_at"),
-    Index("ix_callback_outbox_due", "next_attempt_at", postgresql_where=text("delivered_at IS NULL")),
+    # the receivers' idempotency key: a repeated transition queues nothing (revision 0004)
+    Column("event_id", String(255), nullable=False),
+    _when("dropped_at", nullable=True),  # given up after its last attempt
+    UniqueConstraint("event_id"),
+    Index(
+        "ix_callback_outbox_due",
+        "next_attempt_at",
+        "id",
+        postgresql_where=text("delivered_at IS NULL AND dropped_at IS NULL"),
+    ),
 )
 
 usage_ledger = Table(

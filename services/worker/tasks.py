@@ -186,7 +186,7 @@ def _on_worker_ready(sender: Any = None, **_: Any) -> None:
     global _callbacks
     rt = runtime()
     start_recovery_thread(app, rt.jobs, rt.settings)
-    _callbacks = CallbackSender(rt.redis, rt.settings)  # at-least-once delivery (common/callbacks.py)
+    _callbacks = CallbackSender(rt.jobs.database, rt.settings)  # at-least-once delivery (common/callbacks.py)
     _callbacks.start()
 
 

@@ -144,7 +144,7 @@ def test_revision_0002_lists_become_rows_and_come_back(fresh_database: str) -> N
                 "INSERT INTO jobs (id, tenant, scene_id, batch_id, state, priority, tasks, model_profile, progress) "
                 f"VALUES ('{job_id}', 't', 's_x', 'b_old', '{state}', 'bulk', '[]', 'default', 10)"
             ))  # fmt: skip
-    migrate(fresh_database)
+    assert migrate(fresh_database, "0003") == "0003"
     with db.connect() as conn:
         links = conn.execute(
             select(batch_jobs.c.position, batch_jobs.c.job_id).order_by(batch_jobs.c.position)

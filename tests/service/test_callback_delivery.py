@@ -1,5 +1,5 @@
 """Callback delivery that no receiver can stall (issue 30, item 5), on the real stack: a real Celery
-worker (its `CallbackSender` is what delivers), real Redis (the outbox), and real HTTP receivers
+worker (its `CallbackSender` is what delivers), real PostgreSQL (the outbox table), and real HTTP receivers
 (`callback_receivers`) that drip, send hundreds of MB, never answer, redirect or fail once.
 
 The worker runs with the shipped defaults for delivery threads, the per-destination bound and the
@@ -8,16 +8,17 @@ outbox exactly as a finished job puts them there (`callbacks.enqueue`)."""
 
 from __future__ import annotations
 
-import json
 import time
 import uuid
 from collections.abc import Callable, Iterator
 
 import pytest
-import redis
+from sqlalchemy import Engine, select
 
 from bayesian_fields_service.common import callbacks
 from bayesian_fields_service.common.settings import ServiceSettings
+from bayesian_fields_service.records.database import engine, migrate
+from bayesian_fields_service.records.tables import callback_outbox
 from tests.integration.fixtures.services import WorkerPool, WorkerProcess
 
 from .callback_receivers import Receiver, RssSampler, overlapping
@@ -54,16 +55,19 @@ def _wait(check: Callable[[], bool], timeout_s: float, what: str) -> None:
 
 
 @pytest.fixture(scope="module")
-def outbox(redis_url: str) -> Iterator[redis.Redis]:
-    client = redis.Redis.from_url(redis_url)
-    client.delete(callbacks.ITEMS, callbacks.DUE, callbacks.DEAD)
-    yield client
-    client.delete(callbacks.ITEMS, callbacks.DUE, callbacks.DEAD)
-    client.close()
+def outbox(svc_env: dict[str, str]) -> Iterator[Engine]:
+    """The outbox table of the database the worker uses, emptied before and after."""
+    migrate(svc_env["BFIELDS_DATABASE_URL"])  # (the worker would, when it starts)
+    db = engine(svc_env["BFIELDS_DATABASE_URL"])
+    with db.begin() as conn:
+        conn.execute(callback_outbox.delete())
+    yield db
+    with db.begin() as conn:
+        conn.execute(callback_outbox.delete())
 
 
 @pytest.fixture(scope="module")
-def callback_worker(celery_workers: WorkerPool, outbox: redis.Redis) -> Iterator[WorkerProcess]:
+def callback_worker(celery_workers: WorkerPool, outbox: Engine) -> Iterator[WorkerProcess]:
     """One real Celery worker (solo pool, its own queue: it runs no job, only its callback sender)."""
     worker = celery_workers.start("callbacks-test", name="callbacks", extra_env=WORKER_ENV)
     yield worker
@@ -84,23 +88,35 @@ def receivers() -> Iterator[Callable[..., Receiver]]:
         r.close()
 
 
-def _enqueue(outbox: redis.Redis, url: str, kind: str) -> str:
+def _enqueue(outbox: Engine, url: str, kind: str) -> str:
     event_id = f"test:{kind}:{uuid.uuid4().hex[:12]}"
-    assert callbacks.enqueue(outbox, url, {"event_id": event_id, "type": f"test.{kind}"})
+    with outbox.begin() as conn:
+        assert callbacks.enqueue(conn, "t", url, {"event_id": event_id, "type": f"test.{kind}"})
     return event_id
 
 
-def _dead(outbox: redis.Redis) -> dict[str, dict]:
-    items = [json.loads(raw) for raw in outbox.lrange(callbacks.DEAD, 0, -1)]
-    return {item["event"]["event_id"]: item for item in items}
+def _dead(outbox: Engine) -> dict[str, dict]:
+    with outbox.connect() as conn:
+        rows = conn.execute(
+            select(callback_outbox).where(callback_outbox.c.dropped_at.is_not(None))
+        ).mappings()
+        return {r["event_id"]: dict(r) for r in rows}
 
 
-def _pending(outbox: redis.Redis, event_ids: list[str]) -> list[str]:
-    return [e for e in event_ids if outbox.hexists(callbacks.ITEMS, e)]
+def _pending(outbox: Engine, event_ids: list[str]) -> list[str]:
+    with outbox.connect() as conn:
+        rows = conn.execute(
+            select(callback_outbox.c.event_id).where(
+                callback_outbox.c.event_id.in_(event_ids),
+                callback_outbox.c.delivered_at.is_(None),
+                callback_outbox.c.dropped_at.is_(None),
+            )
+        )
+        return [r.event_id for r in rows]
 
 
 def test_ordinary_callback_on_time_while_drip_and_huge_receivers_are_served(
-    callback_worker: WorkerProcess, outbox: redis.Redis, receivers: Callable[..., Receiver]
+    callback_worker: WorkerProcess, outbox: Engine, receivers: Callable[..., Receiver]
 ) -> None:
     """More drip events than the per-destination bound and 400 MB answers do not delay an ordinary
     callback; the drip attempts end by the deadline, one at a time per event, at most
@@ -151,7 +167,7 @@ def test_ordinary_callback_on_time_while_drip_and_huge_receivers_are_served(
 
 
 def test_silent_receiver_two_senders_never_in_flight_twice(
-    callback_worker: WorkerProcess, outbox: redis.Redis, receivers: Callable[..., Receiver], redis_url: str
+    callback_worker: WorkerProcess, outbox: Engine, receivers: Callable[..., Receiver], redis_url: str
 ) -> None:
     """A receiver that never answers: each attempt ends at the deadline, the event is dropped after
     `callback_max_attempts`, and with two senders competing (the worker and a second sender in this
@@ -160,7 +176,7 @@ def test_silent_receiver_two_senders_never_in_flight_twice(
     silent = receivers("silent")
     settings = ServiceSettings(redis_url=redis_url, **{k[8:].lower(): v for k, v in WORKER_ENV.items()})  # type: ignore[arg-type]
     assert settings.callback_lease_s > settings.callback_timeout_s
-    second = callbacks.CallbackSender(redis.Redis.from_url(redis_url), settings)
+    second = callbacks.CallbackSender(outbox, settings)
     second.start()
     try:
         events = [_enqueue(outbox, silent.url(), "silent") for _ in range(3)]
@@ -181,7 +197,7 @@ def test_silent_receiver_two_senders_never_in_flight_twice(
 
 
 def test_redirect_is_not_followed(
-    callback_worker: WorkerProcess, outbox: redis.Redis, receivers: Callable[..., Receiver]
+    callback_worker: WorkerProcess, outbox: Engine, receivers: Callable[..., Receiver]
 ) -> None:
     """A 302 is a failed attempt (retried, then dropped); its Location is never requested."""
     target = receivers("ok")
@@ -194,7 +210,7 @@ def test_redirect_is_not_followed(
 
 
 def test_500_then_200_is_retried_and_delivered(
-    callback_worker: WorkerProcess, outbox: redis.Redis, receivers: Callable[..., Receiver]
+    callback_worker: WorkerProcess, outbox: Engine, receivers: Callable[..., Receiver]
 ) -> None:
     """A 500 is retried after the backoff; the 200 that follows delivers it: out of the outbox,
     not dropped, the same event id and body both times, both signed."""

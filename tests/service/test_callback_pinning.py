@@ -8,7 +8,6 @@ resolve nowhere else."""
 from __future__ import annotations
 
 import datetime as dt
-import json
 import socket
 import ssl
 import threading
@@ -17,16 +16,18 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-import redis
 from cryptography import x509
 from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import NameOID
+from sqlalchemy import Engine, func, insert, select
 
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_service.common import callbacks
 from bayesian_fields_service.common.settings import ServiceSettings
-from tests.integration.fixtures.redis_server import RedisServer
+from bayesian_fields_service.records.database import engine, migrate
+from bayesian_fields_service.records.tables import callback_outbox
+from tests.integration.fixtures.postgres import create_database, drop_database
 
 from .callback_receivers import Receiver
 
@@ -63,25 +64,48 @@ def ok() -> Iterator[Receiver]:
     r.close()
 
 
-def _deliver(client: redis.Redis, settings: ServiceSettings, url: str, resolve: ChangingResolver) -> dict:
+@pytest.fixture
+def outbox() -> Iterator[Engine]:
+    """A records database of this test's own (the outbox is a table)."""
+    url = create_database()
+    migrate(url)
+    try:
+        yield engine(url)
+    finally:
+        drop_database(url)
+
+
+def _open(db: Engine) -> int:
+    with db.connect() as conn:
+        return int(conn.execute(select(func.count()).select_from(callback_outbox).where(
+            callback_outbox.c.delivered_at.is_(None), callback_outbox.c.dropped_at.is_(None))).scalar_one())  # fmt: skip
+
+
+def _deliver(db: Engine, settings: ServiceSettings, url: str, resolve: ChangingResolver) -> dict:
     """Enqueue one event to `url` and let a real `CallbackSender` (using `resolve`) settle it;
-    its outcome ("delivered" or the dropped item)."""
+    its outcome ("delivered" or the dropped row)."""
     event_id = "test:pin:" + str(time.monotonic_ns())
-    assert callbacks.enqueue(client, url, {"event_id": event_id, "type": "test.pin"})
-    sender = callbacks.CallbackSender(client, settings, resolve=resolve)
+    with db.begin() as conn:
+        assert callbacks.enqueue(conn, "t", url, {"event_id": event_id, "type": "test.pin"})
+    sender = callbacks.CallbackSender(db, settings, resolve=resolve)
     sender.start()
     try:
         deadline = time.monotonic() + 10
-        while client.hexists(callbacks.ITEMS, event_id) and time.monotonic() < deadline:
+        while _open(db) and time.monotonic() < deadline:
             time.sleep(0.02)
     finally:
         sender.stop()
-    assert not client.hexists(callbacks.ITEMS, event_id), "not settled"
-    dead = [json.loads(raw) for raw in client.lrange(callbacks.DEAD, 0, -1)]
-    return next((d for d in dead if d["event"]["event_id"] == event_id), {"delivered": True})
+    assert not _open(db), "not settled"
+    with db.connect() as conn:
+        row = (
+            conn.execute(select(callback_outbox).where(callback_outbox.c.event_id == event_id))
+            .mappings()
+            .one()
+        )
+    return dict(row) if row["dropped_at"] is not None else {"delivered": True}
 
 
-def test_an_answer_changed_after_submit_cannot_aim_inward(private_redis: RedisServer, ok: Receiver) -> None:
+def test_an_answer_changed_after_submit_cannot_aim_inward(outbox: Engine, ok: Receiver) -> None:
     """Submit: the name resolves to a public address, so the URL is accepted (with a trailing dot,
     normalised). Delivery: the same name now answers 127.0.0.1; the sender checks that answer,
     refuses it, and never connects: the receiver on 127.0.0.1 gets nothing."""
@@ -89,25 +113,20 @@ def test_an_answer_changed_after_submit_cannot_aim_inward(private_redis: RedisSe
     url = f"http://{NAME}.:{ok.port}/cb"
     settings = _settings()
     assert callbacks.check_callback_url(url, settings, resolve=resolve) == url  # submit: accepted
-    client = redis.Redis.from_url(private_redis.url())
-    dropped = _deliver(client, settings, url, resolve)
+    dropped = _deliver(outbox, settings, url, resolve)
     assert resolve.asked == [NAME, NAME]  # resolved again at delivery, the trailing dot removed both times
     assert "refused" in dropped["last_error"] and "127.0.0.1 is a loopback address" in dropped["last_error"]
     assert ok.snapshot() == []
 
 
-def test_delivery_connects_to_the_checked_address_with_the_name_as_host(
-    private_redis: RedisServer, ok: Receiver
-) -> None:
+def test_delivery_connects_to_the_checked_address_with_the_name_as_host(outbox: Engine, ok: Receiver) -> None:
     """With private addresses allowed (so 127.0.0.1 may receive), a name only the stub knows is
     delivered: the connection went to the address the check approved, with no second lookup (the
     system resolver knows no such name), the Host header is the name, and a trailing dot in the URL
     delivers like the name without it."""
     resolve = ChangingResolver(["127.0.0.1"], ["10.255.255.1"])  # a second lookup would go elsewhere
     url = f"http://{NAME.upper()}.:{ok.port}/cb?x=1"
-    outcome = _deliver(
-        redis.Redis.from_url(private_redis.url()), _settings(callback_allow_private=True), url, resolve
-    )
+    outcome = _deliver(outbox, _settings(callback_allow_private=True), url, resolve)
     assert outcome == {"delivered": True}, outcome
     assert resolve.asked == [NAME]
     (hit,) = ok.snapshot()
@@ -178,22 +197,21 @@ def test_slow_dns_counts_against_the_attempt_deadline() -> None:
     assert time.monotonic() - started < 1.5
 
 
-def test_a_backlog_for_one_receiver_delays_no_one_else(private_redis: RedisServer, ok: Receiver) -> None:
+def test_a_backlog_for_one_receiver_delays_no_one_else(outbox: Engine, ok: Receiver) -> None:
     """300 events due for a receiver that never answers (more than the dispatcher reads at a time)
     ahead of one ordinary event: the ordinary one is still delivered at once, the silent receiver
     holding only its `callback_per_destination` share of the threads."""
     silent = Receiver("silent")
-    client = redis.Redis.from_url(private_redis.url())
     settings = _settings(callback_allow_private=True, callback_max_attempts=3)
     assert 300 > callbacks.SCAN_WINDOW
-    pipe = client.pipeline()
-    for n in range(300):
-        item = {"url": silent.url(), "event": {"event_id": f"test:backlog:{n}"}, "attempts": 0}
-        pipe.hset(callbacks.ITEMS, f"test:backlog:{n}", json.dumps(item))
-        pipe.zadd(callbacks.DUE, {f"test:backlog:{n}": time.time() - 1})
-    pipe.execute()
-    callbacks.enqueue(client, ok.url("/ordinary"), {"event_id": "test:ordinary"})
-    sender = callbacks.CallbackSender(client, settings)
+    with outbox.begin() as conn:
+        conn.execute(insert(callback_outbox), [
+            {"tenant": "t", "url": silent.url(), "event_id": f"test:backlog:{n}",
+             "event": {"event_id": f"test:backlog:{n}"}, "next_attempt_at": dt.datetime.now(dt.UTC) - dt.timedelta(seconds=1)}
+            for n in range(300)
+        ])  # fmt: skip
+        callbacks.enqueue(conn, "t", ok.url("/ordinary"), {"event_id": "test:ordinary"})
+    sender = callbacks.CallbackSender(outbox, settings)
     started = time.monotonic()
     sender.start()
     try:
@@ -202,7 +220,8 @@ def test_a_backlog_for_one_receiver_delays_no_one_else(private_redis: RedisServe
             time.sleep(0.01)
         latency = time.monotonic() - started
         in_flight = sender.in_flight()
-        client.delete(callbacks.ITEMS, callbacks.DUE)  # the backlog is not brought back by its attempts
+        with outbox.begin() as conn:  # the backlog is not brought back by its attempts
+            conn.execute(callback_outbox.delete().where(callback_outbox.c.event_id.like("test:backlog:%")))
     finally:
         sender.stop()
         silent.close()
@@ -212,4 +231,4 @@ def test_a_backlog_for_one_receiver_delays_no_one_else(private_redis: RedisServe
     assert [h.event_id for h in ok.snapshot()] == ["test:ordinary"]
     assert latency < 1.0
     assert in_flight == {f"127.0.0.1:{silent.port}": settings.callback_per_destination}
-    assert client.zcard(callbacks.DUE) == 0 and client.hlen(callbacks.ITEMS) == 0
+    assert _open(outbox) == 0

@@ -25,6 +25,7 @@ from tests.integration.fixtures.redis_server import RedisServer
 from tests.integration.fixtures.services import ApiServer, WorkerPool, build_service_env
 from tests.scene_transforms import copy_scene, move_splat
 
+from .callback_receivers import Receiver
 from .conftest import SERVICE_ENV
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
@@ -248,23 +249,30 @@ def test_redis_restart_loses_no_job(
     tmp_path: Path, tmp_path_factory: pytest.TempPathFactory, s3_server, test_api_keys: dict[str, str],  # noqa: ANN001
     worker_env: dict[str, str], scene_dir: Path,
 ) -> None:  # fmt: skip
-    """Jobs queued while no worker runs; Redis restarts WITHOUT persistence (queue and live state
-    gone); workers started afterwards recover every job from the bucket manifests."""
+    """A batch (with a callback) queued while no worker runs; Redis restarts WITHOUT persistence
+    (queue, live state, everything gone); workers started afterwards recover every job from its
+    row, and the batch's callback, decided and queued by the records database, arrives once.
+    (Before the transactional outbox, a batch whose jobs finished around a Redis loss never sent
+    its callback: its per-job states lived in a Redis hash.)"""
+    receiver = Receiver("ok")
     redis_srv = RedisServer(tmp_path / "redis", appendonly=False).start()
+    callbacks_on = {"BFIELDS_CALLBACK_SECRET": "test-secret", "BFIELDS_CALLBACK_ALLOW_PRIVATE": "true",
+                    "BFIELDS_CALLBACK_POLL_S": "0.2"}  # fmt: skip
     env = build_service_env(
-        tmp_path / "env", redis_srv.url(), s3_server.env(), test_api_keys, {**SERVICE_ENV, **worker_env}
-    )
+        tmp_path / "env", redis_srv.url(), s3_server.env(), test_api_keys,
+        {**SERVICE_ENV, **worker_env, **callbacks_on},
+    )  # fmt: skip
     api = ApiServer(env=env, log_dir=tmp_path / "api", keys=dict(test_api_keys)).start()
     pool = WorkerPool(broker_url=redis_srv.url(), env=env, log_dir=tmp_path / "workers")
     try:
         scene_id = _upload(api, scene_dir)
         with api.client("tenant-a") as client:
-            ids = [
-                client.post(
-                    "/v1/jobs", json={"scene_id": scene_id, "tasks": tasks, "parameters": PARAMS}
-                ).json()["id"]
-                for tasks in (TASKS, TASKS[::-1])
-            ]
+            batch = client.post("/v1/batches", json={
+                "scene_ids": [scene_id], "task_lists": [TASKS, TASKS[::-1]], "parameters": PARAMS,
+                "callback_url": receiver.url("/batch"),
+            })  # fmt: skip
+            assert batch.status_code == 202, batch.text
+            ids = [j["id"] for j in batch.json()["jobs"]]
             redis_srv.stop()
             redis_srv.start()
             import redis as redis_lib
@@ -276,7 +284,12 @@ def test_redis_restart_loses_no_job(
             pool.start("cpu")
             finals = [_wait(client, job_id) for job_id in ids]
         assert [f["state"] for f in finals] == ["succeeded", "succeeded"], finals
+        _wait_for(lambda: len(receiver.snapshot()) >= 1, 30, "the batch callback")
+        time.sleep(2.0)  # and no second one
+        hits = receiver.snapshot()
+        assert len(hits) == 1 and hits[0].event_id.startswith(f"batch:{batch.json()['id']}:finished:"), hits
     finally:
         pool.stop_all()
         api.stop()
         redis_srv.stop()
+        receiver.close()

@@ -42,7 +42,7 @@ from sqlalchemy import cast as sql_cast
 
 from bayesian_fields_core.job.stage_table import STAGE_TABLE, STAGES
 from bayesian_fields_core.job.store import Store
-from bayesian_fields_service.common import batch_records
+from bayesian_fields_service.common import batch_records, usage
 from bayesian_fields_service.common.batch_records import BatchRecord
 from bayesian_fields_service.common.callbacks import on_batch_finished, on_job_terminal
 from bayesian_fields_service.common.fair_queue import Priority, dispatched_key
@@ -436,9 +436,11 @@ class JobStore:
     def _queue_callbacks(conn: Connection, ended: builtins.list[JobRecord]) -> None:
         """In the transaction that ended `ended`: their callback events and those of the batches
         that finished with them (`batch_records.finished_batches`), rows of the outbox
-        (`callbacks`), committed with the change or not at all."""
+        (`callbacks`), and their usage ledger rows (`usage.record_job_end`), committed with the
+        change or not at all: every end counts once, a job cancelled while waiting included."""
         for record in ended:
             on_job_terminal(conn, record)
+            usage.record_job_end(conn, record)
         for batch in batch_records.finished_batches(conn, [r.id for r in ended]):
             on_batch_finished(conn, batch)
 

@@ -10,32 +10,25 @@ and crashed runs that reached the end of their stage included: they used the mac
 - bytes stored: the size of everything under the job's prefix (``jobs/<id>/``: stage markers,
   intermediate arrays, result) after the stage; the scene and its shared caches are not a job's.
 
-Per tenant and day (UTC): every stage execution and every job end is one *ledger* object in the
-tenant's bucket space (``usage/<day>/<entry>.json``, the truth, written first), then added once
-to a Redis hash (``bf:usage:<tenant>:<day>``; the entry's id goes into a ``...:seen`` set in the
-same Lua call, so a retried write never counts twice). A read compares the day's ledger with the
-seen set and replays what Redis lacks (after a Redis restart, or a worker that died between the
-two writes), so the totals are exact and a read is one LIST per day plus one HGETALL.
+Per tenant and day (UTC): the ``usage_ledger`` table of the records database. Every stage
+execution is one row written by the worker that ran it (`record_stage`); every job end is one row
+written in the same transaction as the job's terminal state (`record_job_end`, called by the jobs
+domain whoever ends the job: a worker, a cancel of a waiting job, a batch cancel, recovery), so a
+job cancelled before any worker saw it is counted like any other. Each row has a unique
+``entry_id``, so a retried write never counts twice; the totals are one aggregate query over the
+(tenant, recorded_at) index, and a Redis loss changes nothing.
 """
 
 from __future__ import annotations
 
-import json
-from datetime import UTC, date, datetime, timedelta
-from typing import Any
+from datetime import UTC, date, datetime, time, timedelta
+from typing import Any, Protocol
 
-import redis
 from pydantic import BaseModel, Field, computed_field
+from sqlalchemy import Connection, Engine, Integer, cast, func, select
+from sqlalchemy.dialects.postgresql import insert as pg_insert
 
-from bayesian_fields_core.job.store import ArtifactNotFound, Store, get_json, put_json
-
-LEDGER_PREFIX = "usage/"
-
-_APPLY = """
-if redis.call('sadd', KEYS[2], ARGV[1]) == 0 then return 0 end
-for i = 2, #ARGV, 2 do redis.call('hincrbyfloat', KEYS[1], ARGV[i], ARGV[i + 1]) end
-return 1
-"""
+from bayesian_fields_service.records.tables import usage_ledger
 
 
 class JobUsage(BaseModel):
@@ -77,112 +70,93 @@ class JobUsage(BaseModel):
         )
 
 
-def day_of(when: datetime) -> str:
-    return when.astimezone(UTC).date().isoformat()
+class EndedJob(Protocol):
+    """What `record_job_end` reads of a job record."""
+
+    id: str
+    tenant: str
+    finished_at: datetime | None
+    usage: JobUsage
+
+    @property
+    def state(self) -> Any: ...
 
 
-def _redis_keys(tenant: str, day: str) -> tuple[str, str]:
-    return f"bf:usage:{tenant}:{day}", f"bf:usage:{tenant}:{day}:seen"
-
-
-def _apply(client: redis.Redis, tenant: str, day: str, entry_id: str, fields: dict[str, float]) -> None:
-    flat: list[Any] = [entry_id]
-    for name, value in fields.items():
-        flat += [name, repr(float(value))]
-    client.eval(_APPLY, 2, *_redis_keys(tenant, day), *flat)
-
-
-def stage_fields(stage: str, cpu_s: float, gpu_s: float) -> dict[str, float]:
-    return {
-        "stage_runs": 1,
-        "cpu_seconds": cpu_s,
-        "gpu_seconds": gpu_s,
-        f"cpu_seconds:{stage}": cpu_s,
-        f"gpu_seconds:{stage}": gpu_s,
-    }
-
-
-def job_fields(state: str, bytes_stored: int) -> dict[str, float]:
-    return {"jobs": 1, f"jobs:{state}": 1, "bytes_stored": bytes_stored}
-
-
-def record(
-    store: Store, client: redis.Redis, tenant: str, entry_id: str, fields: dict[str, float], when: datetime
-) -> None:
-    """One ledger entry (`store` is the tenant's view): bucket first, then the Redis totals."""
-    day = day_of(when)
-    put_json(
-        store,
-        f"{LEDGER_PREFIX}{day}/{entry_id}.json",
-        {"id": entry_id, "at": when.isoformat(), "fields": fields},
+def _insert(conn: Connection, row: dict[str, Any]) -> None:
+    conn.execute(
+        pg_insert(usage_ledger).values(**row).on_conflict_do_nothing(index_elements=[usage_ledger.c.entry_id])
     )
-    _apply(client, tenant, day, entry_id, fields)
 
 
-def _repair_day(store: Store, client: redis.Redis, tenant: str, day: str) -> None:
-    """Replay the day's ledger entries Redis has not counted (idempotent: the seen set)."""
-    prefix = f"{LEDGER_PREFIX}{day}/"
-    names = [k[len(prefix) : -len(".json")] for k in store.list(prefix) if k.endswith(".json")]
-    seen_key = _redis_keys(tenant, day)[1]
-    if not names or client.scard(seen_key) >= len(names):
+def record_stage(database: Engine, tenant: str, job_id: str, stage: str, run: int, cpu_s: float, gpu_s: float,
+                 when: datetime) -> None:  # fmt: skip
+    """One stage execution's row (entry ``<job>.<stage>.<run>``: written once however often tried)."""
+    with database.begin() as conn:
+        _insert(conn, {"entry_id": f"{job_id}.{stage}.{run}", "tenant": tenant, "job_id": job_id, "kind": "stage",
+                       "stage": stage, "cpu_s": cpu_s, "gpu_s": gpu_s, "recorded_at": when})  # fmt: skip
+
+
+def record_job_end(conn: Connection, job: EndedJob) -> None:
+    """The job's end (its outcome and the bytes it leaves stored), in `conn`'s transaction: the one
+    that made the job terminal (entry ``<job>.end``: once per job)."""
+    _insert(conn, {
+        "entry_id": f"{job.id}.end", "tenant": job.tenant, "job_id": job.id, "kind": "end",
+        "state": str(getattr(job.state, "value", job.state)), "bytes_stored": job.usage.bytes_stored,
+        "recorded_at": job.finished_at or datetime.now(UTC),
+    })  # fmt: skip
+
+
+def _empty() -> dict[str, Any]:
+    return {"jobs": 0, "jobs_by_state": {}, "stage_runs": 0, "cpu_seconds": 0.0, "gpu_seconds": 0.0,
+            "bytes_stored": 0, "by_stage": {}}  # fmt: skip
+
+
+def _add(totals: dict[str, Any], kind: str, stage: str | None, state: str | None, n: int, cpu: float, gpu: float,
+         size: int) -> None:  # fmt: skip
+    if kind == "end":
+        totals["jobs"] += n
+        totals["jobs_by_state"][state or "?"] = totals["jobs_by_state"].get(state or "?", 0) + n
+        totals["bytes_stored"] += size
         return
-    seen = {m.decode() if isinstance(m, bytes) else str(m) for m in client.smembers(seen_key)}
-    for name in names:
-        if name in seen:
-            continue
-        try:
-            entry = get_json(store, f"{prefix}{name}.json")
-        except (ArtifactNotFound, ValueError, json.JSONDecodeError):
-            continue
-        _apply(client, tenant, day, name, {k: float(v) for k, v in entry.get("fields", {}).items()})
+    totals["stage_runs"] += n
+    totals["cpu_seconds"] = round(totals["cpu_seconds"] + cpu, 3)
+    totals["gpu_seconds"] = round(totals["gpu_seconds"] + gpu, 3)
+    by = totals["by_stage"].setdefault(stage or "?", {"cpu_seconds": 0.0, "gpu_seconds": 0.0})
+    by["cpu_seconds"] = round(by["cpu_seconds"] + cpu, 3)
+    by["gpu_seconds"] = round(by["gpu_seconds"] + gpu, 3)
 
 
-def _day_totals(raw: dict[Any, Any]) -> dict[str, Any]:
-    values = {(k.decode() if isinstance(k, bytes) else str(k)): float(v) for k, v in raw.items()}
-    by_stage: dict[str, dict[str, float]] = {}
-    jobs_by_state: dict[str, int] = {}
-    for name, value in values.items():
-        kind, _, which = name.partition(":")
-        if which and kind in ("cpu_seconds", "gpu_seconds"):
-            by_stage.setdefault(which, {"cpu_seconds": 0.0, "gpu_seconds": 0.0})[kind] = round(value, 3)
-        elif which and kind == "jobs":
-            jobs_by_state[which] = int(value)
-    return {
-        "jobs": int(values.get("jobs", 0)),
-        "jobs_by_state": jobs_by_state,
-        "stage_runs": int(values.get("stage_runs", 0)),
-        "cpu_seconds": round(values.get("cpu_seconds", 0.0), 3),
-        "gpu_seconds": round(values.get("gpu_seconds", 0.0), 3),
-        "bytes_stored": int(values.get("bytes_stored", 0)),
-        "by_stage": by_stage,
-    }
-
-
-def days_between(start: date, end: date) -> list[str]:
-    return [(start + timedelta(days=n)).isoformat() for n in range((end - start).days + 1)]
-
-
-def tenant_usage(store: Store, client: redis.Redis, tenant: str, start: date, end: date) -> dict[str, Any]:
-    """Totals of `tenant` per day in [start, end] (UTC, inclusive) and over the period."""
-    days = []
-    for day in days_between(start, end):
-        _repair_day(store, client, tenant, day)
-        raw = client.hgetall(_redis_keys(tenant, day)[0])
-        if raw:
-            days.append({"day": day, **_day_totals(raw)})
-    total: dict[str, Any] = {
-        "jobs": 0, "jobs_by_state": {}, "stage_runs": 0, "cpu_seconds": 0.0, "gpu_seconds": 0.0,
-        "bytes_stored": 0, "by_stage": {},
-    }  # fmt: skip
-    for d in days:
-        for name in ("jobs", "stage_runs", "bytes_stored"):
-            total[name] += d[name]
-        for name in ("cpu_seconds", "gpu_seconds"):
-            total[name] = round(total[name] + d[name], 3)
-        for state, n in d["jobs_by_state"].items():
-            total["jobs_by_state"][state] = total["jobs_by_state"].get(state, 0) + n
-        for stage, v in d["by_stage"].items():
-            t = total["by_stage"].setdefault(stage, {"cpu_seconds": 0.0, "gpu_seconds": 0.0})
-            for k in ("cpu_seconds", "gpu_seconds"):
-                t[k] = round(t[k] + v[k], 3)
-    return {"tenant": tenant, "from": start.isoformat(), "to": end.isoformat(), "total": total, "days": days}
+def tenant_usage(database: Engine, tenant: str, start: date, end: date) -> dict[str, Any]:
+    """Totals of `tenant` per day in [start, end] (UTC, inclusive) and over the period: one
+    aggregate over the tenant's ledger rows of the period."""
+    low = datetime.combine(start, time(), UTC)
+    high = datetime.combine(end + timedelta(days=1), time(), UTC)
+    day = func.date(func.timezone("UTC", usage_ledger.c.recorded_at)).label("day")
+    query = (
+        select(
+            day,
+            usage_ledger.c.kind,
+            usage_ledger.c.stage,
+            usage_ledger.c.state,
+            func.count(),
+            func.coalesce(func.sum(usage_ledger.c.cpu_s), 0.0),
+            func.coalesce(func.sum(usage_ledger.c.gpu_s), 0.0),
+            cast(func.coalesce(func.sum(usage_ledger.c.bytes_stored), 0), Integer),
+        )  # fmt: skip
+        .where(
+            usage_ledger.c.tenant == tenant,
+            usage_ledger.c.recorded_at >= low,
+            usage_ledger.c.recorded_at < high,
+        )
+        .group_by(day, usage_ledger.c.kind, usage_ledger.c.stage, usage_ledger.c.state)
+        .order_by(day)
+    )
+    with database.connect() as conn:
+        rows = conn.execute(query).all()
+    days: dict[str, dict[str, Any]] = {}
+    total = _empty()
+    for when, kind, stage, state, n, cpu, gpu, size in rows:
+        for totals in (days.setdefault(when.isoformat(), _empty()), total):
+            _add(totals, kind, stage, state, int(n), float(cpu), float(gpu), int(size))
+    return {"tenant": tenant, "from": start.isoformat(), "to": end.isoformat(), "total": total,
+            "days": [{"day": d, **t} for d, t in sorted(days.items())]}  # fmt: skip

@@ -202,14 +202,21 @@ callback_outbox = Table(
 usage_ledger = Table(
     "usage_ledger",
     metadata,
+    # One row per stage execution (kind 'stage', written by its worker) and per job end (kind
+    # 'end', written in the transaction that makes the job terminal); `entry_id` makes a retried
+    # write count once (revision 0005).
     Column("id", BigInteger, primary_key=True, autoincrement=True),
+    Column("entry_id", String(255), nullable=False),
     Column("tenant", TENANT, nullable=False),
     Column("job_id", ID, nullable=False),
-    Column("state", String(16), nullable=False),
+    Column("kind", String(8), nullable=False),
+    Column("stage", String(32)),
+    Column("state", String(16)),
     Column("cpu_s", Double, nullable=False, server_default="0"),
     Column("gpu_s", Double, nullable=False, server_default="0"),
     Column("bytes_stored", BigInteger, nullable=False, server_default="0"),
     _when("recorded_at"),
-    UniqueConstraint("job_id"),  # a job is accounted once, whoever ends it
+    CheckConstraint("kind IN ('stage', 'end')", name="kind"),
+    UniqueConstraint("entry_id"),
     Index(None, "tenant", "recorded_at"),
 )

@@ -14,7 +14,7 @@ import logging
 import time
 from types import TracebackType
 
-import redis
+from sqlalchemy import Engine
 
 from bayesian_fields_core.job.store import Store
 from bayesian_fields_service.common import usage
@@ -56,10 +56,11 @@ def job_bytes(store: Store, record: JobRecord) -> int:
 
 
 def account_stage(
-    store: Store, client: redis.Redis, record: JobRecord, stage: str, meter: StageMeter
+    store: Store, database: Engine, record: JobRecord, stage: str, meter: StageMeter
 ) -> JobRecord:
-    """`record` with this stage execution added to its usage (the caller saves it), and one ledger
-    entry. Accounting never fails a stage: a storage or Redis error is logged."""
+    """`record` with this stage execution added to its usage (the caller saves it), and its ledger
+    row. Accounting never fails a stage: a storage or database error is logged. (The job's end is
+    ledgered by the jobs domain, in the transaction that makes it terminal.)"""
     try:
         size = job_bytes(store, record)
     except Exception as exc:  # the bucket is flaky: keep the last known size
@@ -69,22 +70,8 @@ def account_stage(
         update={"usage": record.usage.add_stage(stage, meter.cpu_s, meter.gpu_s, size)}
     )
     try:
-        usage.record(
-            tenant_store(store, record.tenant), client, record.tenant,
-            f"{record.id}.{stage}.{record.stage_runs}",
-            usage.stage_fields(stage, meter.cpu_s, meter.gpu_s), utcnow(),
-        )  # fmt: skip
+        usage.record_stage(database, record.tenant, record.id, stage, record.stage_runs, meter.cpu_s, meter.gpu_s,
+                           utcnow())  # fmt: skip
     except Exception as exc:
         log.warning("job %s: usage of %s not recorded (%s)", record.id, stage, exc)
     return updated
-
-
-def account_job_end(store: Store, client: redis.Redis, record: JobRecord) -> None:
-    """The job's end in the ledger: one job of its outcome, and the bytes it leaves stored."""
-    try:
-        usage.record(
-            tenant_store(store, record.tenant), client, record.tenant, f"{record.id}.end",
-            usage.job_fields(record.state.value, record.usage.bytes_stored), record.finished_at or utcnow(),
-        )  # fmt: skip
-    except Exception as exc:
-        log.warning("job %s: end not recorded in usage (%s)", record.id, exc)

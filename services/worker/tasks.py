@@ -49,7 +49,7 @@ from bayesian_fields_service.common.redis_text import text
 from bayesian_fields_service.common.settings import ServiceSettings
 from bayesian_fields_service.common.storage import build_store, tenant_store
 from bayesian_fields_service.records.database import open_records
-from bayesian_fields_service.worker.accounting import StageMeter, account_job_end, account_stage
+from bayesian_fields_service.worker.accounting import StageMeter, account_stage
 from bayesian_fields_service.worker.celery_app import app
 from bayesian_fields_service.worker.metrics import observe_job, observe_stage
 from bayesian_fields_service.worker.recovery import start_recovery_thread, stop_recovery_thread
@@ -298,11 +298,9 @@ def _finish(rt: _Runtime, record: JobRecord, state: JobState, error: str | None 
         update["progress"] = 100.0
     before = rt.jobs.load(record.tenant, record.id)
     saved = rt.jobs.save(record.model_copy(update=update))
-    if saved.state == state:  # not already terminal through another path
+    if saved.state == state and (before is None or not before.state.terminal):  # this call ended it
         start = saved.started_at or saved.created_at
         observe_job(rt.redis, state.value, (now - start).total_seconds())
-        if before is None or not before.state.terminal:  # this call made it terminal: count it once
-            account_job_end(rt.store, rt.redis, saved)
     return saved
 
 
@@ -419,18 +417,18 @@ def _run_locked(rt: _Runtime, record: JobRecord, stage: str) -> str:
             report = run_stage(stage, ctx)
         seconds = time.perf_counter() - t0
     except CancelledError:
-        record = account_stage(rt.store, rt.redis, record, stage, meter)
+        record = account_stage(rt.store, rt.jobs.database, record, stage, meter)
         _finish(rt, record, JobState.cancelled, "cancelled by request")
         discard_result(tenant_store(rt.store, tenant), record.job_prefix)  # a stage stopped mid-write
         return "cancelled"
     except (InputError, ModelError) as exc:
-        record = account_stage(rt.store, rt.redis, record, stage, meter)
+        record = account_stage(rt.store, rt.jobs.database, record, stage, meter)
         _finish(rt, record, JobState.failed, f"{stage}: {exc}")
         return "failed"
     except TRANSIENT:
         raise  # retried by the task wrapper
     except SoftTimeLimitExceeded:
-        record = account_stage(rt.store, rt.redis, record, stage, meter)
+        record = account_stage(rt.store, rt.jobs.database, record, stage, meter)
         _finish(
             rt,
             record,
@@ -440,13 +438,13 @@ def _run_locked(rt: _Runtime, record: JobRecord, stage: str) -> str:
         return "failed"
     except Exception as exc:  # a bug, not bad input: fail the job visibly instead of leaving it running
         log.exception("stage %s of %s/%s crashed", stage, tenant, job_id)
-        record = account_stage(rt.store, rt.redis, record, stage, meter)
+        record = account_stage(rt.store, rt.jobs.database, record, stage, meter)
         _finish(rt, record, JobState.failed, f"{stage}: internal error: {type(exc).__name__}: {exc}")
         return "failed"
     observe_stage(rt.redis, stage, seconds)
     done = [s for s in STAGES if s in {*record.stages_done, stage}]
     record = rt.jobs.save(
-        account_stage(rt.store, rt.redis, record, stage, meter).model_copy(
+        account_stage(rt.store, rt.jobs.database, record, stage, meter).model_copy(
             update={
                 "stages_done": done,
                 "timings": {**record.timings, stage: round(report.get("seconds", seconds), 3)},

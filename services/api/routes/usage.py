@@ -75,5 +75,5 @@ def get_usage(
         raise HTTPException(
             422, f"{days} days; at most {state.settings.usage_max_days} per request (BFIELDS_USAGE_MAX_DAYS)"
         )
-    report = tenant_usage(state.tenant(tenant), state.redis, tenant, start, end)
+    report = tenant_usage(state.jobs.database, tenant, start, end)
     return UsageReport.model_validate(report)

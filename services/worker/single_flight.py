@@ -16,18 +16,14 @@ import logging
 import os
 import secrets
 import socket
-import threading
 import time
 from collections.abc import Callable, Iterator
 
 import redis
 
+from bayesian_fields_service.common.heartbeat_lock import HeartbeatLock
+
 log = logging.getLogger(__name__)
-
-#: Renew / release only while the lock still carries our token (never someone else's).
-_RENEW = "if redis.call('get', KEYS[1]) == ARGV[1] then return redis.call('pexpire', KEYS[1], ARGV[2]) end return 0"
-_RELEASE = "if redis.call('get', KEYS[1]) == ARGV[1] then return redis.call('del', KEYS[1]) end return 0"
-
 
 def flight_redis_key(tenant: str, key: str) -> str:
     return f"bf:flight:{tenant}:{key}"
@@ -55,11 +51,11 @@ class RedisFlight:
 
     @contextlib.contextmanager
     def hold(self, key: str, *, on_wait: Callable[[], None]) -> Iterator[None]:
-        rkey = flight_redis_key(self.tenant, key)
         token = f"{socket.gethostname()}:{os.getpid()}:{secrets.token_hex(8)}"
+        lock = HeartbeatLock(self.client, flight_redis_key(self.tenant, key), token, self.ttl_ms / 1000, beats=3)
         start = time.monotonic()
         held = True
-        while not self.client.set(rkey, token, nx=True, px=self.ttl_ms):
+        while not lock.acquire():
             on_wait()  # a cancelled job stops waiting here
             if time.monotonic() - start > self.wait_timeout_s:
                 log.warning(
@@ -73,24 +69,8 @@ class RedisFlight:
             log.info("flight %s: waited %.1f s for another job filling the cache", key, waited)
             if self.on_waited is not None:
                 self.on_waited(key, waited)
-        stop = threading.Event()
-        beat = threading.Thread(target=self._beat, args=(rkey, token, stop), daemon=True) if held else None
-        if beat is not None:
-            beat.start()
         try:
             yield
         finally:
-            stop.set()
-            if beat is not None:
-                beat.join(timeout=5)
-                try:
-                    self.client.eval(_RELEASE, 1, rkey, token)
-                except redis.RedisError:  # the TTL releases it
-                    log.warning("flight %s: release failed; it expires in %d ms", key, self.ttl_ms)
-
-    def _beat(self, rkey: str, token: str, stop: threading.Event) -> None:
-        while not stop.wait(self.ttl_ms / 3000):
-            try:
-                self.client.eval(_RENEW, 1, rkey, token, self.ttl_ms)
-            except redis.RedisError:
-                continue
+            if held:
+                lock.release()

@@ -43,6 +43,7 @@ from bayesian_fields_core.job.stage_table import STAGE_TABLE, STAGES, StageSpec
 from bayesian_fields_core.job.store import Store
 from bayesian_fields_core.params import PipelineParams
 from bayesian_fields_service.common.callbacks import CallbackSender
+from bayesian_fields_service.common.heartbeat_lock import HeartbeatLock
 from bayesian_fields_service.common.jobs import JobRecord, JobState, JobStore, overall_progress, utcnow
 from bayesian_fields_service.common.pause_points import pause
 from bayesian_fields_service.common.redis_text import text
@@ -217,74 +218,43 @@ def _process_start(pid: int) -> str | None:
 
 
 _HOST = socket.gethostname()
-_STEAL = """if redis.call('get', KEYS[1]) == ARGV[1] then
-  redis.call('set', KEYS[1], ARGV[2], 'EX', ARGV[3]) return 1 end return 0"""
-
-
 class StageLock:
-    """A Redis lock on (job, stage) with a heartbeat, so a redelivered duplicate never runs the
-    same stage concurrently; a crashed holder's lock expires after `ttl_s`
-    (`ServiceSettings.stage_lock_ttl_s`); the holder renews it every quarter of that.
+    """A lock on (job, stage) with a heartbeat (`common.heartbeat_lock`), so a redelivered
+    duplicate never runs the same stage concurrently; a crashed holder's lock expires after
+    `ttl_s` (`ServiceSettings.stage_lock_ttl_s`); the holder renews it every quarter of that.
 
     The lock's value names its owner (``host:pid:process start:random``), so a delivery on the
     same host can see that the owner is dead (a SIGKILLed pool child) and take the lock over at
     once instead of waiting for the TTL."""
 
     def __init__(self, client: redis.Redis, key: str, ttl_s: int) -> None:
-        self.client = client
-        self.key = key
-        self.ttl_s = ttl_s
         pid = os.getpid()
-        self.token = f"{_HOST}:{pid}:{_process_start(pid)}:{secrets.token_hex(8)}"
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
+        self.lock = HeartbeatLock(client, key, f"{_HOST}:{pid}:{_process_start(pid)}:{secrets.token_hex(8)}", ttl_s)
 
     def acquire(self) -> bool:
-        if not self.client.set(self.key, self.token, nx=True, ex=self.ttl_s) and not self._steal_from_dead():
-            return False
-        self._thread = threading.Thread(target=self._beat, daemon=True)
-        self._thread.start()
-        return True
+        return self.lock.acquire() or self._take_over_from_dead()
 
-    def _steal_from_dead(self) -> bool:
+    def _take_over_from_dead(self) -> bool:
         """Take the lock over when its owner ran on this host and that process is gone."""
-        holder = self.client.get(self.key)
+        holder = self.lock.holder()
         if holder is None:  # expired between the two calls
-            return bool(self.client.set(self.key, self.token, nx=True, ex=self.ttl_s))
+            return self.lock.acquire()
         host, _, rest = text(holder, errors="replace").partition(":")
         pid, _, rest = rest.partition(":")
         started = rest.partition(":")[0]
         if host != _HOST or not pid.isdigit() or _process_start(int(pid)) == started:
             return False  # another host's (cannot check) or alive
-        stolen = bool(self.client.eval(_STEAL, 1, self.key, holder, self.token, self.ttl_s))
-        if stolen:
-            log.warning("stage lock %s: owner pid %s is dead; taken over", self.key, pid)
-        return stolen
+        taken = self.lock.take_over(holder)
+        if taken:
+            log.warning("stage lock %s: owner pid %s is dead; taken over", self.lock.key, pid)
+        return taken
 
     def wait_s(self) -> float:
         """Seconds until the current holder's lock expires unless renewed (at least 1)."""
-        try:
-            ttl_ms = int(self.client.pttl(self.key))
-        except redis.RedisError:
-            ttl_ms = -1
-        return max(1.0, (ttl_ms if ttl_ms > 0 else 0) / 1000 + 0.5)
-
-    def _beat(self) -> None:
-        while not self._stop.wait(self.ttl_s / 4):
-            try:  # re-set after a Redis restart too, so recovery sees the stage is alive
-                current = self.client.get(self.key)
-                if current in (None, self.token.encode()):
-                    self.client.set(self.key, self.token, ex=self.ttl_s)
-            except redis.RedisError:
-                continue
+        return max(1.0, self.lock.remaining_s() + 0.5)
 
     def release(self) -> None:
-        self._stop.set()
-        try:
-            if self.client.get(self.key) == self.token.encode():
-                self.client.delete(self.key)
-        except redis.RedisError:
-            pass
+        self.lock.release()
 
 
 def stage_lock_key(tenant: str, job_id: str, stage: str) -> str:

@@ -1,7 +1,9 @@
 """Fuzz every splat reader (issue 30, item 2): structure-aware cases built from the
 splat-transform fixtures, one target per reader. The property is the corpus's
 (`tests/scene/reader_check.check_splat_file`): the file loads (and loads whole), or the reader
-raises an InputError naming the file, within the memory bound; never any other exception.
+raises an InputError naming the file, within the memory bound; never any other exception. Every
+reader has a target: glTF / GLB, SOG, SPZ, compressed PLY, RGB PLY, antimatter `.splat` (the
+INRIA PLY reader's is in `test_fuzz_library`), plus bytes flipped in every splat-transform fixture.
 
 Why random on top of the deterministic corpus (`tests/scene/test_reader_corpus.py`): the corpus
 changes one field at a time to a fixed list of values; these change several at once, to values
@@ -11,6 +13,7 @@ Budgets (full CI run, `BFIELDS_FUZZ_SCALE=1`) are the numbers passed to `budget`
 
 from __future__ import annotations
 
+import functools
 import gzip
 import tempfile
 from pathlib import Path
@@ -29,6 +32,7 @@ from tests.scene.splat_mutations import (
     join_ply,
     json_paths,
     set_at,
+    small_gaussians,
     sog_members,
     sog_zip,
     split_ply,
@@ -119,10 +123,9 @@ def test_spz(data: Any, name: str) -> None:
     count("library: SPZ header and payload")
 
 
-@budget(1500)
-@given(data=st.data(), name=st.sampled_from(["tabletop.compressed.ply", "sh3.compressed.ply"]))
-def test_compressed_ply(data: Any, name: str) -> None:
-    lines, body = split_ply((FIXTURES / name).read_bytes())
+def _ply_with_edits(data: Any, raw: bytes) -> bytes:
+    """`raw` (a PLY) with up to three header words replaced and maybe bytes of its body flipped."""
+    lines, body = split_ply(raw)
     for _ in range(data.draw(st.integers(0, 3))):
         at = data.draw(st.integers(1, len(lines) - 1))
         words = lines[at].split()
@@ -132,8 +135,41 @@ def test_compressed_ply(data: Any, name: str) -> None:
         lines[at] = " ".join(words)
     if data.draw(st.booleans()):
         body = _flipped(data, body)
-    _check({"splat.ply": join_ply(lines, body)}, "splat.ply")
+    return join_ply(lines, body)
+
+
+@functools.cache
+def _written(kind: str) -> bytes:
+    """A small splat written by the project's own writer of that format (no fixture of it is
+    made by splat-transform): the antimatter `.splat` rows, the RGB-instead-of-SH PLY."""
+    from bayesian_fields_core.scene.formats.antimatter import write_antimatter
+    from tests.scene.format_writers import write_rgb_ply
+
+    with tempfile.TemporaryDirectory(prefix="bf-fuzz-src-") as tmp:
+        path = Path(tmp) / f"source.{kind}"
+        (write_antimatter if kind == "splat" else write_rgb_ply)(path, small_gaussians())
+        return path.read_bytes()
+
+
+@budget(1500)
+@given(data=st.data(), name=st.sampled_from(["tabletop.compressed.ply", "sh3.compressed.ply"]))
+def test_compressed_ply(data: Any, name: str) -> None:
+    _check({"splat.ply": _ply_with_edits(data, (FIXTURES / name).read_bytes())}, "splat.ply")
     count("library: compressed PLY header and body")
+
+
+@budget(800)
+@given(data=st.data())
+def test_rgb_ply(data: Any) -> None:
+    _check({"splat.ply": _ply_with_edits(data, _written("ply"))}, "splat.ply")
+    count("library: RGB PLY header and body")
+
+
+@budget(800)
+@given(data=st.data())
+def test_antimatter_splat(data: Any) -> None:
+    _check({"splat.splat": _flipped(data, _written("splat"))}, "splat.splat")
+    count("library: .splat rows")
 
 
 @budget(1500)

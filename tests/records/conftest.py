@@ -6,8 +6,9 @@ from __future__ import annotations
 from collections.abc import Iterator
 
 import pytest
+from sqlalchemy import Engine
 
-from tests.integration.fixtures.postgres import create_database, drop_database
+from tests.integration.fixtures.postgres import create_database, drop_database, records_database
 
 
 @pytest.fixture
@@ -18,3 +19,10 @@ def fresh_database() -> Iterator[str]:
         yield url
     finally:
         drop_database(url)
+
+
+@pytest.fixture
+def records_db() -> Iterator[Engine]:
+    """An engine on a database of this test's own at the newest schema, dropped after it."""
+    with records_database() as db:
+        yield db

@@ -17,19 +17,15 @@ from bayesian_fields_service.common import batch_records
 from bayesian_fields_service.common.batch_records import BatchRecord
 from bayesian_fields_service.records.database import engine, migrate
 from bayesian_fields_service.records.tables import JOB_STATES, batch_jobs, batches, jobs
-from tests.integration.fixtures.postgres import create_database, drop_database
+from tests.integration.fixtures.postgres import records_database
 
 STATES = st.sampled_from(JOB_STATES)
 
 
 @pytest.fixture(scope="module")
 def db() -> Iterator[Engine]:
-    url = create_database()
-    try:
-        migrate(url)
-        yield engine(url)
-    finally:
-        drop_database(url)
+    with records_database() as records:
+        yield records
 
 
 def _job(job_id: str, batch_id: str | None, state: str = "queued", progress: float = 0.0) -> dict:

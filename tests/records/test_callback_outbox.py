@@ -5,7 +5,6 @@ that ended it; a repeated terminal write queues nothing more."""
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -15,21 +14,14 @@ from sqlalchemy import Engine, select
 from bayesian_fields_core.job.store import LocalStore
 from bayesian_fields_service.common.batch_records import BatchRecord
 from bayesian_fields_service.common.jobs import JobRecord, JobState, JobStore, new_id
-from bayesian_fields_service.records.database import engine, migrate
 from bayesian_fields_service.records.tables import callback_outbox
-from tests.integration.fixtures.postgres import create_database, drop_database
 from tests.integration.fixtures.pytest_fixtures import private_redis  # noqa: F401 - a fixture, found by name
 from tests.integration.fixtures.redis_server import RedisServer
 
 
 @pytest.fixture
-def db() -> Iterator[Engine]:
-    url = create_database()
-    migrate(url)
-    try:
-        yield engine(url)
-    finally:
-        drop_database(url)
+def db(records_db: Engine) -> Engine:
+    return records_db
 
 
 def _events(db: Engine) -> list[dict]:

@@ -5,7 +5,6 @@ changes nothing, tenants and days are apart."""
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from datetime import UTC, date, datetime, timedelta
 from pathlib import Path
 
@@ -18,20 +17,13 @@ from bayesian_fields_service.common import usage
 from bayesian_fields_service.common.batch_records import BatchRecord
 from bayesian_fields_service.common.jobs import JobRecord, JobState, JobStore, new_id
 from bayesian_fields_service.common.usage import JobUsage
-from bayesian_fields_service.records.database import engine, migrate
-from tests.integration.fixtures.postgres import create_database, drop_database
 from tests.integration.fixtures.pytest_fixtures import private_redis  # noqa: F401 - a fixture, found by name
 from tests.integration.fixtures.redis_server import RedisServer
 
 
 @pytest.fixture
-def db() -> Iterator[Engine]:
-    url = create_database()
-    migrate(url)
-    try:
-        yield engine(url)
-    finally:
-        drop_database(url)
+def db(records_db: Engine) -> Engine:
+    return records_db
 
 
 def _job(tenant: str, batch_id: str | None = None) -> JobRecord:

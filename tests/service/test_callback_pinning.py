@@ -25,9 +25,8 @@ from sqlalchemy import Engine, func, insert, select
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_service.common import callbacks
 from bayesian_fields_service.common.settings import ServiceSettings
-from bayesian_fields_service.records.database import engine, migrate
 from bayesian_fields_service.records.tables import callback_outbox
-from tests.integration.fixtures.postgres import create_database, drop_database
+from tests.integration.fixtures.postgres import records_database
 
 from .callback_receivers import Receiver
 
@@ -67,12 +66,8 @@ def ok() -> Iterator[Receiver]:
 @pytest.fixture
 def outbox() -> Iterator[Engine]:
     """A records database of this test's own (the outbox is a table)."""
-    url = create_database()
-    migrate(url)
-    try:
-        yield engine(url)
-    finally:
-        drop_database(url)
+    with records_database() as db:
+        yield db
 
 
 def _open(db: Engine) -> int:

@@ -2,6 +2,7 @@
 
     bfields-service migrate [--revision REV] [--create-database]   apply the records migrations
     bfields-service db-revision                                    print the database's revision
+    bfields-service control                                        run the control process
 
 Why a separate command from `bfields`: these act on the deployment's database with the
 deployment's settings (`BFIELDS_DATABASE_URL`), run from an init container or by hand in an
@@ -40,7 +41,14 @@ def main(argv: list[str] | None = None) -> int:
     migrate.add_argument("--revision", default="head", help="target revision (default: head; 'base' empties)")
     migrate.add_argument("--create-database", action="store_true", help="create the database first if absent")
     sub.add_parser("db-revision", help="print the revision the database is at")
+    sub.add_parser(
+        "control", help="run the control process (dispatch, recovery, sweeps, callbacks; one replica leads)"
+    )
     args = parser.parse_args(argv)
+    if args.command == "control":
+        from bayesian_fields_service.control.process import main as run_control
+
+        return run_control()
 
     from sqlalchemy.exc import OperationalError
 

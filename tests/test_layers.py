@@ -42,14 +42,15 @@ other; a package may import itself and any floor below."""
 
 SERVICE_LAYERS: list[set[str]] = [
     {"client", "admin"},
-    {"api"},
+    {"api", "control"},
     {"worker"},
     {"common"},
     {"records"},
     {"__init__"},
 ]
-"""The service's packages, top down: the API may enqueue through the worker's Celery app; the
-operator's `admin` commands sit beside the user's client; the records schema is below everything
+"""The service's packages, top down: the control process sends stages through the worker's Celery
+app and sits beside the API (neither imports the other); the operator's `admin` commands (which
+start the control process) sit beside the user's client; the records schema is below everything
 that reads or writes it."""
 
 

@@ -1,9 +1,10 @@
 """FastAPI application factory: `create_app(settings)`; `bayesian_fields_service.api.app:app` for uvicorn.
 
-The app holds one `AppState` (store, Redis, job store, key ring, Celery sender) built from the
-settings, so tests and deployments differ only in `ServiceSettings`. Input errors become 422 with
-the library's message (which names the file and the problem); nothing else leaks internals.
-Every call the API makes to Redis, the broker or the bucket has a short, bounded retry budget
+The app holds one `AppState` (store, Redis, job store, key ring) built from the settings, so
+tests and deployments differ only in `ServiceSettings`. Input errors become 422 with the
+library's message (which names the file and the problem); nothing else leaks internals. The API
+serves HTTP only: a stored job waits in the jobs table until the control process dispatches it.
+Every call the API makes to Redis or the bucket has a short, bounded retry budget
 (`api_backend_timeout_s` x `api_backend_attempts`): an outage is answered 503 + Retry-After in
 about a second (`bayesian_fields_service.api.edge`), while the workers keep their own patient retries.
 """
@@ -25,8 +26,6 @@ from bayesian_fields_service.common.jobs import JobStore
 from bayesian_fields_service.common.settings import ServiceSettings, apply_log_level, get_settings
 from bayesian_fields_service.common.storage import build_store
 from bayesian_fields_service.records.database import open_records
-from bayesian_fields_service.worker.celery_app import make_celery
-from bayesian_fields_service.worker.dispatch import Dispatcher
 
 DESCRIPTION = """
 Bayesian Fields as a batch service: upload a scene (Gaussian splat + posed images), submit task
@@ -57,33 +56,11 @@ def _redis_client(settings: ServiceSettings) -> redis.Redis:
     )
 
 
-def _worker_redis(settings: ServiceSettings) -> redis.Redis:
-    """Redis for the dispatcher thread: patient, like a worker's (no request waits on it)."""
-    return redis.Redis.from_url(settings.redis_url, socket_timeout=10, socket_connect_timeout=5)
-
-
 def create_app(settings: ServiceSettings | None = None) -> FastAPI:
     settings = settings or get_settings()
     apply_log_level(settings)
     store = build_store(settings, request_path=True)
     client = _redis_client(settings)
-    celery = make_celery(settings)
-    t = settings.api_backend_timeout_s
-    celery.conf.update(
-        broker_connection_timeout=t,
-        broker_connection_max_retries=settings.api_backend_attempts - 1,
-        task_publish_retry_policy={
-            "max_retries": settings.api_backend_attempts - 1,
-            "interval_start": 0,
-            "interval_step": min(0.1, t / 4),
-            "interval_max": min(0.1, t / 4),
-        },
-        broker_transport_options={
-            **celery.conf.broker_transport_options,
-            "socket_connect_timeout": t,
-            "socket_timeout": max(5.0, 5 * t),
-        },
-    )
     state = AppState(
         settings=settings,
         store=store,
@@ -92,14 +69,11 @@ def create_app(settings: ServiceSettings | None = None) -> FastAPI:
             store, client, open_records(settings.database_url, migrate_first=settings.migrate_on_start)
         ),
         key_ring=ApiKeyRing.from_settings(settings),
-        celery=celery,
     )
     state.metrics_registry = metrics_registry(state)
-    dispatcher = Dispatcher(celery, state.jobs, settings, _worker_redis(settings))
-    sweeper = lifespan(
-        lambda: Sweeper(store, client, settings.orphan_max_age_s, settings.orphan_sweep_interval_s),
-        also=dispatcher,  # releases waiting jobs to the workers (one API process at a time: a lease)
-    )  # what a killed API left behind (see sweeper.py)
+    # what a killed request of this process left in its temp folder (see sweeper.py); the
+    # dispatcher and every other background loop run in the control process
+    sweeper = lifespan(lambda: Sweeper(settings.orphan_max_age_s, settings.orphan_sweep_interval_s))
     app = FastAPI(title="Bayesian Fields API", version="1.0.0", description=DESCRIPTION, lifespan=sweeper)
     app.state.bf = state
     app.state.key_ring = state.key_ring

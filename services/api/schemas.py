@@ -8,7 +8,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from bayesian_fields_service.common.fair_queue import Priority
+from bayesian_fields_service.common.job_queue import Priority
 from bayesian_fields_service.common.jobs import JobRecord, JobState
 
 SCENE_EXAMPLE_ID = "s_0192f3a1b2c3aa55bb66cc"

@@ -1,23 +1,20 @@
-"""The API process's shared objects (settings, store, Redis, job store, key ring, Celery sender)
+"""The API process's shared objects (settings, store, Redis, job store, key ring)
 and small helpers every route uses: id checks, tenant views, presigned links."""
 
 from __future__ import annotations
 
 import re
-from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Annotated, Any
 
 import redis
-from celery import Celery
 from fastapi import Depends, HTTPException, Request, status
 
 from bayesian_fields_core.job.store import PrefixedStore, Store
 from bayesian_fields_service.api.schemas import Problem
 from bayesian_fields_service.common.api_keys import ApiKeyRing
 from bayesian_fields_service.common.auth import require_tenant
-from bayesian_fields_service.common.fair_queue import FairQueue
-from bayesian_fields_service.common.jobs import JobRecord, JobStore
+from bayesian_fields_service.common.jobs import JobStore
 from bayesian_fields_service.common.settings import ServiceSettings
 from bayesian_fields_service.common.storage import tenant_store
 
@@ -31,23 +28,10 @@ class AppState:
     redis: redis.Redis
     jobs: JobStore
     key_ring: ApiKeyRing
-    celery: Celery
     metrics_registry: Any = None
-    fair: FairQueue = field(init=False)
-
-    def __post_init__(self) -> None:
-        self.fair = FairQueue(self.redis, self.settings.gpu_queue)
 
     def tenant(self, tenant: str) -> PrefixedStore:
         return tenant_store(self.store, tenant)
-
-    def enqueue(self, records: Sequence[JobRecord]) -> None:
-        """Submit stored jobs to their tenant's fair-share queue (the dispatcher sends them on),
-        one atomic, idempotent call per priority class."""
-        for priority in ("interactive", "bulk"):
-            ids = [r.id for r in records if r.priority == priority]
-            if ids:
-                self.fair.submit(records[0].tenant, priority, ids)
 
     def can_presign(self) -> bool:
         return hasattr(self.store, "presigned_get")

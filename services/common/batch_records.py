@@ -20,7 +20,7 @@ from pydantic import BaseModel, Field
 from sqlalchemy import ARRAY, JSON, Connection, Table, and_, case, cast, func, insert, select, text, update
 from sqlalchemy.dialects.postgresql import JSONB
 
-from bayesian_fields_service.common.fair_queue import Priority
+from bayesian_fields_service.common.job_queue import Priority
 from bayesian_fields_service.records.tables import ID, JOB_STATES, batch_jobs, batches, jobs
 
 ACTIVE_STATES = ("queued", "running")

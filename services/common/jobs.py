@@ -8,17 +8,17 @@ progress while the job is active. Terminal states are sticky: every write reads 
 later write (a late worker, a duplicate delivery) turns it back into an active one, and the API's
 cancel and a worker's stage update, serialised by the row lock, never lose each other's fields.
 
-Tables (`records.tables`): ``jobs`` (one row per job; ``submitted`` is false from the insert until
-the first message is queued, so a row that stays false past the grace period is a submission
-whose API stopped half-way: recovery submits it), ``batches`` and ``batch_jobs`` (a batch's
+Tables (`records.tables`): ``jobs`` (one row per job; a queued row without `dispatched_at` is a
+job waiting in its tenant's queue, `common.job_queue`, so storing a job *is* queueing it),
+``batches`` and ``batch_jobs`` (a batch's
 counts and its jobs in submission order; `batch_records`), ``idempotency_keys`` (tenant,
 endpoint, key -> job or batch id and the sha256 of the request body, inserted in the job's own
 transaction). The bucket keeps what is large: ``jobs/<id>/stages/`` and ``jobs/<id>/result/``,
 written by the pipeline (job_prefix = ``jobs/<id>/``); no manifest, index marker or idempotency
 object is written there any more.
 
-Redis also holds the per-tenant quota set (`bayesian_fields_service.common.quota`): taken before a job is
-stored, given back here on every terminal state.
+Redis holds nothing a job needs to run: losing it loses progress bars and queued stage messages,
+which the control process's recovery sends again from the rows.
 """
 
 from __future__ import annotations
@@ -33,25 +33,23 @@ import time
 from collections.abc import Iterable, Sequence
 from datetime import UTC, datetime
 from enum import StrEnum
-from typing import Any, cast
+from typing import Any
 
 import redis
 from pydantic import BaseModel, Field, computed_field, model_validator
-from sqlalchemy import ARRAY, Connection, Engine, delete, func, insert, select, update
-from sqlalchemy import cast as sql_cast
+from sqlalchemy import Connection, Engine, delete, func, insert, select, update
 
 from bayesian_fields_core.job.stage_table import STAGE_TABLE, STAGES
 from bayesian_fields_core.job.store import Store
-from bayesian_fields_service.common import batch_records, usage
+from bayesian_fields_service.common import batch_records, redis_keys, usage
 from bayesian_fields_service.common.batch_records import BatchRecord
 from bayesian_fields_service.common.callbacks import on_batch_finished, on_job_terminal
-from bayesian_fields_service.common.fair_queue import Priority, dispatched_key
-from bayesian_fields_service.common.quota import TenantQuota
+from bayesian_fields_service.common.job_queue import JobQueue, Priority, admit
 from bayesian_fields_service.common.redis_text import text
 from bayesian_fields_service.common.sanitize import redact_locations, scrub
 from bayesian_fields_service.common.storage import tenant_store
 from bayesian_fields_service.common.usage import JobUsage
-from bayesian_fields_service.records.tables import ID, idempotency_keys, jobs
+from bayesian_fields_service.records.tables import idempotency_keys, jobs
 
 log = logging.getLogger(__name__)
 
@@ -259,16 +257,16 @@ class JobStore:
         self.store = store
         self.redis = redis_client
         self.database = database
-        self.quota = TenantQuota(redis_client)
+        self.queue = JobQueue(database)
 
     # ---- keys ----------------------------------------------------------------------------------
     @staticmethod
     def live_key(tenant: str, job_id: str) -> str:
-        return f"bf:job:{tenant}:{job_id}"
+        return redis_keys.live_job(tenant, job_id)
 
     @staticmethod
     def cancel_key(tenant: str, job_id: str) -> str:
-        return f"bf:cancel:{tenant}:{job_id}"
+        return redis_keys.cancel_flag(tenant, job_id)
 
     def tenant(self, tenant: str) -> Store:
         return tenant_store(self.store, tenant)
@@ -293,13 +291,10 @@ class JobStore:
         )
         return _record_of(row) if row is not None else None
 
-    def create(self, record: JobRecord) -> None:
-        """Persist a new job (row not yet `submitted`, its Idempotency-Key row in the same
-        transaction) and its live hash.
-
-        The caller has taken the job's quota slot, enqueues it next and then calls
-        `mark_enqueued`; if it dies in between, recovery finds the unsubmitted row."""
-        self.create_many([record])
+    def create(self, record: JobRecord, *, admit_limit: int | None = None) -> None:
+        """Persist a new job with its Idempotency-Key row in one transaction: committed, it waits
+        in its tenant's queue (`common.job_queue`)."""
+        self.create_many([record], admit_limit=admit_limit)
 
     def create_many(
         self,
@@ -310,19 +305,26 @@ class JobStore:
         batch_job_ids: builtins.list[str] | None = None,
         batch_digest: str = "",
         retry_in: str | None = None,
+        admit_limit: int | None = None,
     ) -> None:
         """`create` for many jobs in one transaction (a batch's new jobs, with the batch's row, its
         links and its Idempotency-Key row when `batch` is given; with `retry_in`, jobs that take
         the place of the failed jobs they retry in that batch). `digests` (job id -> sha256 of what
         was asked, `job_digest`) and `batch_digest` are kept with the Idempotency-Key rows so a
-        reuse of a key with another body is refused."""
+        reuse of a key with another body is refused. With `admit_limit`, the tenant's unfinished
+        jobs are counted first under its admission lock (`job_queue.admit`: `AdmissionRefused`).
+
+        Committed, the jobs wait in their tenant's queue; the live hashes written afterwards are
+        only progress display, so a Redis failure there is logged, not raised (the jobs exist)."""
         digests = digests or {}
         with self.database.begin() as conn:
+            if records and admit_limit is not None:
+                admit(conn, records[0].tenant, len(records), admit_limit)
             if batch is not None:
                 batch_records.insert_batch(conn, batch, len(batch_job_ids or records))
             if records:
-                batch_records.copy_rows(conn, jobs, [{**_row_of(r), "submitted": False} for r in records])
-            keyed = [  # before the enqueue: a retry after a crash finds these jobs
+                batch_records.copy_rows(conn, jobs, [_row_of(r) for r in records])
+            keyed = [  # with the jobs: a retry after a crash finds them
                 {"tenant": r.tenant, "endpoint": JOBS_ENDPOINT, "key": r.idempotency_key,
                  "body_sha256": digests.get(r.id, ""), "target_id": r.id}
                 for r in records if r.idempotency_key
@@ -335,63 +337,13 @@ class JobStore:
                                                batch_digest, batch.id)  # fmt: skip
             if retry_in is not None:
                 batch_records.replace_jobs(conn, retry_in, {r.retry_of: r.id for r in records if r.retry_of})
-        pipe = self.redis.pipeline(transaction=False)
-        for record in records:
-            self._queue_live(pipe, record)
-        pipe.execute()
-
-    def mark_enqueued(self, record: JobRecord) -> None:
-        """The job's first stage message is in the queue: it is no longer a half-done submission."""
-        self.mark_submitted(record.tenant, [record.id])
-
-    def mark_submitted(self, tenant: str, job_ids: builtins.list[str]) -> None:
-        with self.database.begin() as conn:
-            conn.execute(
-                update(jobs)
-                .where(jobs.c.tenant == tenant, jobs.c.id == func.any(sql_cast(job_ids, ARRAY(ID))))
-                .values(submitted=True)
-            )
-
-    def discard_unsubmitted(self, record: JobRecord) -> None:
-        """Undo `create` after a failed enqueue, as far as the backends allow (best effort: what
-        an outage leaves behind stays unsubmitted, so recovery fails it instead of running it).
-        Never raises."""
-        failed = {"state": JobState.failed.value, "finished_at": utcnow(), "submitted": True,
-                  "error": "submission failed: the queue was unavailable; submit again"}  # fmt: skip
-        steps = (
-            lambda: self._discard_rows(record, failed),
-            lambda: self.redis.delete(self.live_key(record.tenant, record.id)),
-            lambda: self.quota.release(record.tenant, [record.id]),
-        )
-        for step in steps:
-            try:
-                step()
-            except Exception:  # an outage is why we are here; recovery repairs the rest
-                continue
-
-    def _discard_rows(self, record: JobRecord, failed: dict[str, Any]) -> None:
-        with self.database.begin() as conn:
-            conn.execute(
-                update(jobs)
-                .where(
-                    jobs.c.tenant == record.tenant, jobs.c.id == record.id, jobs.c.state.in_(_ACTIVE_STATES)
-                )
-                .values(**failed)
-            )
-            if record.idempotency_key:  # the client's retry with the key makes a new job
-                conn.execute(
-                    delete(idempotency_keys).where(
-                        idempotency_keys.c.tenant == record.tenant,
-                        idempotency_keys.c.endpoint == JOBS_ENDPOINT,
-                        idempotency_keys.c.key == record.idempotency_key,
-                        idempotency_keys.c.target_id == record.id,
-                    )
-                )
-
-    def release_slot(self, record: JobRecord) -> None:
-        """A terminal job no longer counts against its tenant's quota (Redis admission sets)."""
-        self.quota.release(record.tenant, [record.id])
-        self.redis.zrem(dispatched_key(record.tenant), record.id)
+        try:
+            pipe = self.redis.pipeline(transaction=False)
+            for record in records:
+                self._queue_live(pipe, record)
+            pipe.execute()
+        except redis.RedisError as exc:
+            log.warning("stored %d jobs; their live progress starts later (Redis: %s)", len(records), exc)
 
     def save(self, record: JobRecord) -> JobRecord:
         """Write `record`, merged with the stored row (see `_merge`) under the row's lock so the
@@ -445,9 +397,10 @@ class JobStore:
             on_batch_finished(conn, batch)
 
     def _after_write(self, merged: JobRecord) -> JobRecord:
-        if merged.state.terminal:
-            self.release_slot(merged)
-        self.touch_live(merged)
+        try:
+            self.touch_live(merged)
+        except redis.RedisError as exc:  # display only: the row is written
+            log.warning("live state of %s/%s not updated (Redis: %s)", merged.tenant, merged.id, exc)
         return merged
 
     def touch_live(self, record: JobRecord) -> None:
@@ -526,7 +479,10 @@ class JobStore:
         pipe = self.redis.pipeline()
         for record in active:
             pipe.hgetall(self.live_key(record.tenant, record.id))
-        overlays = dict(zip((r.id for r in active), pipe.execute(), strict=True))
+        try:
+            overlays = dict(zip((r.id for r in active), pipe.execute(), strict=True))
+        except redis.RedisError:  # Redis is only progress display: the rows answer without it
+            return records
         return [_overlaid(r, overlays[r.id]) if r.id in overlays else r for r in records]
 
     # ---- cancellation --------------------------------------------------------------------------
@@ -540,33 +496,44 @@ class JobStore:
             record = self._locked(conn, tenant, job_id)
             if record is None or record.state.terminal:
                 return record
-            self.redis.set(self.cancel_key(tenant, job_id), b"1", ex=FINISHED_HASH_TTL_S * 7)
             update_: dict[str, Any] = {"cancel_requested": True}
             if record.state == JobState.queued:
                 update_.update(state=JobState.cancelled, finished_at=utcnow(), error="cancelled by request")
             merged = self._merge_and_write(conn, record, record.model_copy(update=update_))
             if merged.state.terminal:
                 self._queue_callbacks(conn, [merged])
+        self._flag_cancelled([merged])
         return self._after_write(merged)
+
+    def _flag_cancelled(self, records: builtins.list[JobRecord]) -> None:
+        """Tell running workers between frames (the Redis flag); best effort, since the row's
+        `cancel_requested` is the truth: without the flag a running job ends as cancelled at its
+        next save instead of at its next frame."""
+        try:
+            pipe = self.redis.pipeline(transaction=False)
+            for record in records:
+                pipe.set(self.cancel_key(record.tenant, record.id), b"1", ex=FINISHED_HASH_TTL_S * 7)
+            pipe.execute()
+        except redis.RedisError as exc:
+            log.warning("cancel flags of %d jobs not set (Redis: %s); their rows say so", len(records), exc)
 
     def cancel_batch(self, tenant: str, batch_id: str) -> builtins.list[JobRecord]:
         """`request_cancel` for every active job of a batch: one UPDATE (`batch_records.
-        cancel_jobs`), then the Redis side in pipelines (cancel flags for the workers, live
-        hashes, admission slots of the jobs cancelled at once). Returns the changed records."""
+        cancel_jobs`), then the Redis side in one pipeline (cancel flags for the workers, live
+        hashes). Returns the changed records."""
         with self.database.begin() as conn:
             rows = batch_records.cancel_jobs(conn, tenant, batch_id)
             changed = [_record_of(r) for r in rows]
             ended = [r for r in changed if r.state.terminal]
             self._queue_callbacks(conn, ended)
-        pipe = self.redis.pipeline(transaction=False)
-        for record in changed:
-            pipe.set(self.cancel_key(tenant, record.id), b"1", ex=FINISHED_HASH_TTL_S * 7)
-            self._queue_live(pipe, record)
-        if ended:
-            pipe.zrem(dispatched_key(tenant), *[r.id for r in ended])
-        pipe.execute()
-        if ended:
-            self.quota.release(tenant, [r.id for r in ended])
+        self._flag_cancelled(changed)
+        try:
+            pipe = self.redis.pipeline(transaction=False)
+            for record in changed:
+                self._queue_live(pipe, record)
+            pipe.execute()
+        except redis.RedisError as exc:  # display only: the rows are written
+            log.warning("live state of %d cancelled jobs not updated (Redis: %s)", len(changed), exc)
         return changed
 
     def is_cancel_requested(self, tenant: str, job_id: str) -> bool:
@@ -619,6 +586,11 @@ class JobStore:
                 return out, None
             position = records[-1].id
 
+    def dispatch_next(self, tenant: str) -> JobRecord | None:
+        """Stamp the tenant's next waiting job dispatched (`JobQueue.take`) and return its record."""
+        row = self.queue.take(tenant)
+        return _record_of(row) if row is not None else None
+
     def count_active(self, tenant: str | None = None) -> int:
         """Queued or running jobs (of one tenant, or of all)."""
         query = select(func.count()).select_from(jobs).where(jobs.c.state.in_(_ACTIVE_STATES))
@@ -630,10 +602,6 @@ class JobStore:
     def active_jobs(self) -> builtins.list[tuple[str, str]]:
         """(tenant, job id) of every job whose row says queued or running."""
         return self._pairs(jobs.c.state.in_(_ACTIVE_STATES))
-
-    def pending_jobs(self) -> builtins.list[tuple[str, str]]:
-        """(tenant, job id) of every job stored but not (yet) confirmed enqueued."""
-        return self._pairs(~jobs.c.submitted)
 
     def _pairs(self, condition: Any) -> builtins.list[tuple[str, str]]:
         with self.database.connect() as conn:
@@ -697,7 +665,7 @@ class JobStore:
         and hashes whatever the batch's size."""
         if batch.finished:
             return batch
-        dispatched = [text(cast(bytes, j)) for j in self.redis.zrange(dispatched_key(batch.tenant), 0, -1)]
+        dispatched = self.queue.dispatched_ids(batch.tenant)
         if not dispatched:
             return batch
         with self.database.connect() as conn:

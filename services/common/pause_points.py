@@ -15,6 +15,7 @@ import time
 
 import redis
 
+from bayesian_fields_service.common import redis_keys
 from bayesian_fields_service.common.redis_text import text
 
 #: The longest a request ever waits at a point (a test that died must not hang the API).
@@ -25,11 +26,11 @@ def pause(client: redis.Redis, enabled: bool, name: str, scene_id: str) -> None:
     """Wait at point `name` if a test armed it for `scene_id` (only when `enabled`)."""
     if not enabled:
         return
-    armed = client.get(f"bf:test:pause:{name}")
+    armed = client.get(redis_keys.pause_armed(name))
     if armed is None or text(armed) != scene_id:
         return
-    client.set(f"bf:test:reached:{name}:{scene_id}", b"1", ex=120)
-    resume = f"bf:test:resume:{name}:{scene_id}"
+    client.set(redis_keys.pause_reached(name, scene_id), b"1", ex=120)
+    resume = redis_keys.pause_resume(name, scene_id)
     deadline = time.monotonic() + PAUSE_LIMIT_S
     while time.monotonic() < deadline and not client.exists(resume):
         time.sleep(0.02)

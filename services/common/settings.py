@@ -170,12 +170,18 @@ class ServiceSettings(BaseSettings):
     dispatch_interval_s: float = Field(
         0.5, gt=0, le=60, description="Seconds between two rounds of the dispatcher."
     )
-    dispatcher_lease_s: float = Field(
-        10.0,
-        ge=1,
-        le=600,
-        description="Lifetime of the dispatcher lease in Redis: one API process dispatches at a "
-        "time; another takes over this long after the holder stops renewing it (a crash).",
+    control_election_interval_s: float = Field(
+        1.0,
+        gt=0,
+        le=60,
+        description="Seconds between a standby control process's tries to become the leader (and the "
+        "leader's checks that it still is): a killed leader is replaced within about this.",
+    )
+    control_port: int = Field(
+        8001,
+        ge=0,
+        le=65535,
+        description="Port of the control process's /healthz and /readyz (0: any free port, logged).",
     )
     stage_lock_ttl_s: int = Field(
         60,
@@ -185,7 +191,7 @@ class ServiceSettings(BaseSettings):
         "worker's stage is taken over then); the holder renews it every quarter of that.",
     )
     recovery_interval_s: float = Field(
-        15.0, gt=0, le=3600, description="Seconds between a worker's scans for orphaned jobs."
+        15.0, gt=0, le=3600, description="Seconds between the control process's scans for orphaned jobs."
     )
     recovery_grace_s: float = Field(
         20.0,
@@ -231,7 +237,8 @@ class ServiceSettings(BaseSettings):
     orphan_sweep_interval_s: int = Field(
         3600,
         ge=1,
-        description="Seconds between two orphan sweeps of an API process (one also runs at start).",
+        description="Seconds between two orphan sweeps (the control process sweeps the bucket, each API "
+        "process its own upload temp folders; one also runs at start).",
     )
 
     # ---- single flight (one perception / visibility computation per scene) -----------------------

@@ -123,9 +123,6 @@ jobs = Table(
     Column("callback_url", Text),
     Column("retry_of", ID),
     Column("idempotency_key", String(255)),
-    # False from the insert until the job's first message is in the queue: a row that stays false
-    # past the grace period is a submission whose API stopped half-way (recovery submits it).
-    Column("submitted", Boolean, nullable=False, server_default=text("true")),
     _when("created_at"),
     _when("updated_at"),
     _when("dispatched_at", nullable=True),
@@ -148,9 +145,17 @@ jobs = Table(
         "id",
         postgresql_where=text("state = 'queued' AND dispatched_at IS NULL"),
     ),
-    # What recovery scans: the active jobs, and the submissions not yet confirmed.
+    # What recovery scans: the active jobs.
     Index("ix_jobs_active", "tenant", "id", postgresql_where=text("state IN ('queued', 'running')")),
-    Index("ix_jobs_unsubmitted", "tenant", "id", postgresql_where=text("NOT submitted")),
+    # A tenant's dispatched, unfinished jobs (its dispatch bound) and its recent dispatches (the
+    # estimated start): revision 0006.
+    Index(
+        "ix_jobs_dispatched",
+        "tenant",
+        "id",
+        postgresql_where=text("dispatched_at IS NOT NULL AND state IN ('queued', 'running')"),
+    ),
+    Index("ix_jobs_dispatch_times", "tenant", "dispatched_at", postgresql_where=text("dispatched_at IS NOT NULL")),
 )
 
 batch_jobs = Table(

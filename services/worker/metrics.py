@@ -10,13 +10,14 @@ from __future__ import annotations
 
 import redis
 
+from bayesian_fields_service.common import redis_keys
 from bayesian_fields_service.common.redis_text import text
 
 #: Upper bounds (seconds) of the duration histograms.
 BUCKETS: tuple[float, ...] = (1, 5, 15, 30, 60, 120, 300, 600, 1800, 3600, 7200, 14400)
 
-STAGE_KEY = "bf:metrics:stage:{stage}"
-JOB_KEY = "bf:metrics:job:{outcome}"
+STAGE_KEY = redis_keys.STAGE_HISTOGRAM
+JOB_KEY = redis_keys.JOB_HISTOGRAM
 
 
 def _observe(client: redis.Redis, key: str, seconds: float) -> None:
@@ -48,7 +49,7 @@ def read_histogram(client: redis.Redis, key: str) -> tuple[list[tuple[str, float
     return buckets, data.get("sum", 0.0), count
 
 
-QUEUE_WAIT_KEY = "bf:metrics:queue_wait:{tenant}"
+QUEUE_WAIT_KEY = redis_keys.QUEUE_WAIT_HISTOGRAM
 
 
 def observe_queue_wait(client: redis.Redis, tenant: str, seconds: float) -> None:

@@ -21,12 +21,13 @@ from collections.abc import Callable, Iterator
 
 import redis
 
+from bayesian_fields_service.common import redis_keys
 from bayesian_fields_service.common.heartbeat_lock import HeartbeatLock
 
 log = logging.getLogger(__name__)
 
 def flight_redis_key(tenant: str, key: str) -> str:
-    return f"bf:flight:{tenant}:{key}"
+    return redis_keys.flight_lock(tenant, key)
 
 
 class RedisFlight:

@@ -33,7 +33,7 @@ from typing import Any
 import redis
 from celery import Task
 from celery.exceptions import SoftTimeLimitExceeded
-from celery.signals import worker_init, worker_process_init, worker_ready, worker_shutdown
+from celery.signals import worker_init, worker_process_init
 from celery.utils.log import get_logger
 
 from bayesian_fields_core.errors import CancelledError, InputError, ModelError
@@ -42,7 +42,7 @@ from bayesian_fields_core.job.pipeline import discard_result, load_models, run_s
 from bayesian_fields_core.job.stage_table import STAGE_TABLE, STAGES, StageSpec
 from bayesian_fields_core.job.store import Store
 from bayesian_fields_core.params import PipelineParams
-from bayesian_fields_service.common.callbacks import CallbackSender
+from bayesian_fields_service.common import redis_keys
 from bayesian_fields_service.common.heartbeat_lock import HeartbeatLock
 from bayesian_fields_service.common.jobs import JobRecord, JobState, JobStore, overall_progress, utcnow
 from bayesian_fields_service.common.pause_points import pause
@@ -53,7 +53,6 @@ from bayesian_fields_service.records.database import open_records
 from bayesian_fields_service.worker.accounting import StageMeter, account_stage
 from bayesian_fields_service.worker.celery_app import app
 from bayesian_fields_service.worker.metrics import observe_job, observe_stage
-from bayesian_fields_service.worker.recovery import start_recovery_thread, stop_recovery_thread
 from bayesian_fields_service.worker.scene_cache import SceneCache
 from bayesian_fields_service.worker.single_flight import RedisFlight
 
@@ -152,7 +151,6 @@ def counting_encoder(log_file: Path) -> Any:
 
 
 _runtime: _Runtime | None = None
-_callbacks: CallbackSender | None = None
 
 
 def runtime() -> _Runtime:
@@ -180,22 +178,6 @@ def _clean_scene_cache(**_: Any) -> None:
         shutil.rmtree(Path(tempfile.gettempdir()) / "bfields-scenes", ignore_errors=True)
     except OSError as exc:  # a read-only or full disk must not keep the worker from starting
         log.warning("scene cache clean-up failed: %s", exc)
-
-
-@worker_ready.connect
-def _on_worker_ready(sender: Any = None, **_: Any) -> None:
-    global _callbacks
-    rt = runtime()
-    start_recovery_thread(app, rt.jobs, rt.settings)
-    _callbacks = CallbackSender(rt.jobs.database, rt.settings)  # at-least-once delivery (common/callbacks.py)
-    _callbacks.start()
-
-
-@worker_shutdown.connect
-def _on_worker_shutdown(**_: Any) -> None:
-    stop_recovery_thread()
-    if _callbacks is not None:
-        _callbacks.stop()
 
 
 def _process_start(pid: int) -> str | None:
@@ -258,7 +240,7 @@ class StageLock:
 
 
 def stage_lock_key(tenant: str, job_id: str, stage: str) -> str:
-    return f"bf:lock:{tenant}:{job_id}:{stage}"
+    return redis_keys.stage_lock(tenant, job_id, stage)
 
 
 def _finish(rt: _Runtime, record: JobRecord, state: JobState, error: str | None = None) -> JobRecord:

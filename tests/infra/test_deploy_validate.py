@@ -76,7 +76,8 @@ def test_compose_config_is_valid(compose_copy: Path) -> None:
     assert result.returncode == 0, result.stderr
     services = run_compose(compose_copy, "--profile", "cpu-only", "config", "--services", env_extra=env)
     assert set(services.stdout.split()) == {
-        "postgres", "redis", "minio", "minio-init", "api", "gpu-worker", "cpu-worker", "gpu-queue-on-cpu"
+        "postgres", "redis", "minio", "minio-init", "api", "control", "gpu-worker", "cpu-worker",
+        "gpu-queue-on-cpu",
     }  # fmt: skip
 
 
@@ -90,7 +91,7 @@ def test_compose_resolved_config(compose_copy: Path) -> None:
     assert device["driver"] == "nvidia" and device["count"] == 1 and device["capabilities"] == ["gpu"]
     assert gpu["command"][gpu["command"].index("-Q") + 1] == "gpu"
     assert cfg["cpu-worker"]["command"][cfg["cpu-worker"]["command"].index("-Q") + 1] == "cpu"
-    for name in ("api", "gpu-worker", "cpu-worker"):
+    for name in ("api", "control", "gpu-worker", "cpu-worker"):
         svc = cfg[name]
         assert svc["environment"]["BFIELDS_S3_SECRET_ACCESS_KEY"] == "test-password-123"
         assert svc["environment"]["BFIELDS_REDIS_URL"] == "redis://redis:6379/0"
@@ -100,9 +101,29 @@ def test_compose_resolved_config(compose_copy: Path) -> None:
         assert svc["depends_on"]["postgres"]["condition"] == "service_healthy"
         assert svc["depends_on"]["minio-init"]["condition"] == "service_completed_successfully"
         assert svc["depends_on"]["redis"]["condition"] == "service_healthy"
-        assert any(v["target"] == "/models" and v.get("read_only") for v in svc["volumes"])
-    assert all("healthcheck" in cfg[name] for name in ("api", "redis", "minio", "postgres"))
+        if name != "control":  # the control process runs no stage: no models
+            assert any(v["target"] == "/models" and v.get("read_only") for v in svc["volumes"])
+    assert all("healthcheck" in cfg[name] for name in ("api", "control", "redis", "minio", "postgres"))
     assert any(v["target"] == "/var/lib/postgresql/data" for v in cfg["postgres"]["volumes"])
+
+
+def test_compose_control_process(compose_copy: Path) -> None:
+    """One `bfields-service control` on the api's image and with exactly the api's settings,
+    restarted when it dies and probed on its own health port (the image's HEALTHCHECK is the api's)."""
+    result = run_compose(compose_copy, "config", "--format", "json", env_extra=PASSWORDS)
+    assert result.returncode == 0, result.stderr
+    cfg = json.loads(result.stdout)["services"]
+    control, api = cfg["control"], cfg["api"]
+    assert control["command"] == ["bfields-service", "control"]
+    assert control["image"] == api["image"] == "bayesian-fields/api:latest"
+    assert control["environment"] == api["environment"]
+    raw = yaml.safe_load(compose_copy.read_text())["services"]  # env_file: resolved away when absent
+    assert raw["control"]["env_file"] == raw["api"]["env_file"]
+    assert control["restart"] == "unless-stopped"
+    assert "ports" not in control  # health port inside the network only
+    probe = " ".join(control["healthcheck"]["test"])
+    assert "http://127.0.0.1:8001/healthz" in probe and "curl" not in probe
+    assert control.get("volumes", []) == []
 
 
 def test_compose_requires_minio_password(compose_copy: Path) -> None:
@@ -183,7 +204,7 @@ def test_keda_objects_match_schema_and_targets() -> None:
         target = obj["spec"]["scaleTargetRef"]["name"]
         assert target in deployments, f"{name} scales unknown deployment {target}"
         triggers = {t["type"]: t for t in obj["spec"]["triggers"]}
-        assert set(triggers) == {"prometheus", "redis"}
+        assert set(triggers) == {"postgresql", "prometheus", "redis"}
         trigger = triggers["redis"]
         assert trigger["authenticationRef"]["name"] in auths
         # the list KEDA watches is the queue the target deployment consumes
@@ -193,6 +214,25 @@ def test_keda_objects_match_schema_and_targets() -> None:
         # the main trigger scales on what waits: the service's tenant queues + that Celery queue
         query = triggers["prometheus"]["metadata"]["query"]
         assert "sum(bfields_jobs_waiting" in query and f'queue="{queue}"' in query
+        # and, from the records themselves, the jobs table's rows through a secret DSN
+        postgres = triggers["postgresql"]
+        assert " FROM jobs WHERE state" in postgres["metadata"]["query"]
+        assert postgres["authenticationRef"]["name"] in auths
+
+
+def test_gpu_workers_scale_on_the_queued_rows() -> None:
+    """Every queued job (waiting, or dispatched and not started) starts on the gpu queue: the gpu
+    workers scale on that count, read with a DSN that KEDA's Go driver can parse."""
+    docs = {(d["kind"], d["metadata"]["name"]): d for d in keda_documents()}
+    triggers = docs[("ScaledObject", "bfields-gpu-worker")]["spec"]["triggers"]
+    (postgres,) = [t for t in triggers if t["type"] == "postgresql"]
+    query = " ".join(postgres["metadata"]["query"].split())
+    assert query == "SELECT count(*) FROM jobs WHERE state = 'queued'"
+    auth = docs[("TriggerAuthentication", postgres["authenticationRef"]["name"])]
+    (ref,) = auth["spec"]["secretTargetRef"]
+    assert ref["parameter"] == "connection" and ref["name"] == "bfields-secrets"
+    secret = documents(DEPLOY / "secret.example.yaml")[0]["stringData"]
+    assert secret[ref["key"]].startswith("postgresql://")  # libpq form: no "+psycopg" driver suffix
 
 
 def test_keda_schema_rejects_mistakes() -> None:
@@ -207,6 +247,17 @@ def test_keda_schema_rejects_mistakes() -> None:
     numeric = json.loads(json.dumps(obj))
     numeric["spec"]["triggers"][redis_at]["metadata"]["listLength"] = 2  # KEDA metadata values are strings
     assert keda_errors(numeric)
+    postgres_at = [t["type"] for t in obj["spec"]["triggers"]].index("postgresql")
+    no_target = json.loads(json.dumps(obj))
+    del no_target["spec"]["triggers"][postgres_at]["metadata"]["targetQueryValue"]
+    assert keda_errors(no_target)
+    misnamed = json.loads(json.dumps(obj))
+    # the field is targetQueryValue
+    misnamed["spec"]["triggers"][postgres_at]["metadata"]["targetValue"] = "2"
+    assert keda_errors(misnamed)
+    no_connection = json.loads(json.dumps(obj))
+    del no_connection["spec"]["triggers"][postgres_at]["authenticationRef"]
+    assert keda_errors(no_connection)
 
 
 def test_gpu_worker_requests_a_gpu_and_tolerates_the_taint() -> None:
@@ -225,6 +276,51 @@ def test_api_probes() -> None:
     container = dep["spec"]["template"]["spec"]["containers"][0]
     assert container["readinessProbe"]["httpGet"]["path"] == "/readyz"
     assert container["livenessProbe"]["httpGet"]["path"] == "/healthz"
+
+
+def test_control_deployment() -> None:
+    """Two replicas (one leader by advisory lock, one standby), rolled one pod at a time, probed on
+    the control port, migrating first, with the records DSN from the Secret."""
+    docs = {d["kind"]: d for d in documents(DEPLOY / "control.yaml")}
+    dep = docs["Deployment"]
+    assert dep["spec"]["replicas"] == 2
+    assert dep["spec"]["strategy"]["rollingUpdate"] == {"maxUnavailable": 0, "maxSurge": 1}
+    pod = dep["spec"]["template"]["spec"]
+    (container,) = pod["containers"]
+    (api,) = documents(DEPLOY / "api.yaml")[0]["spec"]["template"]["spec"]["containers"]
+    assert container["image"] == api["image"]  # the api's image, like the compose service
+    assert container["command"] == ["bfields-service", "control"]
+    (port,) = container["ports"]
+    assert port["containerPort"] == 8001
+    for probe, path in (("readinessProbe", "/readyz"), ("livenessProbe", "/healthz")):
+        assert container[probe]["httpGet"] == {"path": path, "port": port["name"]}
+    requests = container["resources"]["requests"]
+    assert requests == {"cpu": "100m", "memory": "256Mi"}
+    assert pod["securityContext"]["runAsNonRoot"] and container["securityContext"]["readOnlyRootFilesystem"]
+    (migrate,) = pod["initContainers"]
+    assert migrate["command"] == ["bfields-service", "migrate"]
+    assert docs["PodDisruptionBudget"]["spec"]["maxUnavailable"] == 1
+
+
+def test_every_process_takes_the_dsn_from_the_secret() -> None:
+    """BFIELDS_DATABASE_URL is never written into a manifest: each container that needs it (API,
+    control and its migration, both workers) reads it from a key the Secret template has."""
+    secret = documents(DEPLOY / "secret.example.yaml")[0]
+    keys = set(secret["stringData"])
+    seen = set()
+    for path in manifest_files():
+        for doc in documents(path):
+            if doc["kind"] != "Deployment":
+                continue
+            pod = doc["spec"]["template"]["spec"]
+            for container in pod.get("initContainers", []) + pod["containers"]:
+                env = {e["name"]: e for e in container.get("env", [])}
+                dsn = env["BFIELDS_DATABASE_URL"]
+                assert "value" not in dsn, f"{doc['metadata']['name']}: a literal DSN"
+                ref = dsn["valueFrom"]["secretKeyRef"]
+                assert ref["name"] == secret["metadata"]["name"] and ref["key"] in keys
+                seen.add(doc["metadata"]["name"])
+    assert seen == {"bfields-api", "bfields-control", "bfields-gpu-worker", "bfields-cpu-worker"}
 
 
 def test_kustomization_lists_every_manifest() -> None:

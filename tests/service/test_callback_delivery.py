@@ -1,9 +1,10 @@
-"""Callback delivery that no receiver can stall (issue 30, item 5), on the real stack: a real Celery
-worker (its `CallbackSender` is what delivers), real PostgreSQL (the outbox table), and real HTTP receivers
-(`callback_receivers`) that drip, send hundreds of MB, never answer, redirect or fail once.
+"""Callback delivery that no receiver can stall (issue 30, item 5), on the real stack: a real control
+process (`bfields-service control`: its `CallbackSender` is what delivers), real PostgreSQL (the
+outbox table, a database of this module's own), and real HTTP receivers (`callback_receivers`) that
+drip, send hundreds of MB, never answer, redirect or fail once.
 
-The worker runs with the shipped defaults for delivery threads, the per-destination bound and the
-answer cap (settings.py), and a short attempt deadline so the tests are quick. Events go into the
+The control process runs with the shipped defaults for delivery threads, the per-destination bound
+and the answer cap (settings.py), and a short attempt deadline so the tests are quick. Events go into the
 outbox exactly as a finished job puts them there (`callbacks.enqueue`)."""
 
 from __future__ import annotations
@@ -17,9 +18,10 @@ from sqlalchemy import Engine, select
 
 from bayesian_fields_service.common import callbacks
 from bayesian_fields_service.common.settings import ServiceSettings
-from bayesian_fields_service.records.database import engine, migrate
+from bayesian_fields_service.records.database import dispose_all, engine, migrate
 from bayesian_fields_service.records.tables import callback_outbox
-from tests.integration.fixtures.services import WorkerPool, WorkerProcess
+from tests.integration.fixtures.postgres import create_database, drop_database
+from tests.integration.fixtures.services import ControlServer
 
 from .callback_receivers import Receiver, RssSampler, overlapping
 
@@ -55,24 +57,30 @@ def _wait(check: Callable[[], bool], timeout_s: float, what: str) -> None:
 
 
 @pytest.fixture(scope="module")
-def outbox(svc_env: dict[str, str]) -> Iterator[Engine]:
-    """The outbox table of the database the worker uses, emptied before and after."""
-    migrate(svc_env["BFIELDS_DATABASE_URL"])  # (the worker would, when it starts)
-    db = engine(svc_env["BFIELDS_DATABASE_URL"])
-    with db.begin() as conn:
-        conn.execute(callback_outbox.delete())
-    yield db
-    with db.begin() as conn:
-        conn.execute(callback_outbox.delete())
+def outbox_url() -> Iterator[str]:
+    """A records database of this module's own (its control process leads there alone)."""
+    url = create_database()
+    migrate(url)
+    yield url
+    dispose_all()
+    drop_database(url)
 
 
 @pytest.fixture(scope="module")
-def callback_worker(celery_workers: WorkerPool, outbox: Engine) -> Iterator[WorkerProcess]:
-    """One real Celery worker (solo pool, its own queue: it runs no job, only its callback sender)."""
-    worker = celery_workers.start("callbacks-test", name="callbacks", extra_env=WORKER_ENV)
-    yield worker
-    if worker.alive:
-        worker.stop()
+def outbox(outbox_url: str) -> Engine:
+    return engine(outbox_url)
+
+
+@pytest.fixture(scope="module")
+def callback_worker(
+    svc_env: dict[str, str], outbox_url: str, tmp_path_factory: pytest.TempPathFactory
+) -> Iterator[ControlServer]:
+    """One real control process: with no job in its database, it only sends callbacks."""
+    env = {**svc_env, **WORKER_ENV, "BFIELDS_DATABASE_URL": outbox_url}
+    control = ControlServer(env, tmp_path_factory.mktemp("callback-control")).start()
+    assert control.leads
+    yield control
+    control.stop()
 
 
 @pytest.fixture
@@ -116,7 +124,7 @@ def _pending(outbox: Engine, event_ids: list[str]) -> list[str]:
 
 
 def test_ordinary_callback_on_time_while_drip_and_huge_receivers_are_served(
-    callback_worker: WorkerProcess, outbox: Engine, receivers: Callable[..., Receiver]
+    callback_worker: ControlServer, outbox: Engine, receivers: Callable[..., Receiver]
 ) -> None:
     """More drip events than the per-destination bound and 400 MB answers do not delay an ordinary
     callback; the drip attempts end by the deadline, one at a time per event, at most
@@ -167,11 +175,11 @@ def test_ordinary_callback_on_time_while_drip_and_huge_receivers_are_served(
 
 
 def test_silent_receiver_two_senders_never_in_flight_twice(
-    callback_worker: WorkerProcess, outbox: Engine, receivers: Callable[..., Receiver], redis_url: str
+    callback_worker: ControlServer, outbox: Engine, receivers: Callable[..., Receiver], redis_url: str
 ) -> None:
     """A receiver that never answers: each attempt ends at the deadline, the event is dropped after
-    `callback_max_attempts`, and with two senders competing (the worker and a second sender in this
-    process, as two workers would) no event is ever POSTed twice at the same time: the claim outlives
+    `callback_max_attempts`, and with two senders competing (the control process and a second sender
+    in this process, as two leaders at once would) no event is ever POSTed twice at the same time: the claim outlives
     the attempt."""
     silent = receivers("silent")
     settings = ServiceSettings(redis_url=redis_url, **{k[8:].lower(): v for k, v in WORKER_ENV.items()})  # type: ignore[arg-type]
@@ -197,7 +205,7 @@ def test_silent_receiver_two_senders_never_in_flight_twice(
 
 
 def test_redirect_is_not_followed(
-    callback_worker: WorkerProcess, outbox: Engine, receivers: Callable[..., Receiver]
+    callback_worker: ControlServer, outbox: Engine, receivers: Callable[..., Receiver]
 ) -> None:
     """A 302 is a failed attempt (retried, then dropped); its Location is never requested."""
     target = receivers("ok")
@@ -210,7 +218,7 @@ def test_redirect_is_not_followed(
 
 
 def test_500_then_200_is_retried_and_delivered(
-    callback_worker: WorkerProcess, outbox: Engine, receivers: Callable[..., Receiver]
+    callback_worker: ControlServer, outbox: Engine, receivers: Callable[..., Receiver]
 ) -> None:
     """A 500 is retried after the backoff; the 200 that follows delivers it: out of the outbox,
     not dropped, the same event id and body both times, both signed."""

@@ -17,13 +17,14 @@ from pathlib import Path
 import httpx
 import pytest
 import redis
+from sqlalchemy import func, insert
 
 from bayesian_fields_core.params import PipelineParams
 from bayesian_fields_service.client import BFieldsClient
 from bayesian_fields_service.client.api import ClientError, RetryPolicy
-from bayesian_fields_service.common.fair_queue import FairQueue
-from bayesian_fields_service.common.jobs import JobRecord, JobState, JobStore, new_id
+from bayesian_fields_service.common.jobs import JobState, JobStore, new_id
 from bayesian_fields_service.records.database import engine
+from bayesian_fields_service.records.tables import jobs as jobs_table
 from tests.integration.fixtures.s3_server import S3Server
 from tests.integration.fixtures.services import ApiServer
 
@@ -130,9 +131,8 @@ def test_a_batch_of_1000_is_accepted_with_defaults_paged_retried_and_cancelled(
         assert cancelled.status_code == 202, cancelled.text
         counts = cancelled.json()["counts"]
         assert counts == {"cancelled": 1000}, counts  # the failed one was replaced by its retry
-        fair = FairQueue(r, "gpu")
-        assert fair.waiting("tenant-a") == 1  # the interactive job only
-        assert r.zcard("bf:active:tenant-a") == 1
+        assert jobs.queue.waiting_by_tenant().get("tenant-a") == 1  # the interactive job only
+        assert jobs.count_active("tenant-a") == 1  # the only job that still counts for admission
         client.delete(f"/v1/jobs/{single.json()['id']}")
 
 
@@ -274,10 +274,11 @@ def busy(
     test_api_keys: dict[str, str],
     worker_env: dict[str, str],  # noqa: F811
 ) -> Iterator[PrivateStack]:
-    """Two API processes (so one can be killed), one solo worker per queue, a short dispatcher
-    lease and a GPU queue depth of 1 (the order of the workers is the dispatcher's)."""
+    """Two API processes, each with a control process beside it (two control replicas, so the
+    leader can be killed), one solo worker per queue and a GPU queue depth of 1 (the order of the
+    workers is the dispatcher's)."""
     extra = {**_defaults_env(), **worker_env, "BFIELDS_DISPATCH_QUEUE_DEPTH": "1",
-             "BFIELDS_DISPATCH_INTERVAL_S": "0.2", "BFIELDS_DISPATCHER_LEASE_S": "3"}  # fmt: skip
+             "BFIELDS_DISPATCH_INTERVAL_S": "0.2"}  # fmt: skip
     stack = PrivateStack(tmp_path_factory.mktemp("fleet-busy"), s3_server.env(), dict(test_api_keys), extra)
     stack.start()
     assert stack.pool is not None
@@ -329,13 +330,17 @@ def test_another_tenants_interactive_job_starts_within_about_one_job(
 
 
 @pytest.mark.slow
-def test_killing_the_dispatching_api_loses_no_job_and_runs_none_twice(
-    busy: PrivateStack, scene_dir: Path
+def test_killing_the_leading_control_process_loses_no_job_and_runs_none_twice(
+    busy: PrivateStack, scene_dir: Path, s3_server: S3Server
 ) -> None:
+    """SIGKILL the control replica that leads mid-fleet: the other takes the lead within ~10 s
+    (the database ends the dead leader's session and with it the advisory lock), and every job
+    finishes once: none lost, none listed twice, no stage run twice."""
     assert busy.api is not None
-    apis: list[ApiServer] = [busy.api, busy.second_api]  # type: ignore[attr-defined]
-    r = busy.redis
-    with apis[0].client("tenant-a") as a:
+    controls = [api.controller for api in (busy.api, busy.second_api)]  # type: ignore[attr-defined]
+    assert all(c is not None and c.alive for c in controls)
+    jobs = JobStore(s3_server.store(), busy.redis, engine(busy.env["BFIELDS_DATABASE_URL"]))
+    with busy.api.client("tenant-a") as a:
         scene = upload(a, scene_dir)
         resp = a.post("/v1/batches", json={"scene_ids": [scene], "task_lists": [[f"item {i}"] for i in range(10)],
                                            "parameters": PARAMS})  # fmt: skip
@@ -346,15 +351,18 @@ def test_killing_the_dispatching_api_loses_no_job_and_runs_none_twice(
             240,
             "2 jobs",
         )
-    holder = r.get("bf:fq:gpu:lease")
-    assert holder is not None
-    pid = int(holder.decode().split(":")[1])
-    victim = next(api for api in apis if api.process is not None and api.process.pid == pid)
-    survivor = next(api for api in apis if api is not victim)
-    assert victim.process is not None
-    victim.process.kill()  # SIGKILL: no lease release, no clean-up
-    try:
-        with survivor.client("tenant-a") as a:
+        leaders = [c for c in controls if c is not None and c.leads]
+        assert len(leaders) == 1, "exactly one control replica leads"
+        victim = leaders[0]
+        survivor = next(c for c in controls if c is not victim)
+        assert survivor is not None
+        victim.kill()  # SIGKILL: no resignation, no clean-up
+        t0 = time.monotonic()
+        try:
+            _wait_for(lambda: survivor.leads or None, 30, "the standby to take the lead")
+            takeover_s = time.monotonic() - t0
+            print(f"\nthe standby led {takeover_s:.1f} s after the leader was killed")
+            assert takeover_s < 10
             finals = [wait_job(a, j, 300) for j in ids]
             assert [f["state"] for f in finals] == ["succeeded"] * 10
             assert [f["stage_runs"] for f in finals] == [3] * 10  # no stage ran twice
@@ -364,47 +372,36 @@ def test_killing_the_dispatching_api_loses_no_job_and_runs_none_twice(
                 if j["batch_id"] == batch_id
             ]
             assert sorted(j["id"] for j in listed) == sorted(ids)  # no job lost, none duplicated
-            assert r.zcard("bf:dispatched:tenant-a") == 0
-    finally:
-        victim.start()
+            assert jobs.queue.dispatched_ids("tenant-a") == []
+        finally:
+            victim.start()
 
 
 @pytest.mark.slow
-def test_dispatcher_dying_between_move_and_send_and_api_dying_before_confirming(
+def test_a_dispatcher_dying_between_its_stamp_and_the_send_loses_no_job(
     busy: PrivateStack, scene_dir: Path, s3_server: S3Server
 ) -> None:
-    """Two crash windows made deterministic: (1) a dispatcher moved a job to the dispatched set and
-    died before sending it (the state its Lua move leaves is written here directly, since the
-    live dispatchers would send the job first); (2) an API queued a job and died before removing
-    its row as unsubmitted (the earlier attempt's bug: recovery queued it again and the batch listed
-    43 jobs for 40). Each job runs once and is listed once."""
+    """The dispatcher's crash window made deterministic: a job stamped dispatched whose chain was
+    never sent (the row is written here in that state, since the live dispatcher would send the
+    job first). Recovery finds it (no stage lock, no queued message), puts it back in the queue,
+    and it runs once and is listed once."""
     assert busy.api is not None
-    r = busy.redis
-    fair = FairQueue(r, "gpu")
-    jobs = JobStore(s3_server.store(), r, engine(busy.env["BFIELDS_DATABASE_URL"]))
+    database = engine(busy.env["BFIELDS_DATABASE_URL"])
+    jobs = JobStore(s3_server.store(), busy.redis, database)
     params = PipelineParams.model_validate(PARAMS).model_dump(mode="json", exclude_unset=True)
-
-    def stored(tasks: list[str]) -> JobRecord:
-        record = JobRecord(id=new_id("j_"), tenant="tenant-b", scene_id=scene, tasks=tasks, parameters=params)
-        assert jobs.quota.reserve("tenant-b", [record.id], 100)[0]
-        jobs.create(record)
-        return record
-
     with busy.api.client("tenant-b") as b:
         scene = upload(b, scene_dir)
-        moved = stored(["red blob"])  # (1): moved, marked dispatching, never sent
-        r.zadd("bf:dispatched:tenant-b", {moved.id: time.time()})
-        r.hset(f"bf:job:tenant-b:{moved.id}", mapping={"phase": "dispatching", "updated": time.time()})
-        jobs.mark_enqueued(moved)
-        unconfirmed = stored(["green blob"])  # (2): queued, left unsubmitted
-        fair.submit("tenant-b", unconfirmed.priority, [unconfirmed.id])
-        for record in (moved, unconfirmed):
-            final = wait_job(b, record.id, 240)
-            assert final["state"] == "succeeded" and final["stage_runs"] == 3, final
-        assert ("tenant-b", unconfirmed.id) not in jobs.pending_jobs()
+        job_id = new_id("j_")
+        with database.begin() as conn:
+            conn.execute(insert(jobs_table).values(
+                id=job_id, tenant="tenant-b", scene_id=scene, priority="interactive", tasks=["red blob"],
+                parameters=params, model_profile="default", dispatched_at=func.now(),
+            ))  # fmt: skip
+        final = wait_job(b, job_id, 240)
+        assert final["state"] == "succeeded" and final["stage_runs"] == 3, final
         listed = [j["id"] for j in b.get("/v1/jobs", params={"limit": 500}).json()["items"]]
-        assert listed.count(moved.id) == 1 and listed.count(unconfirmed.id) == 1
-        assert fair.waiting("tenant-b") == 0 and r.zcard("bf:dispatched:tenant-b") == 0
+        assert listed.count(job_id) == 1
+        assert jobs.queue.dispatched_ids("tenant-b") == []
 
 
 @pytest.mark.slow

@@ -1,6 +1,9 @@
-"""Outages, quota races and half-done submissions (issue 12, items 5 and 6), on real processes:
-private Redis and rclone servers stopped mid-test, two API processes raced by 100 concurrent
-submissions, and a submission 'crashed' between storing a job and enqueueing it."""
+"""Outages and quota races (issue 12, items 5 and 6; issue 28), on real processes: private Redis and
+rclone servers stopped mid-test, and two API processes raced by 100 concurrent submissions.
+
+Since the records and the queue are PostgreSQL's, a Redis outage costs only progress display:
+every request is served from the rows. A bucket outage refuses what needs the bucket (a
+submission reads its scene there) with a quick 503, and serves the records."""
 
 from __future__ import annotations
 
@@ -16,13 +19,13 @@ import httpx
 import pytest
 import redis
 
-from bayesian_fields_service.common.jobs import JobRecord, JobStore, new_id
+from bayesian_fields_service.common.jobs import JobStore
 from bayesian_fields_service.records.database import engine
 from tests.integration.fixtures.redis_server import RedisServer
 from tests.integration.fixtures.s3_server import S3Server
-from tests.integration.fixtures.services import ApiServer, WorkerPool, build_service_env
+from tests.integration.fixtures.services import ApiServer, build_service_env
 
-from .conftest import SERVICE_ENV, scene_form
+from .conftest import scene_form
 
 pytestmark = pytest.mark.integration
 
@@ -75,7 +78,9 @@ def private_stack(
     s3.stop()
 
 
-def test_outages_answer_503_quickly_and_leave_no_job(private_stack, scene_dir: Path) -> None:  # noqa: ANN001
+def test_a_redis_outage_costs_progress_only_and_a_bucket_outage_answers_503_quickly(
+    private_stack, scene_dir: Path  # noqa: ANN001
+) -> None:
     api, redis_server, s3 = private_stack
     times: list[float] = []
     with api.client("tenant-o") as client:
@@ -85,25 +90,31 @@ def test_outages_answer_503_quickly_and_leave_no_job(private_stack, scene_dir: P
         job_id = first.json()["id"]
 
         redis_server.stop()
-        _assert_503_fast(client, scene_id, job_id, times)
+        during = client.post("/v1/jobs", json={"scene_id": scene_id, "tasks": ["during redis outage"]})
+        assert during.status_code == 202, during.text  # stored and queued: the queue is a table
+        batch = client.post("/v1/batches", json={"scene_ids": [scene_id], "task_lists": [["b1"], ["b2"]]})
+        assert batch.status_code == 202 and batch.json()["created"] == 2, batch.text
+        assert client.get(f"/v1/jobs/{job_id}").json()["state"] == "queued"
+        assert client.get(f"/v1/jobs/{during.json()['id']}").json()["queue_position"] is not None
+        assert len(client.get("/v1/jobs").json()["items"]) == 4
+        cancelled = client.delete(f"/v1/jobs/{during.json()['id']}")
+        assert cancelled.status_code == 202 and cancelled.json()["state"] == "cancelled", cancelled.text
         redis_server.start()
+
         s3.stop()
         # submissions need the scene in the bucket; a job's record and the listing are the
         # records database's, so they answer through a bucket outage
         _assert_503_fast(client, scene_id, job_id, times, only="POST")
         assert client.get(f"/v1/jobs/{job_id}").json()["state"] == "queued"
-        assert [j["id"] for j in client.get("/v1/jobs").json()["items"]] == [job_id]
+        assert len(client.get("/v1/jobs").json()["items"]) == 4
         s3.start()
 
         listed = client.get("/v1/jobs", params={"limit": 500})
         assert listed.status_code == 200, listed.text
-        assert [j["id"] for j in listed.json()["items"]] == [job_id]  # no refused submission stored
-        assert client.get(f"/v1/jobs/{job_id}").json()["state"] == "queued"
+        assert len(listed.json()["items"]) == 4  # no refused submission stored
     r = redis.Redis.from_url(redis_server.url())
     jobs = JobStore(s3.store(), r, engine(api.env["BFIELDS_DATABASE_URL"]))
-    assert jobs.pending_jobs() == []
-    assert jobs.active_jobs() == [("tenant-o", job_id)]
-    assert [m.decode() for m in r.zrange("bf:active:tenant-o", 0, -1)] == [job_id]
+    assert len(jobs.active_jobs()) == 3 and ("tenant-o", job_id) in jobs.active_jobs()
     print(
         f"\ntime to 503 over {len(times)} requests: median {statistics.median(times):.3f} s, max {max(times):.3f} s"
     )
@@ -158,86 +169,3 @@ def test_quota_is_exact_under_100_concurrent_submissions(two_apis, scene_dir: Pa
             clients[0].delete(f"/v1/jobs/{job_id}")
         for client in clients:
             client.close()
-
-
-def test_submission_crashed_before_enqueue_is_enqueued_by_recovery(
-    client_a: httpx.Client,
-    stored_scene: dict,
-    s3_server: S3Server,
-    redis_url: str,
-    celery_workers: WorkerPool,
-    svc_env: dict[str, str],
-) -> None:
-    """The API stored a job and died before enqueueing it: recovery enqueues it (the job is valid
-    and holds its slot; running it is what the client asked for; a keyed retry finds it), instead
-    of leaving it queued forever; a slot whose job never existed is given back. (Only a CPU worker
-    runs here, so the job waits in the GPU queue: cancelled at the end.)"""
-    r = redis.Redis.from_url(redis_url)
-    jobs = JobStore(s3_server.store(), r, engine(svc_env["BFIELDS_DATABASE_URL"]))
-    record = JobRecord(
-        id=new_id("j_"), tenant="tenant-a", scene_id=stored_scene["id"], tasks=["crashed submit"]
-    )
-    r.zadd("bf:active:tenant-a", {record.id: time.time()})  # the slot the API had reserved
-    jobs.create(record)  # ... and here the API process died
-    stale = "j_" + "0" * 20
-    r.zadd("bf:active:tenant-a", {stale: time.time() - 3600})  # a slot whose job never existed
-    worker = celery_workers.start("cpu", extra_env=SERVICE_ENV)  # recovery scans every 2 s
-    try:
-        deadline = time.monotonic() + 60
-        pending = ("tenant-a", record.id)
-        while time.monotonic() < deadline:
-            if pending not in jobs.pending_jobs() and r.zscore("bf:active:tenant-a", stale) is None:
-                break
-            time.sleep(0.5)
-        job = client_a.get(f"/v1/jobs/{record.id}").json()
-        assert job["state"] == "queued" and job["error"] is None, job
-        assert pending not in jobs.pending_jobs()
-        assert jobs.live_phase("tenant-a", record.id) == "waiting"  # its message is in the queue
-        assert r.zscore("bf:active:tenant-a", record.id) is not None  # it keeps its slot
-        assert r.zscore("bf:active:tenant-a", stale) is None
-        assert client_a.delete(f"/v1/jobs/{record.id}").json()["state"] == "cancelled"
-        assert r.zscore("bf:active:tenant-a", record.id) is None
-    finally:
-        worker.stop()
-
-
-def test_a_batch_whose_queueing_failed_is_made_anew_by_the_retry_with_its_key(
-    tmp_path: Path, private_redis: RedisServer, scene_dir: Path
-) -> None:
-    """Redis goes away after a batch's rows are written and before its jobs are queued: the
-    answer is a 503, the rows left are failed jobs, and the Idempotency-Key does not point at that
-    batch, so the client's retry with the same key and body makes a new batch that runs."""
-    s3 = S3Server(tmp_path / "s3").start()
-    keys = {"tenant-o": "key-o-" + secrets.token_urlsafe(12)}
-    env = build_service_env(tmp_path / "env", private_redis.url(), s3.env(), keys,
-                            {"BFIELDS_TEST_PAUSE_POINTS": "true"})  # fmt: skip
-    api = ApiServer(env=env, log_dir=tmp_path / "api", keys=keys).start()
-    r = redis.Redis.from_url(private_redis.url())
-    try:
-        with api.client("tenant-o") as client:
-            scene_id = _upload(client, scene_dir)
-            body = {"scene_ids": [scene_id], "task_lists": [["a"], ["b"], ["c"]]}
-            key = {"Idempotency-Key": f"outage-batch-{secrets.token_hex(4)}"}
-            r.set("bf:test:pause:submit:created", scene_id)
-            with ThreadPoolExecutor(1) as pool:
-                # the undo after the outage retries each Redis call before it gives up: a long read
-                pending = pool.submit(client.post, "/v1/batches", json=body, headers=key, timeout=150)
-                deadline = time.monotonic() + 30
-                while not r.exists(f"bf:test:reached:submit:created:{scene_id}"):
-                    assert time.monotonic() < deadline, "the submission never reached its pause point"
-                    time.sleep(0.05)
-                r.delete("bf:test:pause:submit:created")  # disarmed: the retry passes (AOF keeps keys)
-                private_redis.stop()  # between the rows and the queue
-                failed = pending.result(timeout=180)
-            assert failed.status_code == 503, failed.text
-            private_redis.start()
-            r = redis.Redis.from_url(private_redis.url())
-            again = client.post("/v1/batches", json=body, headers=key)
-            assert again.status_code == 202 and again.json()["created"] == 3, again.text
-            states = {j["state"] for j in client.get("/v1/jobs", params={"limit": 500}).json()["items"]}
-            assert states == {"failed", "queued"}  # the first batch's rows failed; the retry's wait
-            same = client.post("/v1/batches", json=body, headers=key)
-            assert same.status_code == 200 and same.json()["id"] == again.json()["id"]
-    finally:
-        api.stop()
-        s3.stop()

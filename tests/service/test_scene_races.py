@@ -291,8 +291,8 @@ def test_random_interleavings_keep_a_scene_complete_or_absent(
 def test_the_sweeper_removes_what_is_left_of_a_deleted_scene_at_once(bucket: Any) -> None:
     """A delete that failed half-way (or a completion that copied files after the delete listed
     them) leaves objects, even a scene.json, under a tombstoned scene: swept whatever their age."""
-    from bayesian_fields_service.api.sweeper import sweep_bucket
     from bayesian_fields_service.common.jobs import new_id
+    from bayesian_fields_service.control.bucket_sweep import sweep_bucket
 
     tenant = "sweep-" + new_id("t")[-8:]
     scene_id, kept = new_id("s_"), new_id("s_")

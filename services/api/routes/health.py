@@ -92,7 +92,7 @@ class ServiceCollector(Collector):
             for outcome in (JobState.succeeded, JobState.failed, JobState.cancelled):
                 if (h := read_histogram(s.redis, JOB_KEY.format(outcome=outcome.value))) is not None:
                     job_h.add_metric([outcome.value], h[0], h[1])
-            counts = s.fair.waiting_by_tenant()
+            counts = s.jobs.queue.waiting_by_tenant()
             for tenant, n in sorted(counts.items()):
                 waiting.add_metric([tenant], n)
             if not counts:  # a series even when nothing waits, so sum() in a query is 0, not empty

@@ -1,8 +1,9 @@
 """Job routes: submit (idempotent), status, result links, cancel, list; plus batches of jobs
 (submit, status, page, cancel, retry).
 
-A submission is admitted (bounded by the tenant's waiting bound, 429 past it), stored, and put in
-the tenant's fair-share queue (`common.fair_queue`); the dispatcher sends it to the workers."""
+A submission is admitted (bounded by the tenant's waiting bound, 429 past it) and stored in one
+transaction: its row is its place in the tenant's queue (`common.job_queue`), from which the
+control process's dispatcher sends it to the workers."""
 
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ from datetime import UTC, datetime, timedelta
 from pathlib import PurePosixPath
 from typing import Annotated, Any, TypeVar
 
+import redis
 from fastapi import APIRouter, Header, HTTPException, Query, Response, status
 from fastapi.responses import FileResponse
 from pydantic import ValidationError
@@ -48,10 +50,8 @@ from bayesian_fields_service.api.state import (
     not_found,
 )
 from bayesian_fields_service.common.batch_records import BatchRecord
-from bayesian_fields_service.common.fair_queue import Priority
+from bayesian_fields_service.common.job_queue import AdmissionRefused, Priority, admission_limit
 from bayesian_fields_service.common.jobs import JobRecord, JobState, job_digest, new_id
-from bayesian_fields_service.common.pause_points import pause
-from bayesian_fields_service.common.quota import admission_limit
 from bayesian_fields_service.records.locks import LockBusy, session_lock
 from bayesian_fields_service.worker.metrics import JOB_KEY, read_histogram
 
@@ -88,17 +88,26 @@ def _with_queue_position(state: AppState, record: JobRecord) -> JobRecord:
     """Add the place in the tenant's queue and an estimated start while the job waits there."""
     if record.state != JobState.queued:
         return record
-    position = state.fair.position(record.tenant, record.id)
+    position = state.jobs.queue.position(record.tenant, record.id, record.priority, record.created_at)
     if position is None:
         return record
-    rate = state.fair.dispatch_rate(record.tenant)
+    rate = state.jobs.queue.dispatch_rate(record.tenant)
     eta_s: float | None = position / rate if rate > 0 else None
-    if eta_s is None and (h := read_histogram(state.redis, JOB_KEY.format(outcome="succeeded"))):
+    if eta_s is None and (h := _mean_job_histogram(state)):
         _, total, count = h  # no recent dispatches: mean job duration per dispatch slot
         if count:
             eta_s = total / count * position / state.settings.max_active_jobs_per_tenant
     start = datetime.now(UTC) + timedelta(seconds=eta_s) if eta_s is not None else None
     return record.model_copy(update={"queue_position": position, "estimated_start": start})
+
+
+def _mean_job_histogram(state: AppState) -> tuple[list[tuple[str, float]], float, float] | None:
+    """The succeeded jobs' duration histogram (Redis metrics; None while Redis is away: the
+    estimate is a convenience, the answer does not wait for it)."""
+    try:
+        return read_histogram(state.redis, JOB_KEY.format(outcome="succeeded"))
+    except redis.RedisError:
+        return None
 
 
 def _build_job(state: AppState, tenant: str, scene_id: str, tasks: list[str], parameters: dict[str, Any],
@@ -165,69 +174,27 @@ def _check_params_against_scene(params: PipelineParams, summary: dict[str, Any])
         )
 
 
-def _reserve_slots(state: AppState, tenant: str, records: list[JobRecord]) -> None:
-    """Admit the jobs atomically (all or none), before anything is stored: 429 + Retry-After when
-    the tenant's unfinished jobs would exceed its waiting bound plus its dispatch bound. Exact
-    under any number of concurrent API processes (`TenantQuota`)."""
+def _submit(state: AppState, records: list[JobRecord], **create: Any) -> None:
+    """Store jobs: one transaction that admits them (429 + Retry-After when the tenant's
+    unfinished jobs would exceed its waiting bound plus its dispatch bound, exact under any number
+    of concurrent API processes: `job_queue.admit`) and inserts them with their batch, links and
+    Idempotency-Key rows (`create` goes to `JobStore.create_many`). Committed, they wait in their
+    tenant's queue; a failure leaves nothing behind, so a client's retry never runs work twice."""
     if not records:
         return
     s = state.settings
     limit = admission_limit(s.max_waiting_jobs_per_tenant, s.max_active_jobs_per_tenant)
-    ok, active = state.jobs.quota.reserve(tenant, [r.id for r in records], limit)
-    if not ok:
+    try:
+        state.jobs.create_many(records, admit_limit=limit, **create)
+    except AdmissionRefused as refused:
         raise HTTPException(
             status.HTTP_429_TOO_MANY_REQUESTS,
-            f"{active} jobs are waiting or running; at most {limit} are allowed per tenant "
+            f"{refused.active} jobs are waiting or running; at most {limit} are allowed per tenant "
             f"({s.max_waiting_jobs_per_tenant} waiting, BFIELDS_MAX_WAITING_JOBS_PER_TENANT, beyond "
             f"{s.max_active_jobs_per_tenant} dispatched, BFIELDS_MAX_ACTIVE_JOBS_PER_TENANT); this "
             f"request needs {len(records)}",
             headers={"Retry-After": str(s.retry_after_s)},
-        )
-
-
-def _submit(state: AppState, records: list[JobRecord], **create: Any) -> None:
-    """Store jobs whose slots are reserved and put them in the tenant's fair-share queue. On any
-    failure every job of the request is undone (best effort, see `JobStore.discard_unsubmitted`)
-    and the error propagates (503), so a client's retry never runs the same work twice.
-
-    Order: every job's row is inserted (not yet `submitted`) in one transaction before any is
-    queued (with the batch's row and links, or a retry's new slots: `create` goes to
-    `JobStore.create_many`), then all are queued in one atomic call, then one UPDATE marks them
-    submitted. An API that dies before the queueing leaves unsubmitted rows: recovery submits
-    those jobs; one that dies after it leaves rows of jobs already queued, which recovery only
-    marks (`FairQueue.submit` is idempotent)."""
-    done: list[JobRecord] = []
-    try:
-        state.jobs.create_many(records, **create)
-        done = list(records)
-        if records:
-            pause(state.redis, state.settings.test_pause_points, "submit:created", records[0].scene_id)
-            state.enqueue(records)
-    except BaseException:
-        if records:
-            try:  # the queueing may have reached Redis before it failed; the dispatcher drops the rest
-                state.fair.remove(records[0].tenant, [r.id for r in records])
-            except Exception:
-                log.warning("could not unqueue the jobs of a failed submission; the dispatcher will")
-        _parallel(state.jobs.discard_unsubmitted, done)
-        batch = create.get("batch")
-        if batch is not None and batch.idempotency_key:  # the client's retry with the key makes a new batch
-            try:
-                state.jobs.forget_idempotent_batch(batch.tenant, batch.idempotency_key, batch.id)
-            except Exception:
-                log.warning("could not forget the Idempotency-Key of failed batch %s", batch.id)
-        if records:
-            try:  # the slots of the jobs never created (recovery's quota repair covers a failure here)
-                state.jobs.quota.release(records[0].tenant, [r.id for r in records])
-            except Exception:
-                log.warning("could not release the quota slots of a failed submission; recovery will")
-        raise
-    if not records:
-        return
-    try:
-        state.jobs.mark_submitted(records[0].tenant, [r.id for r in records])
-    except Exception:  # queued: they will run; recovery marks them
-        log.warning("%d jobs of %s queued but not yet marked submitted", len(records), records[0].tenant)
+        ) from None
 
 
 #: How long a request waits for another request holding the same Idempotency-Key or batch retry.
@@ -303,14 +270,12 @@ def submit_job(
                 record = _build_job(state, tenant, body.scene_id, body.tasks, body.parameters,
                                     body.model_profile, idem=idempotency_key, priority=body.priority,
                                     callback_url=body.callback_url)  # fmt: skip
-                _reserve_slots(state, tenant, [record])
                 _submit(state, [record], digests={record.id: digest})
     else:
         # Under the scene lock: a concurrent delete either sees this job (409) or came first (404).
         with scene_lock(state.jobs.database, tenant, [body.scene_id]):
             record = _build_job(state, tenant, body.scene_id, body.tasks, body.parameters, body.model_profile,
                                 priority=body.priority, callback_url=body.callback_url)  # fmt: skip
-            _reserve_slots(state, tenant, [record])
             _submit(state, [record])
     return JobAccepted(id=record.id, state=record.state, created=True)
 
@@ -404,7 +369,6 @@ def cancel_job(job_id: str, tenant: Tenant, state: State) -> JobRecord:
     _load_job(state, tenant, job_id)
     record = state.jobs.request_cancel(tenant, job_id)
     assert record is not None
-    state.fair.remove(tenant, [job_id])  # a waiting job leaves its queue at once
     return record
 
 
@@ -490,7 +454,6 @@ def _submit_batch(state: AppState, tenant: str, body: BatchRequest,
             for (s, t, k), e in zip(pairs, earlier, strict=True)
         ]  # fmt: skip
         new = [r for r in records if r.batch_id == batch_id]
-        _reserve_slots(state, tenant, new)
         batch = BatchRecord(id=batch_id, tenant=tenant, total=len(records), priority=body.priority,
                             idempotency_key=batch_key,
                             callback_url=checked_callback(state.settings, body.callback_url))  # fmt: skip
@@ -596,8 +559,7 @@ def list_batch_jobs(
 )
 def cancel_batch(batch_id: str, tenant: Tenant, state: State) -> BatchStatus:
     _load_batch(state, tenant, batch_id)
-    changed = state.jobs.cancel_batch(tenant, batch_id)  # one UPDATE of every active job
-    state.fair.remove(tenant, [j.id for j in changed if j.state.terminal])  # the waiting ones leave their queue
+    state.jobs.cancel_batch(tenant, batch_id)  # one UPDATE of every active job
     return _counted_status(state, _load_batch(state, tenant, batch_id))
 
 
@@ -625,9 +587,7 @@ def retry_batch(batch_id: str, tenant: Tenant, state: State) -> BatchStatus:
                            params=params).model_copy(update={"retry_of": j.id})
                 for j in failed
             ]  # fmt: skip
-            _reserve_slots(state, tenant, again)
             digests = {r.id: job_digest(None, r.tasks, f.parameters, r.model_profile)
                        for r, f in zip(again, failed, strict=True) if r.idempotency_key}  # fmt: skip
             _submit(state, again, digests=digests, retry_in=batch.id)  # each item's key -> its new job
-            state.fair.remove(tenant, [j.id for j in failed])  # a failed job waits nowhere; make sure of it
     return _counted_status(state, _load_batch(state, tenant, batch_id), created=len(again))

@@ -1,0 +1,233 @@
+"""The waiting queue is the `jobs` table: fair share between tenants, admission and queue position.
+
+Why the table and not Redis lists: a job that is committed is queued, in the same transaction
+that stores it, so there is no window in which a job exists and waits nowhere, and losing Redis
+loses no waiting work. A job *waits* while its row is queued with no `dispatched_at`; the control
+process's dispatcher (`control.dispatcher`) takes the head of one tenant's queue with
+``FOR UPDATE SKIP LOCKED`` and stamps `dispatched_at` before it sends the Celery chain; recovery
+clears the stamp of a dispatched job whose message Redis lost (`requeue`), which puts it back at
+the front (the queue is ordered by creation, and it is older than what still waits).
+
+Order within a tenant: ``interactive`` before ``bulk``, each oldest first (the partial index
+``ix_jobs_waiting`` on (tenant, priority, created_at, id)). Between tenants: stride scheduling
+(`StrideClock`): each dispatch advances the tenant's *pass* by ``1 / weight``; the backlogged
+tenant with the lowest pass goes next; a tenant that was idle rejoins at the current virtual time,
+so it neither banks credit nor waits behind the others' backlog. The passes live in the leader's
+memory: a new leader starts them level, which is fair from then on.
+
+Admission (`admit`): a tenant's unfinished jobs may not exceed its waiting bound plus its dispatch
+bound. Counted in the inserting transaction under a per-tenant transaction lock, so two API
+processes can never both see the last free slot (100 concurrent submissions at a quota of 16
+accept exactly 16), and nothing is ever to be given back: a job stops counting when its row ends.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from datetime import datetime
+from typing import Any, Literal
+
+from sqlalchemy import Connection, Engine, and_, func, literal, select, tuple_, update
+
+from bayesian_fields_service.records.locks import lock_key
+from bayesian_fields_service.records.tables import jobs
+
+Priority = Literal["interactive", "bulk"]
+PRIORITIES: tuple[Priority, ...] = ("interactive", "bulk")
+
+#: Seconds of dispatch history used for a tenant's dispatch rate (the estimated start).
+RATE_WINDOW_S = 600.0
+
+_ACTIVE = ("queued", "running")
+WAITING = and_(jobs.c.state == "queued", jobs.c.dispatched_at.is_(None))
+DISPATCHED = and_(jobs.c.dispatched_at.is_not(None), jobs.c.state.in_(_ACTIVE))
+
+
+class AdmissionRefused(Exception):
+    """The tenant's unfinished jobs would exceed its admission limit."""
+
+    def __init__(self, active: int, limit: int, asked: int) -> None:
+        super().__init__(f"{active} unfinished jobs, limit {limit}, {asked} more asked")
+        self.active, self.limit, self.asked = active, limit, asked
+
+
+def admission_limit(max_waiting: int, max_dispatched: int) -> int:
+    """Unfinished jobs a tenant may have: its waiting bound plus what may be dispatched."""
+    return max_waiting + max_dispatched
+
+
+def admit(conn: Connection, tenant: str, asked: int, limit: int) -> int:
+    """In the caller's inserting transaction: hold the tenant's admission lock (until commit) and
+    count its unfinished jobs; `AdmissionRefused` when `asked` more would pass `limit`. Returns
+    the count before the new jobs."""
+    conn.execute(select(func.pg_advisory_xact_lock(lock_key("admission", tenant))))
+    active = conn.execute(
+        select(func.count()).select_from(jobs).where(jobs.c.tenant == tenant, jobs.c.state.in_(_ACTIVE))
+    ).scalar_one()
+    if active + asked > limit:
+        raise AdmissionRefused(int(active), limit, asked)
+    return int(active)
+
+
+@dataclass
+class TenantBacklog:
+    """What the dispatcher needs to choose a tenant (one snapshot per round, kept up to date by
+    the round itself as it takes jobs)."""
+
+    tenant: str
+    interactive: int
+    bulk: int
+    dispatched: int
+    pass_value: float = 0.0
+
+
+@dataclass
+class StrideClock:
+    """Weighted fair share by stride scheduling (module docstring); the leader's memory."""
+
+    passes: dict[str, float] = field(default_factory=dict)
+    vtime: float = 0.0
+    _backlogged: set[str] = field(default_factory=set)
+
+    def observe(self, backlog: list[TenantBacklog]) -> None:
+        """Set each tenant's pass; one that was not backlogged last time rejoins at `vtime`."""
+        now_backlogged = {b.tenant for b in backlog if b.interactive + b.bulk > 0}
+        for tenant in now_backlogged - self._backlogged:
+            self.passes[tenant] = max(self.passes.get(tenant, 0.0), self.vtime)
+        self._backlogged = now_backlogged
+        for b in backlog:
+            b.pass_value = self.passes.get(b.tenant, self.vtime)
+
+    def advance(self, pick: TenantBacklog, weight: float) -> None:
+        self.vtime = pick.pass_value
+        pick.pass_value += 1.0 / weight
+        self.passes[pick.tenant] = pick.pass_value
+
+
+def choose(backlog: list[TenantBacklog], limit: int, skip: set[str]) -> TenantBacklog | None:
+    """The tenant to dispatch next: lowest pass among those with waiting jobs and room under the
+    dispatch bound; on a tie, one with an interactive job first."""
+    ready = [
+        b for b in backlog if b.tenant not in skip and b.interactive + b.bulk > 0 and b.dispatched < limit
+    ]
+    if not ready:
+        return None
+    return min(ready, key=lambda b: (b.pass_value, 0 if b.interactive else 1, b.tenant))
+
+
+class JobQueue:
+    """Reads and moves of the waiting queue (statements over `jobs`; module docstring)."""
+
+    def __init__(self, database: Engine) -> None:
+        self.database = database
+
+    # ---- dispatcher side -----------------------------------------------------------------------
+    def backlog(self) -> list[TenantBacklog]:
+        """Every tenant with waiting or dispatched jobs: two grouped index scans."""
+        with self.database.connect() as conn:
+            waiting = conn.execute(
+                select(jobs.c.tenant, jobs.c.priority, func.count()).where(WAITING)
+                .group_by(jobs.c.tenant, jobs.c.priority)
+            ).all()  # fmt: skip
+            dispatched = conn.execute(
+                select(jobs.c.tenant, func.count()).where(DISPATCHED).group_by(jobs.c.tenant)
+            ).all()
+        out: dict[str, TenantBacklog] = {}
+        for tenant, priority, n in waiting:
+            b = out.setdefault(tenant, TenantBacklog(tenant, 0, 0, 0))
+            setattr(b, priority, int(n))
+        for tenant, n in dispatched:
+            out.setdefault(tenant, TenantBacklog(tenant, 0, 0, 0)).dispatched = int(n)
+        return [out[t] for t in sorted(out)]
+
+    def take(self, tenant: str) -> dict[str, Any] | None:
+        """Stamp the tenant's next waiting job dispatched and return its row (None: nothing waits,
+        or what waits is being changed by another transaction right now, e.g. cancelled)."""
+        with self.database.begin() as conn:
+            for priority in PRIORITIES:
+                head = (
+                    select(jobs.c.id)
+                    .where(WAITING, jobs.c.tenant == tenant, jobs.c.priority == priority)
+                    .order_by(jobs.c.created_at, jobs.c.id)
+                    .limit(1)
+                    .with_for_update(skip_locked=True)
+                    .scalar_subquery()
+                )
+                row = conn.execute(
+                    update(jobs).where(jobs.c.id == head).values(dispatched_at=func.now()).returning(*jobs.c)
+                ).mappings().first()  # fmt: skip
+                if row is not None:
+                    return dict(row)
+        return None
+
+    def undo_take(self, tenant: str, job_id: str) -> None:
+        """Put a job whose chain could not be sent back where it was (the broker was down)."""
+        self.requeue(tenant, job_id)
+
+    # ---- recovery side -------------------------------------------------------------------------
+    def dispatched_jobs(self) -> list[tuple[str, str]]:
+        """(tenant, id) of every dispatched, unfinished job."""
+        with self.database.connect() as conn:
+            rows = conn.execute(select(jobs.c.tenant, jobs.c.id).where(DISPATCHED).order_by(jobs.c.id))
+            return [(r.tenant, r.id) for r in rows]
+
+    def requeue(self, tenant: str, job_id: str) -> bool:
+        """Back to the queue (front: it is older than what still waits), as *queued* again even if
+        a stage of it had started: no stage runs now, and only queued rows are waiting work. False
+        when the job ended or was not dispatched meanwhile."""
+        with self.database.begin() as conn:
+            moved = conn.execute(
+                update(jobs)
+                .where(jobs.c.tenant == tenant, jobs.c.id == job_id, DISPATCHED)
+                .values(dispatched_at=None, state="queued")
+            )
+            return bool(moved.rowcount)
+
+    # ---- reading (API, metrics) ----------------------------------------------------------------
+    def position(self, tenant: str, job_id: str, priority: str, created_at: datetime) -> int | None:
+        """1 for the tenant's next job to be dispatched; None when the job does not wait. One
+        counted range of the waiting index (interactive jobs first, then bulk, oldest first)."""
+        mine = tuple_(jobs.c.created_at, jobs.c.id) < tuple_(literal(created_at), literal(job_id))
+        ahead = and_(jobs.c.priority == priority, mine)
+        if priority == "bulk":
+            ahead = (jobs.c.priority == "interactive") | ahead
+        with self.database.connect() as conn:
+            waits = conn.execute(
+                select(jobs.c.id).where(WAITING, jobs.c.tenant == tenant, jobs.c.id == job_id)
+            ).first()
+            if waits is None:
+                return None
+            n = conn.execute(
+                select(func.count()).select_from(jobs).where(WAITING, jobs.c.tenant == tenant, ahead)
+            ).scalar_one()
+        return int(n) + 1
+
+    def dispatch_rate(self, tenant: str, now: float | None = None) -> float:
+        """The tenant's jobs dispatched per second over the last `RATE_WINDOW_S`."""
+        now = time.time() if now is None else now
+        since = func.to_timestamp(now - RATE_WINDOW_S)
+        with self.database.connect() as conn:
+            n, first = conn.execute(
+                select(func.count(), func.min(jobs.c.dispatched_at)).where(
+                    jobs.c.tenant == tenant, jobs.c.dispatched_at.is_not(None), jobs.c.dispatched_at > since
+                )
+            ).one()
+        if n < 2 or first is None:
+            return 0.0
+        return float(n) / max(now - first.timestamp(), 1.0)
+
+    def waiting_by_tenant(self) -> dict[str, int]:
+        """Waiting jobs per tenant that has any (the Prometheus gauge and KEDA's measure)."""
+        with self.database.connect() as conn:
+            rows = conn.execute(select(jobs.c.tenant, func.count()).where(WAITING).group_by(jobs.c.tenant))
+            return {tenant: int(n) for tenant, n in rows}
+
+    def dispatched_ids(self, tenant: str, among: Iterable[str] | None = None) -> list[str]:
+        """Ids of the tenant's dispatched, unfinished jobs (at most its dispatch bound)."""
+        query = select(jobs.c.id).where(DISPATCHED, jobs.c.tenant == tenant)
+        if among is not None:
+            query = query.where(jobs.c.id.in_(list(among)))
+        with self.database.connect() as conn:
+            return [r.id for r in conn.execute(query)]

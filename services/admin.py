@@ -2,6 +2,7 @@
 
     bfields-service migrate [--revision REV] [--create-database]   apply the records migrations
     bfields-service db-revision                                    print the database's revision
+    bfields-service import-scenes                                  scene records of the bucket -> rows
 
 Why a separate command from `bfields`: these act on the deployment's database with the
 deployment's settings (`BFIELDS_DATABASE_URL`), run from an init container or by hand in an
@@ -40,6 +41,9 @@ def main(argv: list[str] | None = None) -> int:
     migrate.add_argument("--revision", default="head", help="target revision (default: head; 'base' empties)")
     migrate.add_argument("--create-database", action="store_true", help="create the database first if absent")
     sub.add_parser("db-revision", help="print the revision the database is at")
+    sub.add_parser(
+        "import-scenes", help="rows for the scene records an earlier release kept in the bucket (idempotent)"
+    )
     args = parser.parse_args(argv)
 
     from sqlalchemy.exc import OperationalError
@@ -53,6 +57,11 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.command == "db-revision":
             print(current_revision(url) or "none", "(head:", head_revision() + ")")
+            return 0
+        if args.command == "import-scenes":
+            from bayesian_fields_service.records.scene_import import run_import
+
+            print(run_import(get_settings()).line())
             return 0
         if args.create_database and _create_database(url):
             print(f"created database {make_url(url).database}")

@@ -97,7 +97,7 @@ def create_app(settings: ServiceSettings | None = None) -> FastAPI:
     state.metrics_registry = metrics_registry(state)
     dispatcher = Dispatcher(celery, state.jobs, settings, _worker_redis(settings))
     sweeper = lifespan(
-        lambda: Sweeper(store, client, settings.orphan_max_age_s, settings.orphan_sweep_interval_s),
+        lambda: Sweeper(store, state.scenes, client, settings.orphan_max_age_s, settings.orphan_sweep_interval_s),
         also=dispatcher,  # releases waiting jobs to the workers (one API process at a time: a lease)
     )  # what a killed API left behind (see sweeper.py)
     app = FastAPI(title="Bayesian Fields API", version="1.0.0", description=DESCRIPTION, lifespan=sweeper)

@@ -1,10 +1,12 @@
-"""The API process's shared objects (settings, store, Redis, job store, key ring, Celery sender)
-and small helpers every route uses: id checks, tenant views, presigned links."""
+"""The API process's shared objects (settings, store, Redis, job and scene stores, key ring,
+Celery sender) and small helpers every route uses: id checks, tenant views, presigned links, the
+HTTP answers of the scenes domain's refusals."""
 
 from __future__ import annotations
 
 import re
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Annotated, Any
 
@@ -18,6 +20,14 @@ from bayesian_fields_service.common.api_keys import ApiKeyRing
 from bayesian_fields_service.common.auth import require_tenant
 from bayesian_fields_service.common.fair_queue import FairQueue
 from bayesian_fields_service.common.jobs import JobRecord, JobStore
+from bayesian_fields_service.common.scenes import (
+    SceneBusy,
+    SceneGone,
+    SceneNotReady,
+    SceneNotUploading,
+    SceneRecord,
+    SceneStore,
+)
 from bayesian_fields_service.common.settings import ServiceSettings
 from bayesian_fields_service.common.storage import tenant_store
 
@@ -34,9 +44,11 @@ class AppState:
     celery: Celery
     metrics_registry: Any = None
     fair: FairQueue = field(init=False)
+    scenes: SceneStore = field(init=False)
 
     def __post_init__(self) -> None:
         self.fair = FairQueue(self.redis, self.settings.gpu_queue)
+        self.scenes = SceneStore(self.jobs.database)  # the one records engine of the process
 
     def tenant(self, tenant: str) -> PrefixedStore:
         return tenant_store(self.store, tenant)
@@ -70,6 +82,28 @@ def check_id(kind: str, ident: str, prefix: str) -> str:
     if not _ID.match(ident) or not ident.startswith(prefix):
         raise not_found(kind, ident)
     return ident
+
+
+def load_scene(state: AppState, tenant: str, scene_id: str) -> SceneRecord:
+    """The tenant's scene; 404 when it has no record or is being deleted (`common.scenes`)."""
+    check_id("scene", scene_id, "s_")
+    record = state.scenes.get(tenant, scene_id)
+    if record is None:
+        raise not_found("scene", scene_id)
+    return record
+
+
+@contextmanager
+def scene_refusals() -> Iterator[None]:
+    """Answer the scenes domain's refusals as HTTP, the same from every route: a scene without
+    a record (or being deleted) 404, one not ready for a job 409, a delete while a job on the
+    scene is active 409 naming the job."""
+    try:
+        yield
+    except SceneGone as exc:
+        raise not_found("scene", exc.scene_id) from None
+    except (SceneNotReady, SceneNotUploading, SceneBusy) as exc:
+        raise HTTPException(status.HTTP_409_CONFLICT, str(exc)) from None
 
 
 #: Route parameter types: the caller's tenant (401 without a valid key) and the app state.

@@ -1,24 +1,29 @@
 """Remove what an API process killed mid-request leaves behind, and nothing else.
 
-An upload is received into a local temp folder, validated, then copied to the bucket; a presigned
-upload starts S3 multipart uploads before its scene record is written. A SIGKILL (OOM killer, node
-loss) between those steps leaves things no API call can see or delete:
+An upload is received into a local temp folder, validated, then copied to the bucket, and only
+then is its scene's row inserted; a presigned upload starts S3 multipart uploads before its row
+is inserted. A SIGKILL (OOM killer, node loss) between those steps leaves things no API call can
+see or delete:
 - local temp folders ``bfields-upload-<pid>-*`` / ``bfields-complete-<pid>-*`` of a dead process;
-- multipart uploads under ``tenants/<t>/scenes/<id>/staging/`` that no scene record lists in its
-  ``pending_uploads`` (the record was never written);
-- scene files under ``tenants/<t>/scenes/<id>/`` with no ``scene.json`` (a single-request upload
-  killed while it copied the scene into the bucket);
-- whatever is left of a *deleted* scene (``tenants/<t>/tombstones/scenes/<id>`` exists: see
-  `scene_lifecycle`), ``scene.json`` included, and its multipart uploads: a delete that failed
-  half-way, or a completion that copied files after the delete listed them. These go at once,
-  whatever their age: nothing may write a tombstoned scene.
+- multipart uploads under ``tenants/<t>/scenes/<id>/staging/`` that no scene row lists in its
+  ``pending_uploads`` (the row was never inserted);
+- scene files under ``tenants/<t>/scenes/<id>/`` with no scene row (a single-request upload
+  killed while it copied the scene into the bucket, or a completion that copied files after a
+  delete had finished and whose process died before it could remove them);
+- whatever is left of a scene whose row says ``deleting`` (`common.scenes`) and its multipart
+  uploads: a delete that stopped after its mark. These go at once, whatever their age, and the
+  row is purged: nothing may write a scene whose delete was acknowledged.
 
-The sweep removes each only when it is older than BFIELDS_ORPHAN_MAX_AGE_S (a temp folder: since
-its last write, and never while its owner process is alive; an object: since its newest write),
-so an upload in progress is never touched. Scenes that have a record, including those still
-``uploading``, are visible to their tenant (GET, DELETE) and are left alone. Every API process
-sweeps its own temp folder at start and every BFIELDS_ORPHAN_SWEEP_INTERVAL_S; the bucket part
-runs under a Redis lock, so one replica at a time does it.
+A scene folder that still holds an earlier release's record object and has no row is kept, with a
+warning: it is a scene of a deployment upgraded without `bfields-service import-scenes`
+(`records.scene_import`), not an orphan.
+
+The sweep removes the others only when they are older than BFIELDS_ORPHAN_MAX_AGE_S (a temp
+folder: since its last write, and never while its owner process is alive; an object: since its
+newest write), so an upload in progress is never touched. Scenes that have a row, including those
+still ``uploading``, are visible to their tenant (GET, DELETE) and are left alone. Every API
+process sweeps its own temp folder at start and every BFIELDS_ORPHAN_SWEEP_INTERVAL_S; the bucket
+part runs under a Redis lock, so one replica at a time does it.
 """
 
 from __future__ import annotations
@@ -30,6 +35,7 @@ import shutil
 import tempfile
 import threading
 import time
+from collections import defaultdict
 from collections.abc import AsyncIterator, Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -37,7 +43,9 @@ from typing import Any
 
 import redis
 
-from bayesian_fields_core.job.store import ArtifactNotFound, get_json
+from bayesian_fields_service.common.scenes import SceneStore
+from bayesian_fields_service.common.storage import TENANTS_ROOT
+from bayesian_fields_service.records.scene_import import RECORD_NAME
 
 log = logging.getLogger(__name__)
 
@@ -110,64 +118,68 @@ def _age_s(stamp: Any, now: float) -> float:
     return now - stamp.timestamp()
 
 
-def sweep_bucket(store: Any, max_age_s: float, *, now: float | None = None) -> BucketSweep:
-    """Abort multipart uploads and delete scene prefixes that no scene record names, when older
-    than `max_age_s`. `store` is the bucket's `S3Store` (needs list_prefixes, list_objects,
-    list_multipart_uploads)."""
+def _scene_of(key: str) -> tuple[str, str] | None:
+    """(tenant, scene id) of a key under ``tenants/<t>/scenes/<id>/``, else None."""
+    parts = key.split("/")
+    if len(parts) < 5 or parts[0] != TENANTS_ROOT or parts[2] != "scenes" or not parts[3]:
+        return None
+    return parts[1], parts[3]
+
+
+def _scene_root(tenant: str, scene_id: str) -> str:
+    return f"{TENANTS_ROOT}/{tenant}/scenes/{scene_id}/"
+
+
+def sweep_bucket(
+    store: Any, scenes: SceneStore, max_age_s: float, *, now: float | None = None
+) -> BucketSweep:
+    """Finish the deletes that stopped half-way, then abort multipart uploads and delete scene
+    prefixes that no scene row names, when older than `max_age_s` (module docstring). `store` is
+    the bucket's `S3Store` (needs list_prefixes, list_objects, list_multipart_uploads); `scenes`
+    the scene rows."""
     now = time.time() if now is None else now
     out = BucketSweep()
-    records: dict[str, dict | None] = {}
-    tombstoned: dict[str, bool] = {}
-
-    def deleted(scene_root: str) -> bool:  # tenants/<t>/scenes/<id>/ -> tenants/<t>/tombstones/...
-        if scene_root not in tombstoned:
-            tenant_root, _, scene_id = scene_root.rstrip("/").rpartition("/scenes/")
-            tombstoned[scene_root] = store.exists(f"{tenant_root}/tombstones/scenes/{scene_id}")
-        return tombstoned[scene_root]
-
-    def record(scene_root: str) -> dict | None:  # scene_root = tenants/<t>/scenes/<id>/
-        if scene_root not in records:
-            try:
-                records[scene_root] = get_json(store, scene_root + "scene.json")
-            except ArtifactNotFound:
-                records[scene_root] = None
-        return records[scene_root]
-
-    for up in store.list_multipart_uploads("tenants/"):
-        parts = up.key.split("/")
-        if len(parts) < 5 or parts[2] != "scenes":
-            continue
-        scene_root = "/".join(parts[:4]) + "/"
-        if deleted(scene_root):
+    finished: set[str] = set()
+    for scene in scenes.deleting_scenes():  # acknowledged deletes: at once, whatever the age
+        root = _scene_root(scene.tenant, scene.id)
+        for up in store.list_multipart_uploads(root):
             store.abort_multipart_upload(up.key, up.upload_id)
             out.aborted_uploads.append(up.key)
-            continue
-        if _age_s(up.initiated, now) < max_age_s:
-            continue
-        rec = record(scene_root)
-        listed = rec is not None and any(
-            p.get("upload_id") == up.upload_id for p in rec.get("pending_uploads", [])
-        )
-        if not listed:
-            store.abort_multipart_upload(up.key, up.upload_id)
-            out.aborted_uploads.append(up.key)
-    for tenant_root in store.list_prefixes("tenants/"):
-        for scene_root in store.list_prefixes(tenant_root + "scenes/"):
-            if deleted(scene_root):
-                store.delete_prefix(scene_root)
-                scene_id = scene_root.rstrip("/").rpartition("/")[2]
-                store.delete(f"{tenant_root}index/scenes/{scene_id}")
-                out.deleted_prefixes.append(scene_root)
+        store.delete_prefix(root)
+        scenes.purge(scene.tenant, scene.id)
+        out.deleted_prefixes.append(root)
+        finished.add(root)
+
+    old_uploads: dict[str, list[tuple[str, Any]]] = defaultdict(list)  # tenant -> (scene, upload)
+    for up in store.list_multipart_uploads(f"{TENANTS_ROOT}/"):
+        where = _scene_of(up.key)
+        if where is not None and _age_s(up.initiated, now) >= max_age_s:
+            old_uploads[where[0]].append((where[1], up))
+    for tenant, uploads in old_uploads.items():
+        listed = scenes.listed_uploads(tenant, sorted({scene_id for scene_id, _ in uploads}))
+        for scene_id, up in uploads:
+            if up.upload_id not in listed.get(scene_id, frozenset()):
+                store.abort_multipart_upload(up.key, up.upload_id)
+                out.aborted_uploads.append(up.key)
+
+    for tenant_root in store.list_prefixes(f"{TENANTS_ROOT}/"):
+        tenant = tenant_root.split("/")[1]
+        roots = {r.rstrip("/").rpartition("/")[2]: r for r in store.list_prefixes(tenant_root + "scenes/")}
+        known = scenes.listed_uploads(tenant, sorted(roots))
+        for scene_id, root in roots.items():
+            if scene_id in known or root in finished:
                 continue
-            if record(scene_root) is not None:
-                continue
-            objects = store.list_objects(scene_root)
-            if not objects or any(o.key.endswith("/scene.json") for o in objects):
-                continue  # written meanwhile
-            if min(_age_s(o.last_modified, now) for o in objects) < max_age_s:
+            objects = store.list_objects(root)
+            if not objects or min(_age_s(o.last_modified, now) for o in objects) < max_age_s:
                 continue  # still being written
-            store.delete_prefix(scene_root)
-            out.deleted_prefixes.append(scene_root)
+            if any(o.key == root + RECORD_NAME for o in objects):
+                log.warning("orphan sweep: %s has an earlier release's record and no row; kept "
+                            "(run `bfields-service import-scenes`)", root)  # fmt: skip
+                continue
+            if scenes.listed_uploads(tenant, [scene_id]):
+                continue  # its row was inserted meanwhile (an upload that copied slowly)
+            store.delete_prefix(root)
+            out.deleted_prefixes.append(root)
     return out
 
 
@@ -177,12 +189,14 @@ class Sweeper:
     def __init__(
         self,
         store: Any,
+        scenes: SceneStore,
         client: redis.Redis,
         max_age_s: float,
         interval_s: float,
         temp_root: Path | None = None,
     ) -> None:
         self.store = store
+        self.scenes = scenes
         self.redis = client
         self.max_age_s = max_age_s
         self.interval_s = interval_s
@@ -195,12 +209,12 @@ class Sweeper:
         if removed:
             log.warning("orphan sweep: removed %d upload temp folders: %s", len(removed), removed)
         if not hasattr(self.store, "list_multipart_uploads"):
-            return  # local backend: no multipart uploads, and uploads write the record last
+            return  # local backend: no multipart uploads, and uploads insert the row last
         lock = self.redis.lock("bf:orphan-sweep", timeout=max(60.0, self.interval_s), blocking_timeout=0)
         if not lock.acquire(blocking=False):
             return
         try:
-            report = sweep_bucket(self.store, self.max_age_s)
+            report = sweep_bucket(self.store, self.scenes, self.max_age_s)
         finally:
             with contextlib.suppress(redis.RedisError):
                 lock.release()

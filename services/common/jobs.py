@@ -49,6 +49,7 @@ from bayesian_fields_service.common.fair_queue import Priority, dispatched_key
 from bayesian_fields_service.common.quota import TenantQuota
 from bayesian_fields_service.common.redis_text import text
 from bayesian_fields_service.common.sanitize import redact_locations, scrub
+from bayesian_fields_service.common.scenes import lock_ready
 from bayesian_fields_service.common.storage import tenant_store
 from bayesian_fields_service.common.usage import JobUsage
 from bayesian_fields_service.records.tables import ID, idempotency_keys, jobs
@@ -310,14 +311,19 @@ class JobStore:
         batch_job_ids: builtins.list[str] | None = None,
         batch_digest: str = "",
         retry_in: str | None = None,
+        scene_ids: Sequence[str] = (),
     ) -> None:
         """`create` for many jobs in one transaction (a batch's new jobs, with the batch's row, its
         links and its Idempotency-Key row when `batch` is given; with `retry_in`, jobs that take
         the place of the failed jobs they retry in that batch). `digests` (job id -> sha256 of what
         was asked, `job_digest`) and `batch_digest` are kept with the Idempotency-Key rows so a
-        reuse of a key with another body is refused."""
+        reuse of a key with another body is refused. `scene_ids` (the scenes of `records`) are
+        share-locked first and must be ready (`scenes.lock_ready`: `SceneGone`, `SceneNotReady`),
+        so a scene's delete waits for these jobs and then sees them."""
         digests = digests or {}
         with self.database.begin() as conn:
+            if scene_ids:
+                lock_ready(conn, records[0].tenant, scene_ids)
             if batch is not None:
                 batch_records.insert_batch(conn, batch, len(batch_job_ids or records))
             if records:

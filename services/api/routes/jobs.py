@@ -24,8 +24,6 @@ from bayesian_fields_core.job.store import ArtifactNotFound, LocalStore, get_jso
 from bayesian_fields_core.job.task_list import normalise_tasks
 from bayesian_fields_core.params import PipelineParams
 from bayesian_fields_service.api.routes.callback_rules import checked_callback
-from bayesian_fields_service.api.routes.scenes import _load_scene
-from bayesian_fields_service.api.scene_lifecycle import scene_lock
 from bayesian_fields_service.api.schemas import (
     Artifact,
     BatchJob,
@@ -45,7 +43,9 @@ from bayesian_fields_service.api.state import (
     State,
     Tenant,
     check_id,
+    load_scene,
     not_found,
+    scene_refusals,
 )
 from bayesian_fields_service.common.batch_records import BatchRecord
 from bayesian_fields_service.common.fair_queue import Priority
@@ -112,7 +112,7 @@ def _build_job(state: AppState, tenant: str, scene_id: str, tasks: list[str], pa
     if scenes is not None and scene_id in scenes:
         scene = scenes[scene_id]
     else:
-        scene = _load_scene(state, tenant, scene_id)
+        scene = load_scene(state, tenant, scene_id)
         if scenes is not None:
             scenes[scene_id] = scene
     if scene.state.value != "ready":
@@ -198,7 +198,8 @@ def _submit(state: AppState, records: list[JobRecord], **create: Any) -> None:
     marks (`FairQueue.submit` is idempotent)."""
     done: list[JobRecord] = []
     try:
-        state.jobs.create_many(records, **create)
+        with scene_refusals():  # a scene deleted since it was checked: 404 (`scenes.lock_ready`)
+            state.jobs.create_many(records, **create)
         done = list(records)
         if records:
             pause(state.redis, state.settings.test_pause_points, "submit:created", records[0].scene_id)
@@ -299,19 +300,18 @@ def submit_job(
             if existing is not None and (record := state.jobs.get(tenant, existing[0])) is not None:
                 response.status_code = status.HTTP_200_OK
                 return JobAccepted(id=record.id, state=record.state, created=False)
-            with scene_lock(state.jobs.database, tenant, [body.scene_id]):
-                record = _build_job(state, tenant, body.scene_id, body.tasks, body.parameters,
-                                    body.model_profile, idem=idempotency_key, priority=body.priority,
-                                    callback_url=body.callback_url)  # fmt: skip
-                _reserve_slots(state, tenant, [record])
-                _submit(state, [record], digests={record.id: digest})
-    else:
-        # Under the scene lock: a concurrent delete either sees this job (409) or came first (404).
-        with scene_lock(state.jobs.database, tenant, [body.scene_id]):
-            record = _build_job(state, tenant, body.scene_id, body.tasks, body.parameters, body.model_profile,
-                                priority=body.priority, callback_url=body.callback_url)  # fmt: skip
+            record = _build_job(state, tenant, body.scene_id, body.tasks, body.parameters,
+                                body.model_profile, idem=idempotency_key, priority=body.priority,
+                                callback_url=body.callback_url)  # fmt: skip
             _reserve_slots(state, tenant, [record])
-            _submit(state, [record])
+            _submit(state, [record], digests={record.id: digest}, scene_ids=[body.scene_id])
+    else:
+        # The insert holds the scene's row: a concurrent delete either sees this job (409) or
+        # came first (404).
+        record = _build_job(state, tenant, body.scene_id, body.tasks, body.parameters, body.model_profile,
+                            priority=body.priority, callback_url=body.callback_url)  # fmt: skip
+        _reserve_slots(state, tenant, [record])
+        _submit(state, [record], scene_ids=[body.scene_id])
     return JobAccepted(id=record.id, state=record.state, created=True)
 
 
@@ -477,26 +477,23 @@ def _submit_batch(state: AppState, tenant: str, body: BatchRequest,
             raise _key_reused(key, "item (tasks, parameters or model profile)")
     found = state.jobs.get_many(tenant, [known[k][0] for _, _, k in pairs if k in known])
     earlier = [found.get(known[k][0]) if k in known else None for _, _, k in pairs]
-    with scene_lock(
-        state.jobs.database, tenant, [s for (s, _, _), e in zip(pairs, earlier, strict=True) if e is None]
-    ):
-        scenes: dict[str, SceneRecord] = {}
-        params: dict[str, Any] = {}
-        # Validate every job before submitting any, so a bad item never leaves half a batch queued.
-        records = [
-            e if e is not None else _build_job(state, tenant, s, t, body.parameters, body.model_profile,
-                                               batch_id=batch_id, idem=k, priority=body.priority, scenes=scenes,
-                                               params=params)
-            for (s, t, k), e in zip(pairs, earlier, strict=True)
-        ]  # fmt: skip
-        new = [r for r in records if r.batch_id == batch_id]
-        _reserve_slots(state, tenant, new)
-        batch = BatchRecord(id=batch_id, tenant=tenant, total=len(records), priority=body.priority,
-                            idempotency_key=batch_key,
-                            callback_url=checked_callback(state.settings, body.callback_url))  # fmt: skip
-        by_new = {r.id: d for r, d in zip(records, digests, strict=True) if r.batch_id == batch_id and d}
-        _submit(state, new, digests=by_new, batch=batch, batch_job_ids=[r.id for r in records],
-                batch_digest=batch_digest)  # fmt: skip
+    scenes: dict[str, SceneRecord] = {}
+    params: dict[str, Any] = {}
+    # Validate every job before submitting any, so a bad item never leaves half a batch queued.
+    records = [
+        e if e is not None else _build_job(state, tenant, s, t, body.parameters, body.model_profile,
+                                           batch_id=batch_id, idem=k, priority=body.priority, scenes=scenes,
+                                           params=params)
+        for (s, t, k), e in zip(pairs, earlier, strict=True)
+    ]  # fmt: skip
+    new = [r for r in records if r.batch_id == batch_id]
+    _reserve_slots(state, tenant, new)
+    batch = BatchRecord(id=batch_id, tenant=tenant, total=len(records), priority=body.priority,
+                        idempotency_key=batch_key,
+                        callback_url=checked_callback(state.settings, body.callback_url))  # fmt: skip
+    by_new = {r.id: d for r, d in zip(records, digests, strict=True) if r.batch_id == batch_id and d}
+    _submit(state, new, digests=by_new, batch=batch, batch_job_ids=[r.id for r in records],
+            batch_digest=batch_digest, scene_ids=[r.scene_id for r in new])  # fmt: skip
     return _status_of(batch, records, created=len(new))
 
 
@@ -616,18 +613,18 @@ def retry_batch(batch_id: str, tenant: Tenant, state: State) -> BatchStatus:
         if not batch.counts.get(JobState.failed.value):  # nothing to retry: no lock, no slot, no write
             return _counted_status(state, batch)
         failed = [j for _, j in state.jobs.batch_jobs(batch, states=[JobState.failed.value])]
-        with scene_lock(state.jobs.database, tenant, [j.scene_id for j in failed]):
-            scenes: dict[str, SceneRecord] = {}
-            params: dict[str, Any] = {}
-            again = [
-                _build_job(state, tenant, j.scene_id, j.tasks, j.parameters, j.model_profile,
-                           batch_id=batch.id, idem=j.idempotency_key, priority=j.priority, scenes=scenes,
-                           params=params).model_copy(update={"retry_of": j.id})
-                for j in failed
-            ]  # fmt: skip
-            _reserve_slots(state, tenant, again)
-            digests = {r.id: job_digest(None, r.tasks, f.parameters, r.model_profile)
-                       for r, f in zip(again, failed, strict=True) if r.idempotency_key}  # fmt: skip
-            _submit(state, again, digests=digests, retry_in=batch.id)  # each item's key -> its new job
-            state.fair.remove(tenant, [j.id for j in failed])  # a failed job waits nowhere; make sure of it
+        scenes: dict[str, SceneRecord] = {}
+        params: dict[str, Any] = {}
+        again = [
+            _build_job(state, tenant, j.scene_id, j.tasks, j.parameters, j.model_profile,
+                       batch_id=batch.id, idem=j.idempotency_key, priority=j.priority, scenes=scenes,
+                       params=params).model_copy(update={"retry_of": j.id})
+            for j in failed
+        ]  # fmt: skip
+        _reserve_slots(state, tenant, again)
+        digests = {r.id: job_digest(None, r.tasks, f.parameters, r.model_profile)
+                   for r, f in zip(again, failed, strict=True) if r.idempotency_key}  # fmt: skip
+        _submit(state, again, digests=digests, retry_in=batch.id,  # each item's key -> its new job
+                scene_ids=[r.scene_id for r in again])  # fmt: skip
+        state.fair.remove(tenant, [j.id for j in failed])  # a failed job waits nowhere; make sure of it
     return _counted_status(state, _load_batch(state, tenant, batch_id), created=len(again))

@@ -16,7 +16,7 @@ see or delete:
 
 A scene folder that still holds an earlier release's record object and has no row is kept, with a
 warning: it is a scene of a deployment upgraded without `bfields-service import-scenes`
-(`records.scene_import`), not an orphan.
+(`common.scene_import`), not an orphan.
 
 The sweep removes the others only when they are older than BFIELDS_ORPHAN_MAX_AGE_S (a temp
 folder: since its last write, and never while its owner process is alive; an object: since its
@@ -43,9 +43,9 @@ from typing import Any
 
 import redis
 
+from bayesian_fields_service.common.scene_import import RECORD_NAME
 from bayesian_fields_service.common.scenes import SceneStore
 from bayesian_fields_service.common.storage import TENANTS_ROOT
-from bayesian_fields_service.records.scene_import import RECORD_NAME
 
 log = logging.getLogger(__name__)
 

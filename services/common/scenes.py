@@ -42,9 +42,9 @@ DELETING = "deleting"
 _ACTIVE_JOB_STATES = ("queued", "running")
 
 
+# The states the API shows; a row may also be `DELETING`, which reads as absent. (No docstring:
+# it would become the schema's description, which the API's clients already have without one.)
 class SceneState(StrEnum):
-    """The states the API shows (a row may also be `DELETING`, which reads as absent)."""
-
     uploading = "uploading"
     ready = "ready"
 

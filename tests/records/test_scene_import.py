@@ -1,4 +1,4 @@
-"""The upgrade path from scene records kept in the bucket (`records.scene_import`,
+"""The upgrade path from scene records kept in the bucket (`common.scene_import`,
 `bfields-service import-scenes`) on a real S3 server and a real PostgreSQL: every record becomes
 a row under the tenant its key names, a tombstoned scene a deleting row that the sweeper then
 finishes, nothing in the bucket is changed, and a second run inserts nothing."""
@@ -20,8 +20,8 @@ from sqlalchemy import Engine
 from bayesian_fields_service.api.sweeper import sweep_bucket
 from bayesian_fields_service.common.jobs import new_id
 from bayesian_fields_service.common.s3_store import S3Store
+from bayesian_fields_service.common.scene_import import import_scenes
 from bayesian_fields_service.common.scenes import SceneState, SceneStore
-from bayesian_fields_service.records.scene_import import import_scenes
 from tests.integration.fixtures.pytest_fixtures import s3_server  # noqa: F401 - the fixture, by name
 from tests.integration.fixtures.s3_server import S3Server
 

@@ -10,8 +10,9 @@ harmless: a scene that has a row is left as it is):
 - every ``scene.json`` becomes a row with the record's fields, under the tenant its key names;
 - a scene with a tombstone becomes a ``deleting`` row, which the sweeper finishes at once
   (objects, multipart uploads, then the row);
-- nothing in the bucket is changed: the old objects are inert once the rows exist, and go with
-  their scene's prefix when it is deleted.
+- nothing in the bucket is changed: the old record objects are inert once the rows exist and go
+  with their scene's prefix when it is deleted; the empty listing markers and tombstones outside
+  those prefixes are read by nothing and may be removed by the operator (docs/service/records.md).
 
 This is the only module that still reads the old layout; the service never writes it.
 """

@@ -88,17 +88,22 @@ def test_outages_answer_503_quickly_and_leave_no_job(private_stack, scene_dir: P
         _assert_503_fast(client, scene_id, job_id, times)
         redis_server.start()
         s3.stop()
-        # submissions need the scene in the bucket; a job's record and the listing are the
-        # records database's, so they answer through a bucket outage
-        _assert_503_fast(client, scene_id, job_id, times, only="POST")
+        # a scene's record, a job's record and the listing are the records database's, so they
+        # answer through a bucket outage, and so does a submission (its workers wait for the
+        # bucket as for any stage); these two are then cancelled, leaving the first job alone
+        during = [client.request(method, path, **kw) for method, path, kw in _requests(scene_id, job_id)[:2]]
+        assert [r.status_code for r in during] == [202, 202], [r.text for r in during]
+        assert client.get(f"/v1/scenes/{scene_id}").json()["state"] == "ready"
         assert client.get(f"/v1/jobs/{job_id}").json()["state"] == "queued"
-        assert [j["id"] for j in client.get("/v1/jobs").json()["items"]] == [job_id]
+        assert client.delete(f"/v1/jobs/{during[0].json()['id']}").status_code == 202
+        assert client.post(f"/v1/batches/{during[1].json()['id']}/cancel").status_code == 202
         s3.start()
 
         listed = client.get("/v1/jobs", params={"limit": 500})
         assert listed.status_code == 200, listed.text
-        assert [j["id"] for j in listed.json()["items"]] == [job_id]  # no refused submission stored
-        assert client.get(f"/v1/jobs/{job_id}").json()["state"] == "queued"
+        stored = {j["id"]: j["state"] for j in listed.json()["items"]}
+        assert stored.pop(job_id) == "queued"
+        assert len(stored) == 2 and set(stored.values()) == {"cancelled"}  # no refused submission stored
     r = redis.Redis.from_url(redis_server.url())
     jobs = JobStore(s3.store(), r, engine(api.env["BFIELDS_DATABASE_URL"]))
     assert jobs.pending_jobs() == []

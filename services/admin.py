@@ -3,6 +3,7 @@
     bfields-service migrate [--revision REV] [--create-database]   apply the records migrations
     bfields-service db-revision                                    print the database's revision
     bfields-service control                                        run the control process
+    bfields-service import-scenes                                  scene records of the bucket -> rows
 
 Why a separate command from `bfields`: these act on the deployment's database with the
 deployment's settings (`BFIELDS_DATABASE_URL`), run from an init container or by hand in an
@@ -44,6 +45,9 @@ def main(argv: list[str] | None = None) -> int:
     sub.add_parser(
         "control", help="run the control process (dispatch, recovery, sweeps, callbacks; one replica leads)"
     )
+    sub.add_parser(
+        "import-scenes", help="rows for the scene records an earlier release kept in the bucket (idempotent)"
+    )
     args = parser.parse_args(argv)
     if args.command == "control":
         from bayesian_fields_service.control.process import main as run_control
@@ -61,6 +65,11 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.command == "db-revision":
             print(current_revision(url) or "none", "(head:", head_revision() + ")")
+            return 0
+        if args.command == "import-scenes":
+            from bayesian_fields_service.common.scene_import import run_import
+
+            print(run_import(get_settings()).line())
             return 0
         if args.create_database and _create_database(url):
             print(f"created database {make_url(url).database}")

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from datetime import datetime
-from enum import StrEnum
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
@@ -11,7 +10,10 @@ from pydantic import BaseModel, ConfigDict, Field
 from bayesian_fields_service.common.job_queue import Priority
 from bayesian_fields_service.common.jobs import JobRecord, JobState
 
-SCENE_EXAMPLE_ID = "s_0192f3a1b2c3aa55bb66cc"
+# A scene is a record of the scenes domain; re-exported here, where the API's bodies live.
+from bayesian_fields_service.common.scenes import SCENE_EXAMPLE_ID, SceneRecord
+from bayesian_fields_service.common.scenes import SceneState as SceneState
+
 JOB_EXAMPLE_ID = "j_0192f3a1b2c3d4e5f6a7b8"
 
 
@@ -32,32 +34,6 @@ class Problem(BaseModel):
     errors: list[FieldProblem] | None = Field(
         None, description="Request validation (422) only: every refused field, with its location."
     )
-
-
-class SceneState(StrEnum):
-    uploading = "uploading"
-    ready = "ready"
-
-
-class SceneRecord(BaseModel):
-    """A scene as stored in ``scenes/<id>/scene.json``."""
-
-    id: str = Field(examples=[SCENE_EXAMPLE_ID])
-    tenant: str = Field(examples=["acme"])
-    name: str | None = Field(None, examples=["kitchen-2024-05-01"])
-    state: SceneState = SceneState.ready
-    files: int = Field(0, description="Files stored under the scene's input/ folder.")
-    bytes: int = Field(0, description="Total size of the stored input files.")
-    summary: dict[str, Any] = Field(
-        default_factory=dict,
-        description="What validation found (Gaussian count, frames, camera format, image sizes).",
-        examples=[{"gaussians": 12000, "frames": 24, "camera_format": "transforms.json"}],
-    )
-    pending_uploads: list[dict[str, Any]] = Field(
-        default_factory=list, description="Presigned multipart uploads not yet completed."
-    )
-    created_at: datetime
-    updated_at: datetime
 
 
 class SceneList(BaseModel):

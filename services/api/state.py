@@ -1,10 +1,13 @@
-"""The API process's shared objects (settings, store, Redis, job store, key ring)
-and small helpers every route uses: id checks, tenant views, presigned links."""
+"""The API process's shared objects (settings, store, Redis, job and scene stores, key ring) and
+small helpers every route uses: id checks, tenant views, presigned links, the HTTP answers of the
+scenes domain's refusals."""
 
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
 from typing import Annotated, Any
 
 import redis
@@ -15,6 +18,14 @@ from bayesian_fields_service.api.schemas import Problem
 from bayesian_fields_service.common.api_keys import ApiKeyRing
 from bayesian_fields_service.common.auth import require_tenant
 from bayesian_fields_service.common.jobs import JobStore
+from bayesian_fields_service.common.scenes import (
+    SceneBusy,
+    SceneGone,
+    SceneNotReady,
+    SceneNotUploading,
+    SceneRecord,
+    SceneStore,
+)
 from bayesian_fields_service.common.settings import ServiceSettings
 from bayesian_fields_service.common.storage import tenant_store
 
@@ -29,6 +40,10 @@ class AppState:
     jobs: JobStore
     key_ring: ApiKeyRing
     metrics_registry: Any = None
+    scenes: SceneStore = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.scenes = SceneStore(self.jobs.database)  # the one records engine of the process
 
     def tenant(self, tenant: str) -> PrefixedStore:
         return tenant_store(self.store, tenant)
@@ -75,3 +90,25 @@ BODY_ERRORS: dict[int | str, dict[str, Any]] = {
     **ERRORS,
     400: {"model": Problem, "description": "The request body could not be read"},
 }
+
+
+def load_scene(state: AppState, tenant: str, scene_id: str) -> SceneRecord:
+    """The tenant's scene; 404 when it has no record or is being deleted (`common.scenes`)."""
+    check_id("scene", scene_id, "s_")
+    record = state.scenes.get(tenant, scene_id)
+    if record is None:
+        raise not_found("scene", scene_id)
+    return record
+
+
+@contextmanager
+def scene_refusals() -> Iterator[None]:
+    """Answer the scenes domain's refusals as HTTP, the same from every route: a scene without
+    a record (or being deleted) 404, one not ready for a job 409, a delete while a job on the
+    scene is active 409 naming the job."""
+    try:
+        yield
+    except SceneGone as exc:
+        raise not_found("scene", exc.scene_id) from None
+    except (SceneNotReady, SceneNotUploading, SceneBusy) as exc:
+        raise HTTPException(status.HTTP_409_CONFLICT, str(exc)) from None

@@ -47,6 +47,7 @@ from bayesian_fields_service.common.callbacks import on_batch_finished, on_job_t
 from bayesian_fields_service.common.job_queue import JobQueue, Priority, admit
 from bayesian_fields_service.common.redis_text import text
 from bayesian_fields_service.common.sanitize import redact_locations, scrub
+from bayesian_fields_service.common.scenes import lock_ready
 from bayesian_fields_service.common.storage import tenant_store
 from bayesian_fields_service.common.usage import JobUsage
 from bayesian_fields_service.records.tables import idempotency_keys, jobs
@@ -306,18 +307,24 @@ class JobStore:
         batch_digest: str = "",
         retry_in: str | None = None,
         admit_limit: int | None = None,
+        scene_ids: Sequence[str] = (),
     ) -> None:
         """`create` for many jobs in one transaction (a batch's new jobs, with the batch's row, its
         links and its Idempotency-Key row when `batch` is given; with `retry_in`, jobs that take
         the place of the failed jobs they retry in that batch). `digests` (job id -> sha256 of what
         was asked, `job_digest`) and `batch_digest` are kept with the Idempotency-Key rows so a
-        reuse of a key with another body is refused. With `admit_limit`, the tenant's unfinished
-        jobs are counted first under its admission lock (`job_queue.admit`: `AdmissionRefused`).
+        reuse of a key with another body is refused. `scene_ids` (the scenes of `records`) are
+        share-locked first and must be ready (`scenes.lock_ready`: `SceneGone`, `SceneNotReady`),
+        so a scene's delete waits for these jobs and then sees them. With `admit_limit`, the
+        tenant's unfinished jobs are counted next under its admission lock (`job_queue.admit`:
+        `AdmissionRefused`).
 
         Committed, the jobs wait in their tenant's queue; the live hashes written afterwards are
         only progress display, so a Redis failure there is logged, not raised (the jobs exist)."""
         digests = digests or {}
         with self.database.begin() as conn:
+            if records and scene_ids:
+                lock_ready(conn, records[0].tenant, scene_ids)
             if records and admit_limit is not None:
                 admit(conn, records[0].tenant, len(records), admit_limit)
             if batch is not None:

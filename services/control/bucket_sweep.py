@@ -1,30 +1,41 @@
 """Remove from the bucket what a killed API process or a half-done delete left, and nothing else.
 
-A presigned upload starts S3 multipart uploads before its scene record is written, and a
-single-request upload copies the scene into the bucket before it writes the record, so a SIGKILL
-(OOM killer, node loss) in between leaves objects no API call can see or delete:
-- multipart uploads under ``tenants/<t>/scenes/<id>/staging/`` that no scene record lists in its
-  ``pending_uploads`` (the record was never written);
-- scene files under ``tenants/<t>/scenes/<id>/`` with no record (a single-request upload killed
-  while it copied the scene into the bucket);
-- whatever is left of a *deleted* scene (see `api.scene_lifecycle`): a delete that failed
-  half-way, or a completion that copied files after the delete listed them. These go at once,
-  whatever their age: nothing may write a deleted scene.
+A single-request upload copies the scene into the bucket and only then inserts its scene's row; a
+presigned upload starts S3 multipart uploads before its row is inserted. A SIGKILL (OOM killer,
+node loss) between those steps leaves objects no API call can see or delete:
+- multipart uploads under ``tenants/<t>/scenes/<id>/staging/`` that no scene row lists in its
+  ``pending_uploads`` (the row was never inserted);
+- scene files under ``tenants/<t>/scenes/<id>/`` with no scene row (a single-request upload
+  killed while it copied the scene into the bucket, or a completion that copied files after a
+  delete had finished and whose process died before it could remove them);
+- whatever is left of a scene whose row says ``deleting`` (`common.scenes`) and its multipart
+  uploads: a delete that stopped after its mark. These go at once, whatever their age, and the
+  row is purged: nothing may write a scene whose delete was acknowledged.
 
-Everything else is removed only when older than BFIELDS_ORPHAN_MAX_AGE_S (since its newest
-write), so an upload in progress is never touched; scenes that have a record, including those
-still ``uploading``, are their tenant's and are left alone. The control process's leader runs
-this every BFIELDS_ORPHAN_SWEEP_INTERVAL_S (one sweep per deployment); each API process sweeps
-only its own upload temp folders (`api.sweeper`).
+A scene folder that still holds an earlier release's record object and has no row is kept, with a
+warning: it is a scene of a deployment upgraded without `bfields-service import-scenes`
+(`common.scene_import`), not an orphan.
+
+The others go only when older than BFIELDS_ORPHAN_MAX_AGE_S (since their newest write), so an
+upload in progress is never touched; scenes that have a row, including those still
+``uploading``, are their tenant's and are left alone. The control process's leader runs this
+every BFIELDS_ORPHAN_SWEEP_INTERVAL_S (one sweep per deployment); each API process sweeps only
+its own upload temp folders (`api.sweeper`).
 """
 
 from __future__ import annotations
 
+import logging
 import time
+from collections import defaultdict
 from dataclasses import dataclass, field
 from typing import Any
 
-from bayesian_fields_core.job.store import ArtifactNotFound, get_json
+from bayesian_fields_service.common.scene_import import RECORD_NAME
+from bayesian_fields_service.common.scenes import SceneStore
+from bayesian_fields_service.common.storage import TENANTS_ROOT
+
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -39,62 +50,66 @@ def _age_s(stamp: Any, now: float) -> float:
     return now - stamp.timestamp()
 
 
-def sweep_bucket(store: Any, max_age_s: float, *, now: float | None = None) -> BucketSweep:
-    """Abort multipart uploads and delete scene prefixes that no scene record names, when older
-    than `max_age_s`. `store` is the bucket's `S3Store` (needs list_prefixes, list_objects,
-    list_multipart_uploads)."""
+def _scene_of(key: str) -> tuple[str, str] | None:
+    """(tenant, scene id) of a key under ``tenants/<t>/scenes/<id>/``, else None."""
+    parts = key.split("/")
+    if len(parts) < 5 or parts[0] != TENANTS_ROOT or parts[2] != "scenes" or not parts[3]:
+        return None
+    return parts[1], parts[3]
+
+
+def _scene_root(tenant: str, scene_id: str) -> str:
+    return f"{TENANTS_ROOT}/{tenant}/scenes/{scene_id}/"
+
+
+def sweep_bucket(
+    store: Any, scenes: SceneStore, max_age_s: float, *, now: float | None = None
+) -> BucketSweep:
+    """Finish the deletes that stopped half-way, then abort multipart uploads and delete scene
+    prefixes that no scene row names, when older than `max_age_s` (module docstring). `store` is
+    the bucket's `S3Store` (needs list_prefixes, list_objects, list_multipart_uploads); `scenes`
+    the scene rows."""
     now = time.time() if now is None else now
     out = BucketSweep()
-    records: dict[str, dict | None] = {}
-    tombstoned: dict[str, bool] = {}
-
-    def deleted(scene_root: str) -> bool:  # tenants/<t>/scenes/<id>/ -> tenants/<t>/tombstones/...
-        if scene_root not in tombstoned:
-            tenant_root, _, scene_id = scene_root.rstrip("/").rpartition("/scenes/")
-            tombstoned[scene_root] = store.exists(f"{tenant_root}/tombstones/scenes/{scene_id}")
-        return tombstoned[scene_root]
-
-    def record(scene_root: str) -> dict | None:  # scene_root = tenants/<t>/scenes/<id>/
-        if scene_root not in records:
-            try:
-                records[scene_root] = get_json(store, scene_root + "scene.json")
-            except ArtifactNotFound:
-                records[scene_root] = None
-        return records[scene_root]
-
-    for up in store.list_multipart_uploads("tenants/"):
-        parts = up.key.split("/")
-        if len(parts) < 5 or parts[2] != "scenes":
-            continue
-        scene_root = "/".join(parts[:4]) + "/"
-        if deleted(scene_root):
+    finished: set[str] = set()
+    for scene in scenes.deleting_scenes():  # acknowledged deletes: at once, whatever the age
+        root = _scene_root(scene.tenant, scene.id)
+        for up in store.list_multipart_uploads(root):
             store.abort_multipart_upload(up.key, up.upload_id)
             out.aborted_uploads.append(up.key)
-            continue
-        if _age_s(up.initiated, now) < max_age_s:
-            continue
-        rec = record(scene_root)
-        listed = rec is not None and any(
-            p.get("upload_id") == up.upload_id for p in rec.get("pending_uploads", [])
-        )
-        if not listed:
-            store.abort_multipart_upload(up.key, up.upload_id)
-            out.aborted_uploads.append(up.key)
-    for tenant_root in store.list_prefixes("tenants/"):
-        for scene_root in store.list_prefixes(tenant_root + "scenes/"):
-            if deleted(scene_root):
-                store.delete_prefix(scene_root)
-                scene_id = scene_root.rstrip("/").rpartition("/")[2]
-                store.delete(f"{tenant_root}index/scenes/{scene_id}")
-                out.deleted_prefixes.append(scene_root)
+        store.delete_prefix(root)
+        scenes.purge(scene.tenant, scene.id)
+        out.deleted_prefixes.append(root)
+        finished.add(root)
+
+    old_uploads: dict[str, list[tuple[str, Any]]] = defaultdict(list)  # tenant -> (scene, upload)
+    for up in store.list_multipart_uploads(f"{TENANTS_ROOT}/"):
+        where = _scene_of(up.key)
+        if where is not None and _age_s(up.initiated, now) >= max_age_s:
+            old_uploads[where[0]].append((where[1], up))
+    for tenant, uploads in old_uploads.items():
+        listed = scenes.listed_uploads(tenant, sorted({scene_id for scene_id, _ in uploads}))
+        for scene_id, up in uploads:
+            if up.upload_id not in listed.get(scene_id, frozenset()):
+                store.abort_multipart_upload(up.key, up.upload_id)
+                out.aborted_uploads.append(up.key)
+
+    for tenant_root in store.list_prefixes(f"{TENANTS_ROOT}/"):
+        tenant = tenant_root.split("/")[1]
+        roots = {r.rstrip("/").rpartition("/")[2]: r for r in store.list_prefixes(tenant_root + "scenes/")}
+        known = scenes.listed_uploads(tenant, sorted(roots))
+        for scene_id, root in roots.items():
+            if scene_id in known or root in finished:
                 continue
-            if record(scene_root) is not None:
-                continue
-            objects = store.list_objects(scene_root)
-            if not objects or any(o.key.endswith("/scene.json") for o in objects):
-                continue  # written meanwhile
-            if min(_age_s(o.last_modified, now) for o in objects) < max_age_s:
+            objects = store.list_objects(root)
+            if not objects or min(_age_s(o.last_modified, now) for o in objects) < max_age_s:
                 continue  # still being written
-            store.delete_prefix(scene_root)
-            out.deleted_prefixes.append(scene_root)
+            if any(o.key == root + RECORD_NAME for o in objects):
+                log.warning("orphan sweep: %s has an earlier release's record and no row; kept "
+                            "(run `bfields-service import-scenes`)", root)  # fmt: skip
+                continue
+            if scenes.listed_uploads(tenant, [scene_id]):
+                continue  # its row was inserted meanwhile (an upload that copied slowly)
+            store.delete_prefix(root)
+            out.deleted_prefixes.append(root)
     return out

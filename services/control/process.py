@@ -36,6 +36,7 @@ from sqlalchemy import text
 
 from bayesian_fields_service.common.callbacks import CallbackSender
 from bayesian_fields_service.common.jobs import JobStore
+from bayesian_fields_service.common.scenes import SceneStore
 from bayesian_fields_service.common.settings import ServiceSettings, apply_log_level, get_settings
 from bayesian_fields_service.common.storage import build_store
 from bayesian_fields_service.control.bucket_sweep import sweep_bucket
@@ -86,6 +87,7 @@ class ControlProcess:
         self.redis = redis.Redis.from_url(settings.redis_url, socket_timeout=10, socket_connect_timeout=5)
         self.database = open_records(settings.database_url, migrate_first=settings.migrate_on_start)
         self.jobs = JobStore(self.store, self.redis, self.database)
+        self.scenes = SceneStore(self.database)
         self.leadership = Leadership(self.database, settings.gpu_queue)
         self.stop = threading.Event()
         self.alive_at = time.time()
@@ -102,7 +104,7 @@ class ControlProcess:
     def _sweep(self) -> None:
         if not hasattr(self.store, "list_multipart_uploads"):
             return  # a local folder: no multipart uploads, and uploads write the record last
-        report = sweep_bucket(self.store, self.settings.orphan_max_age_s)
+        report = sweep_bucket(self.store, self.scenes, self.settings.orphan_max_age_s)
         if report.aborted_uploads or report.deleted_prefixes:
             log.warning("orphan sweep: aborted %d multipart uploads, deleted %d scene prefixes: %s %s",
                         len(report.aborted_uploads), len(report.deleted_prefixes),

@@ -1,15 +1,19 @@
 """Orphan sweeping against a real uvicorn SIGKILLed mid-upload and the real S3 server.
 
 What a killed API leaves: its upload temp folder (the request was streaming), multipart uploads
-whose scene record was never written, and scene files copied before the record was (both made
+whose scene row was never inserted, and scene files copied before the row was (both made
 here with the very S3 calls the upload routes make, as a kill between them leaves them). The
 restarted API's start-up sweep removes those older than BFIELDS_ORPHAN_MAX_AGE_S, and leaves
 alone: a ready scene, a presigned upload in progress (its record lists the multipart upload),
 orphans younger than the age, and a temp folder whose owner process is alive.
+
+The stack has a bucket of its own: which scenes exist is its own database's rows, so with this
+short age its sweep would take the session stack's scenes in a shared bucket for orphans.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import secrets
 import threading
@@ -32,9 +36,17 @@ BOUNDARY = "bfields-test-boundary"
 
 
 @pytest.fixture
-def stack(tmp_path: Path, s3_server: S3Server, test_api_keys: dict[str, str]) -> Iterator[PrivateStack]:
+def own_bucket(s3_server: S3Server) -> S3Server:
+    """The session's S3 server seen through a new bucket of this test's own."""
+    view = dataclasses.replace(s3_server, bucket=f"orphans-{secrets.token_hex(4)}")
+    view.store().ensure_bucket()
+    return view
+
+
+@pytest.fixture
+def stack(tmp_path: Path, own_bucket: S3Server, test_api_keys: dict[str, str]) -> Iterator[PrivateStack]:
     extra = {**SERVICE_ENV, "BFIELDS_ORPHAN_MAX_AGE_S": str(MAX_AGE_S)}
-    stack = PrivateStack(tmp_path / "stack", s3_server.env(), dict(test_api_keys), extra).start()
+    stack = PrivateStack(tmp_path / "stack", own_bucket.env(), dict(test_api_keys), extra).start()
     yield stack
     stack.stop()
 
@@ -44,7 +56,7 @@ def _fake_scene_root() -> str:
 
 
 def _make_orphans(store) -> tuple[str, str]:  # noqa: ANN001 - S3Store
-    """A multipart upload with no scene record, and scene files with no scene.json."""
+    """A multipart upload with no scene row, and scene files with no scene row."""
     up_root, files_root = _fake_scene_root(), _fake_scene_root()
     store.create_multipart_upload(up_root + "staging/images/images.zip")
     store.put_bytes(files_root + "input/splat.ply", b"ply\n" + os.urandom(1000))
@@ -86,11 +98,11 @@ def _multipart_body(form: list[tuple[str, tuple[str, bytes]]]) -> bytes:
 
 
 def test_sweep_after_api_sigkill_mid_upload(
-    stack: PrivateStack, s3_server: S3Server, scene_dir: Path
+    stack: PrivateStack, own_bucket: S3Server, scene_dir: Path
 ) -> None:
     api = stack.api
     assert api is not None and api.process is not None
-    store = s3_server.store()
+    store = own_bucket.store()
     with api.client("tenant-a") as client:
         ready_id = upload(client, scene_dir)
         spec = {"files": [{"field": "images", "name": "images.zip", "size": 1_000_000}]}

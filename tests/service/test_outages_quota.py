@@ -78,7 +78,7 @@ def private_stack(
     s3.stop()
 
 
-def test_a_redis_outage_costs_progress_only_and_a_bucket_outage_answers_503_quickly(
+def test_a_redis_outage_costs_progress_only_and_a_bucket_outage_refuses_uploads_quickly(
     private_stack, scene_dir: Path  # noqa: ANN001
 ) -> None:
     api, redis_server, s3 = private_stack
@@ -102,16 +102,27 @@ def test_a_redis_outage_costs_progress_only_and_a_bucket_outage_answers_503_quic
         redis_server.start()
 
         s3.stop()
-        # submissions need the scene in the bucket; a job's record and the listing are the
-        # records database's, so they answer through a bucket outage
-        _assert_503_fast(client, scene_id, job_id, times, only="POST")
+        # a scene's record, a job's record and the listing are the records database's, so they
+        # answer through a bucket outage, and so does a submission (its workers wait for the
+        # bucket as for any stage); these two are then cancelled
+        during_s3 = [client.request(method, path, **kw) for method, path, kw in _requests(scene_id, job_id)[:2]]
+        assert [r.status_code for r in during_s3] == [202, 202], [r.text for r in during_s3]
+        assert client.get(f"/v1/scenes/{scene_id}").json()["state"] == "ready"
         assert client.get(f"/v1/jobs/{job_id}").json()["state"] == "queued"
-        assert len(client.get("/v1/jobs").json()["items"]) == 4
+        assert client.delete(f"/v1/jobs/{during_s3[0].json()['id']}").status_code == 202
+        assert client.post(f"/v1/batches/{during_s3[1].json()['id']}/cancel").status_code == 202
+        # what needs the bucket (an upload) is refused quickly, naming no key
+        t0 = time.monotonic()
+        upload = client.post("/v1/scenes", files=scene_form(scene_dir), data={"name": "in outage"})
+        times.append(time.monotonic() - t0)
+        assert upload.status_code == 503 and int(upload.headers["Retry-After"]) > 0, upload.text
+        assert "tenants/" not in upload.text and times[-1] < MAX_TIME_TO_503_S, times
         s3.start()
 
         listed = client.get("/v1/jobs", params={"limit": 500})
         assert listed.status_code == 200, listed.text
-        assert len(listed.json()["items"]) == 4  # no refused submission stored
+        states = sorted(j["state"] for j in listed.json()["items"])
+        assert states == ["cancelled"] * 3 + ["queued"] * 3, states  # no refused submission stored
     r = redis.Redis.from_url(redis_server.url())
     jobs = JobStore(s3.store(), r, engine(api.env["BFIELDS_DATABASE_URL"]))
     assert len(jobs.active_jobs()) == 3 and ("tenant-o", job_id) in jobs.active_jobs()

@@ -5,6 +5,10 @@ complete (every file in the bucket), or absent (404, not listed, no object left 
 prefix, no multipart upload); a DELETE that answered 204 stays done, and a job is never accepted
 on a scene whose delete answered 204.
 
+Since scenes are rows (`common.scenes`), the row decides: a delete commits the row's
+``deleting`` state before it removes anything, a completion publishes in one transaction holding
+the row, and a job submission holds the row (``FOR SHARE``) while its jobs are inserted.
+
 Two kinds of test: forced interleavings (the API holds a request at a named pause point,
 `services/common/pause_points.py`, while the test sends the other one), and seeded random rounds
 that fire the requests from threads with random delays, in both orders.
@@ -150,7 +154,8 @@ def test_delete_while_complete_is_held_stays_deleted(
     `late_object`: S3 may finish a CompleteMultipartUpload that was under way when the delete
     aborted the uploads and listed the scene's objects (CI saw one staged image survive a 204
     this way). The object such a late assembly leaves is put in place after the delete answered;
-    the completion, finding the tombstone, removes everything under the scene before its 404."""
+    the completion, finding the scene's row gone, removes everything under the scene before its
+    404."""
     scene_id, parts = presigned_scene(client, files)
     arm(rdb, point, scene_id)
     with api.client(TENANT) as other:
@@ -168,18 +173,19 @@ def test_delete_while_complete_is_held_stays_deleted(
     assert assert_complete_or_absent(client, bucket, scene_id, len(files)) == "absent"
 
 
-def test_complete_while_delete_is_between_tombstone_and_cleanup(
+def test_complete_while_delete_is_between_its_mark_and_cleanup(
     api: ApiServer, client: httpx.Client, rdb: redis.Redis, bucket: Any, files: dict
 ) -> None:
-    """The completion runs after the delete wrote its tombstone but before it removed anything."""
+    """The completion runs after the delete committed the row's deleting state but before it
+    removed anything."""
     scene_id, parts = presigned_scene(client, files)
-    arm(rdb, "delete:tombstoned", scene_id)
+    arm(rdb, "delete:marked", scene_id)
     with api.client(TENANT) as other:
         thread, deleted = in_thread(lambda: other.delete(f"/v1/scenes/{scene_id}"))
-        wait_reached(rdb, "delete:tombstoned", scene_id)
+        wait_reached(rdb, "delete:marked", scene_id)
         completed = client.post(f"/v1/scenes/{scene_id}/complete", json={"parts": parts})
         job = client.post("/v1/jobs", json={"scene_id": scene_id, "tasks": ["x"]})
-        resume(rdb, "delete:tombstoned", scene_id)
+        resume(rdb, "delete:marked", scene_id)
         thread.join(60)
     assert completed.status_code == 404, completed.text
     assert job.status_code == 404, job.text
@@ -190,8 +196,8 @@ def test_complete_while_delete_is_between_tombstone_and_cleanup(
 def test_delete_waits_for_a_publishing_complete_then_removes_the_whole_scene(
     api: ApiServer, client: httpx.Client, rdb: redis.Redis, bucket: Any, files: dict
 ) -> None:
-    """The completion holds the scene lock while it publishes; the delete waits, then removes
-    the complete scene."""
+    """The completion holds the scene's row while it publishes; the delete waits for the row,
+    then removes the complete scene."""
     scene_id, parts = presigned_scene(client, files)
     arm(rdb, "complete:publishing", scene_id)
     with api.client(TENANT) as other:
@@ -199,7 +205,7 @@ def test_delete_waits_for_a_publishing_complete_then_removes_the_whole_scene(
         wait_reached(rdb, "complete:publishing", scene_id)
         d_thread, deleted = in_thread(lambda: client.delete(f"/v1/scenes/{scene_id}"))
         time.sleep(0.5)
-        assert not deleted, "the delete did not wait for the scene lock"
+        assert not deleted, "the delete did not wait for the scene's row"
         resume(rdb, "complete:publishing", scene_id)
         thread.join(60)
         d_thread.join(60)
@@ -285,30 +291,39 @@ def test_random_interleavings_keep_a_scene_complete_or_absent(
     assert {key.split(":")[0] for key in tally} <= {"ready", "uploading", "absent"}, tally
 
 
-# ---- the sweeper and tombstoned leftovers ---------------------------------------------------
+# ---- the sweeper and deletes that stopped half-way --------------------------------------------
 
 
-def test_the_sweeper_removes_what_is_left_of_a_deleted_scene_at_once(bucket: Any) -> None:
-    """A delete that failed half-way (or a completion that copied files after the delete listed
-    them) leaves objects, even a scene.json, under a tombstoned scene: swept whatever their age."""
-    from bayesian_fields_service.common.jobs import new_id
+def test_the_sweeper_finishes_a_delete_that_stopped_after_its_mark(
+    bucket: Any, svc_env: dict[str, str]
+) -> None:
+    """A delete whose API died after the mark committed leaves the scene's objects, its multipart
+    uploads and a deleting row: the sweeper removes them whatever their age and purges the row."""
+    from bayesian_fields_service.common.jobs import new_id, utcnow
+    from bayesian_fields_service.common.scenes import SceneRecord, SceneStore
     from bayesian_fields_service.control.bucket_sweep import sweep_bucket
+    from bayesian_fields_service.records.database import engine
 
+    scenes = SceneStore(engine(svc_env["BFIELDS_DATABASE_URL"]))
     tenant = "sweep-" + new_id("t")[-8:]
     scene_id, kept = new_id("s_"), new_id("s_")
     root = f"tenants/{tenant}/"
     for sid in (scene_id, kept):
-        bucket.put_bytes(f"{root}scenes/{sid}/scene.json", b"{}")
         bucket.put_bytes(f"{root}scenes/{sid}/input/splat.ply", b"x")
-        bucket.put_bytes(f"{root}index/scenes/{sid}", b"")
+        bucket.put_bytes(f"{root}scenes/{sid}/input/transforms.json", b"{}")
+        scenes.create(SceneRecord(id=sid, tenant=tenant, created_at=utcnow(), updated_at=utcnow()))
     upload_key = f"{root}scenes/{scene_id}/staging/images/a.png"
     upload_id = bucket.create_multipart_upload(upload_key)
-    bucket.put_bytes(f"{root}tombstones/scenes/{scene_id}", b"")
-    report = sweep_bucket(bucket, max_age_s=3600)
+    scenes.mark_deleting(tenant, scene_id)
+    assert scenes.get(tenant, scene_id) is None  # gone for every reader from the mark on
+    report = sweep_bucket(bucket, scenes, max_age_s=3600)
     assert f"{root}scenes/{scene_id}/" in report.deleted_prefixes
     assert bucket.list(f"{root}scenes/{scene_id}/") == []
-    assert not bucket.exists(f"{root}index/scenes/{scene_id}")
     assert [u for u in bucket.list_multipart_uploads(f"{root}scenes/{scene_id}/")] == []
+    assert scenes.listed_uploads(tenant, [scene_id]) == {}  # the row is purged
     assert len(bucket.list(f"{root}scenes/{kept}/")) == 2  # a live scene is untouched
+    assert scenes.get(tenant, kept) is not None
     bucket.abort_multipart_upload(upload_key, upload_id)
-    bucket.delete_prefix(root)
+    scenes.mark_deleting(tenant, kept)
+    sweep_bucket(bucket, scenes, max_age_s=3600)
+    assert bucket.list(root) == []

@@ -13,6 +13,7 @@ import httpx
 import pytest
 from PIL import Image
 
+from tests.integration.fixtures.s3_server import S3Server
 from tests.scene_transforms import copy_scene, flip_camera_convention
 
 from .conftest import MAX_EXPANDED, MAX_UPLOAD, scene_form
@@ -214,6 +215,42 @@ def test_presigned_upload_then_complete(
     scene = done.json()
     assert scene["state"] == "ready" and scene["summary"]["frames"] == 4 and scene["files"] == 6
     assert client_a.post(f"/v1/scenes/{scene_id}/complete").status_code == 409  # only once
+
+
+def test_scene_records_are_rows_not_bucket_objects(
+    client_a: httpx.Client, s3_server: S3Server, scene_dir: Path
+) -> None:
+    """Upload, presigned upload + complete, list and delete leave no record object, listing
+    marker or tombstone in the bucket: a scene's record is its row (`common.scenes`), and a
+    delete leaves nothing of the scene behind."""
+    store = s3_server.store()
+    root = "tenants/tenant-a/"
+
+    def legacy() -> list[str]:
+        return [
+            k for k in store.list(root)
+            if k.endswith("/scene.json") or k.startswith((root + "index/", root + "tombstones/"))
+        ]  # fmt: skip
+
+    single = client_a.post("/v1/scenes", files=scene_form(scene_dir))
+    assert single.status_code == 201, single.text
+    files = {
+        ("splat", "splat.ply"): (scene_dir / "splat.ply").read_bytes(),
+        ("cameras", "transforms.json"): (scene_dir / "transforms.json").read_bytes(),
+        ("images", "images.zip"): image_zip(scene_dir),
+    }
+    presigned, parts = _presigned_upload(client_a, files)
+    assert client_a.post(f"/v1/scenes/{presigned}/complete", json={"parts": parts}).status_code == 200
+    ids = [single.json()["id"], presigned]
+    assert set(ids) <= _scene_ids(client_a)
+    assert legacy() == []
+    for scene_id in ids:
+        assert store.list(f"{root}scenes/{scene_id}/input/")
+        assert client_a.delete(f"/v1/scenes/{scene_id}").status_code == 204
+        assert store.list(f"{root}scenes/{scene_id}/") == []
+        assert store.list_multipart_uploads(f"{root}scenes/{scene_id}/") == []
+    assert not set(ids) & _scene_ids(client_a)
+    assert legacy() == []
 
 
 def test_presigned_upload_with_bad_file_stays_unready(client_a: httpx.Client, scene_dir: Path) -> None:

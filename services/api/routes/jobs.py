@@ -8,13 +8,11 @@ control process's dispatcher sends it to the workers."""
 from __future__ import annotations
 
 import hashlib
-import logging
-from collections.abc import Callable, Iterable, Iterator, Sequence
-from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Iterator, Sequence
 from contextlib import AbstractContextManager, contextmanager
 from datetime import UTC, datetime, timedelta
 from pathlib import PurePosixPath
-from typing import Annotated, Any, TypeVar
+from typing import Annotated, Any
 
 import redis
 from fastapi import APIRouter, Header, HTTPException, Query, Response, status
@@ -26,8 +24,6 @@ from bayesian_fields_core.job.store import ArtifactNotFound, LocalStore, get_jso
 from bayesian_fields_core.job.task_list import normalise_tasks
 from bayesian_fields_core.params import PipelineParams
 from bayesian_fields_service.api.routes.callback_rules import checked_callback
-from bayesian_fields_service.api.routes.scenes import _load_scene
-from bayesian_fields_service.api.scene_lifecycle import scene_lock
 from bayesian_fields_service.api.schemas import (
     Artifact,
     BatchJob,
@@ -47,7 +43,9 @@ from bayesian_fields_service.api.state import (
     State,
     Tenant,
     check_id,
+    load_scene,
     not_found,
+    scene_refusals,
 )
 from bayesian_fields_service.common.batch_records import BatchRecord
 from bayesian_fields_service.common.job_queue import AdmissionRefused, Priority, admission_limit
@@ -55,27 +53,10 @@ from bayesian_fields_service.common.jobs import JobRecord, JobState, job_digest,
 from bayesian_fields_service.records.locks import LockBusy, session_lock
 from bayesian_fields_service.worker.metrics import JOB_KEY, read_histogram
 
-log = logging.getLogger(__name__)
 router = APIRouter(prefix="/v1", tags=["jobs"])
 
 #: Model profiles a job may name. The workers map "default" to BFIELDS_MODEL_PROFILE.
 MODEL_PROFILES = ("default",)
-#: Threads a request uses for many small per-job calls (a batch's idempotency lookups, cancels).
-IO_THREADS = 16
-
-T = TypeVar("T")
-R = TypeVar("R")
-
-
-def _parallel(fn: Callable[[T], R], items: Iterable[T]) -> list[R]:
-    """`fn` over `items` on a few threads (bucket round trips dominate), results in order."""
-    items = list(items)
-    if len(items) <= 1:
-        return [fn(i) for i in items]
-    with ThreadPoolExecutor(min(IO_THREADS, len(items))) as pool:
-        return list(pool.map(fn, items))
-
-
 def _load_job(state: AppState, tenant: str, job_id: str) -> JobRecord:
     check_id("job", job_id, "j_")
     record = state.jobs.get(tenant, job_id)
@@ -121,7 +102,7 @@ def _build_job(state: AppState, tenant: str, scene_id: str, tasks: list[str], pa
     if scenes is not None and scene_id in scenes:
         scene = scenes[scene_id]
     else:
-        scene = _load_scene(state, tenant, scene_id)
+        scene = load_scene(state, tenant, scene_id)
         if scenes is not None:
             scenes[scene_id] = scene
     if scene.state.value != "ready":
@@ -175,7 +156,8 @@ def _check_params_against_scene(params: PipelineParams, summary: dict[str, Any])
 
 
 def _submit(state: AppState, records: list[JobRecord], **create: Any) -> None:
-    """Store jobs: one transaction that admits them (429 + Retry-After when the tenant's
+    """Store jobs: one transaction that holds their scenes' rows (a scene deleted since it was
+    checked: 404, `scenes.lock_ready`), admits them (429 + Retry-After when the tenant's
     unfinished jobs would exceed its waiting bound plus its dispatch bound, exact under any number
     of concurrent API processes: `job_queue.admit`) and inserts them with their batch, links and
     Idempotency-Key rows (`create` goes to `JobStore.create_many`). Committed, they wait in their
@@ -185,7 +167,8 @@ def _submit(state: AppState, records: list[JobRecord], **create: Any) -> None:
     s = state.settings
     limit = admission_limit(s.max_waiting_jobs_per_tenant, s.max_active_jobs_per_tenant)
     try:
-        state.jobs.create_many(records, admit_limit=limit, **create)
+        with scene_refusals():
+            state.jobs.create_many(records, admit_limit=limit, **create)
     except AdmissionRefused as refused:
         raise HTTPException(
             status.HTTP_429_TOO_MANY_REQUESTS,
@@ -266,17 +249,16 @@ def submit_job(
             if existing is not None and (record := state.jobs.get(tenant, existing[0])) is not None:
                 response.status_code = status.HTTP_200_OK
                 return JobAccepted(id=record.id, state=record.state, created=False)
-            with scene_lock(state.jobs.database, tenant, [body.scene_id]):
-                record = _build_job(state, tenant, body.scene_id, body.tasks, body.parameters,
-                                    body.model_profile, idem=idempotency_key, priority=body.priority,
-                                    callback_url=body.callback_url)  # fmt: skip
-                _submit(state, [record], digests={record.id: digest})
+            record = _build_job(state, tenant, body.scene_id, body.tasks, body.parameters,
+                                body.model_profile, idem=idempotency_key, priority=body.priority,
+                                callback_url=body.callback_url)  # fmt: skip
+            _submit(state, [record], digests={record.id: digest}, scene_ids=[body.scene_id])
     else:
-        # Under the scene lock: a concurrent delete either sees this job (409) or came first (404).
-        with scene_lock(state.jobs.database, tenant, [body.scene_id]):
-            record = _build_job(state, tenant, body.scene_id, body.tasks, body.parameters, body.model_profile,
-                                priority=body.priority, callback_url=body.callback_url)  # fmt: skip
-            _submit(state, [record])
+        # The insert holds the scene's row: a concurrent delete either sees this job (409) or
+        # came first (404).
+        record = _build_job(state, tenant, body.scene_id, body.tasks, body.parameters, body.model_profile,
+                            priority=body.priority, callback_url=body.callback_url)  # fmt: skip
+        _submit(state, [record], scene_ids=[body.scene_id])
     return JobAccepted(id=record.id, state=record.state, created=True)
 
 
@@ -441,25 +423,22 @@ def _submit_batch(state: AppState, tenant: str, body: BatchRequest,
             raise _key_reused(key, "item (tasks, parameters or model profile)")
     found = state.jobs.get_many(tenant, [known[k][0] for _, _, k in pairs if k in known])
     earlier = [found.get(known[k][0]) if k in known else None for _, _, k in pairs]
-    with scene_lock(
-        state.jobs.database, tenant, [s for (s, _, _), e in zip(pairs, earlier, strict=True) if e is None]
-    ):
-        scenes: dict[str, SceneRecord] = {}
-        params: dict[str, Any] = {}
-        # Validate every job before submitting any, so a bad item never leaves half a batch queued.
-        records = [
-            e if e is not None else _build_job(state, tenant, s, t, body.parameters, body.model_profile,
-                                               batch_id=batch_id, idem=k, priority=body.priority, scenes=scenes,
-                                               params=params)
-            for (s, t, k), e in zip(pairs, earlier, strict=True)
-        ]  # fmt: skip
-        new = [r for r in records if r.batch_id == batch_id]
-        batch = BatchRecord(id=batch_id, tenant=tenant, total=len(records), priority=body.priority,
-                            idempotency_key=batch_key,
-                            callback_url=checked_callback(state.settings, body.callback_url))  # fmt: skip
-        by_new = {r.id: d for r, d in zip(records, digests, strict=True) if r.batch_id == batch_id and d}
-        _submit(state, new, digests=by_new, batch=batch, batch_job_ids=[r.id for r in records],
-                batch_digest=batch_digest)  # fmt: skip
+    scenes: dict[str, SceneRecord] = {}
+    params: dict[str, Any] = {}
+    # Validate every job before submitting any, so a bad item never leaves half a batch queued.
+    records = [
+        e if e is not None else _build_job(state, tenant, s, t, body.parameters, body.model_profile,
+                                           batch_id=batch_id, idem=k, priority=body.priority, scenes=scenes,
+                                           params=params)
+        for (s, t, k), e in zip(pairs, earlier, strict=True)
+    ]  # fmt: skip
+    new = [r for r in records if r.batch_id == batch_id]
+    batch = BatchRecord(id=batch_id, tenant=tenant, total=len(records), priority=body.priority,
+                        idempotency_key=batch_key,
+                        callback_url=checked_callback(state.settings, body.callback_url))  # fmt: skip
+    by_new = {r.id: d for r, d in zip(records, digests, strict=True) if r.batch_id == batch_id and d}
+    _submit(state, new, digests=by_new, batch=batch, batch_job_ids=[r.id for r in records],
+            batch_digest=batch_digest, scene_ids=[r.scene_id for r in new])  # fmt: skip
     return _status_of(batch, records, created=len(new))
 
 
@@ -578,16 +557,16 @@ def retry_batch(batch_id: str, tenant: Tenant, state: State) -> BatchStatus:
         if not batch.counts.get(JobState.failed.value):  # nothing to retry: no lock, no slot, no write
             return _counted_status(state, batch)
         failed = [j for _, j in state.jobs.batch_jobs(batch, states=[JobState.failed.value])]
-        with scene_lock(state.jobs.database, tenant, [j.scene_id for j in failed]):
-            scenes: dict[str, SceneRecord] = {}
-            params: dict[str, Any] = {}
-            again = [
-                _build_job(state, tenant, j.scene_id, j.tasks, j.parameters, j.model_profile,
-                           batch_id=batch.id, idem=j.idempotency_key, priority=j.priority, scenes=scenes,
-                           params=params).model_copy(update={"retry_of": j.id})
-                for j in failed
-            ]  # fmt: skip
-            digests = {r.id: job_digest(None, r.tasks, f.parameters, r.model_profile)
-                       for r, f in zip(again, failed, strict=True) if r.idempotency_key}  # fmt: skip
-            _submit(state, again, digests=digests, retry_in=batch.id)  # each item's key -> its new job
+        scenes: dict[str, SceneRecord] = {}
+        params: dict[str, Any] = {}
+        again = [
+            _build_job(state, tenant, j.scene_id, j.tasks, j.parameters, j.model_profile,
+                       batch_id=batch.id, idem=j.idempotency_key, priority=j.priority, scenes=scenes,
+                       params=params).model_copy(update={"retry_of": j.id})
+            for j in failed
+        ]  # fmt: skip
+        digests = {r.id: job_digest(None, r.tasks, f.parameters, r.model_profile)
+                   for r, f in zip(again, failed, strict=True) if r.idempotency_key}  # fmt: skip
+        _submit(state, again, digests=digests, retry_in=batch.id,  # each item's key -> its new job
+                scene_ids=[r.scene_id for r in again])  # fmt: skip
     return _counted_status(state, _load_batch(state, tenant, batch_id), created=len(again))

@@ -10,7 +10,7 @@ from fastapi import APIRouter, Body, HTTPException, Query, Request, Response, st
 from fastapi.concurrency import run_in_threadpool
 
 from bayesian_fields_core.errors import InputError
-from bayesian_fields_core.job.store import ArtifactNotFound, PrefixedStore, get_json, put_json
+from bayesian_fields_core.job.store import ArtifactNotFound, PrefixedStore
 from bayesian_fields_service.api.archives import ArchiveLimits
 from bayesian_fields_service.api.multipart import clean_filename, receive_multipart
 from bayesian_fields_service.api.scene_intake import (
@@ -20,13 +20,7 @@ from bayesian_fields_service.api.scene_intake import (
     upload_scene_folder,
     validate_scene,
 )
-from bayesian_fields_service.api.scene_lifecycle import (
-    completion_claim,
-    gone,
-    is_deleted,
-    mark_deleted,
-    scene_lock,
-)
+from bayesian_fields_service.api.scene_lifecycle import completion_claim, gone
 from bayesian_fields_service.api.schemas import (
     CompleteRequest,
     PresignedUpload,
@@ -44,12 +38,13 @@ from bayesian_fields_service.api.state import (
     State,
     Tenant,
     check_id,
-    not_found,
+    load_scene,
+    scene_refusals,
 )
 from bayesian_fields_service.api.sweeper import upload_workdir
-from bayesian_fields_service.common.jobs import JobState, new_id, utcnow
+from bayesian_fields_service.common.jobs import new_id, utcnow
 from bayesian_fields_service.common.pause_points import pause
-from bayesian_fields_service.common.sanitize import scrub
+from bayesian_fields_service.common.scenes import SceneGone
 
 router = APIRouter(prefix="/v1/scenes", tags=["scenes"])
 
@@ -100,31 +95,13 @@ _MULTIPART_SCHEMA = {
 }
 
 
-def _scene_key(scene_id: str) -> str:
-    return f"scenes/{scene_id}/scene.json"
-
-
-def _load_scene(state: AppState, tenant: str, scene_id: str) -> SceneRecord:
-    """The scene's record; 404 when it has none or is tombstoned (deleted, objects maybe not yet
-    all removed: see `scene_lifecycle`)."""
-    check_id("scene", scene_id, "s_")
-    ts = state.tenant(tenant)
-    try:
-        # scrub: a record stored before the edge refused lone surrogates must stay servable
-        record = SceneRecord.model_validate(scrub(get_json(ts, _scene_key(scene_id))))
-    except ArtifactNotFound:
-        raise not_found("scene", scene_id) from None
-    if is_deleted(ts, scene_id):
-        raise not_found("scene", scene_id)
-    return record
-
-
 def _pause(state: AppState, point: str, scene_id: str) -> None:
     pause(state.redis, state.settings.test_pause_points, point, scene_id)
 
 
-def _save_scene(state: AppState, record: SceneRecord) -> None:
-    put_json(state.tenant(record.tenant), _scene_key(record.id), record.model_dump(mode="json"))
+def _deleted(state: AppState, tenant: str, scene_id: str) -> bool:
+    """Whether the scene's delete was acknowledged (its row says deleting, or is purged)."""
+    return state.scenes.get(tenant, scene_id) is None
 
 
 def _limits(state: AppState) -> ArchiveLimits:
@@ -186,9 +163,9 @@ async def upload_scene(request: Request, tenant: Tenant, state: State) -> SceneR
             id=scene_id, tenant=tenant, name=form.fields.get("name") or None, files=n, bytes=size,
             summary=summary, created_at=now, updated_at=now,
         )  # fmt: skip
-        # listing marker first, record last: a crash in between leaves a marker the listing skips
-        state.tenant(tenant).put_bytes(f"index/scenes/{scene_id}", b"")
-        _save_scene(state, record)
+        # the row last, once every file is in the bucket: a process killed while copying leaves
+        # files no record names, which the sweeper removes once they are older than its age
+        state.scenes.create(record)
         return record
     finally:
         shutil.rmtree(work, ignore_errors=True)
@@ -244,8 +221,7 @@ def start_upload(body: UploadRequest, tenant: Tenant, state: State) -> UploadPla
         id=scene_id, tenant=tenant, name=body.name, state=SceneState.uploading,
         pending_uploads=pending, created_at=now, updated_at=now,
     )  # fmt: skip
-    ts.put_bytes(f"index/scenes/{scene_id}", b"")
-    _save_scene(state, record)
+    state.scenes.create(record)  # after the uploads exist: the sweeper aborts those no row lists
     return UploadPlan(scene_id=scene_id, uploads=uploads, expires_in_s=state.settings.presign_expiry_s)
 
 
@@ -258,20 +234,24 @@ def start_upload(body: UploadRequest, tenant: Tenant, state: State) -> UploadPla
 def complete_upload(
     scene_id: str, tenant: Tenant, state: State, body: Annotated[CompleteRequest | None, Body()] = None
 ) -> SceneRecord:
-    """Assemble the parts, validate, copy the scene to ``input/``, then (under the scene lock,
-    unless a delete came first) publish the ready record. See `scene_lifecycle`."""
-    record = _load_scene(state, tenant, scene_id)
-    if record.state != SceneState.uploading:
-        raise HTTPException(status.HTTP_409_CONFLICT, f"scene {scene_id!r} is already {record.state.value}")
+    """Assemble the parts, validate, copy the scene to ``input/``, then (holding the scene's
+    row, unless a delete came first) publish the ready record. See `scene_lifecycle`."""
+    check_id("scene", scene_id, "s_")
     ts = state.tenant(tenant)
     with completion_claim(state.jobs.database, tenant, scene_id):
+        record = load_scene(state, tenant, scene_id)  # under the claim: no other completion runs now
+        if record.state != SceneState.uploading:
+            raise HTTPException(
+                status.HTTP_409_CONFLICT, f"scene {scene_id!r} is already {record.state.value}"
+            )
         try:
             n, size, summary = _complete_files(state, tenant, record, body)
         except BaseException:
-            if is_deleted(ts, scene_id):
+            if _deleted(state, tenant, scene_id):
                 # a delete listed the scene's objects while this completion was still assembling
-                # them: a file finished after that listing would stay behind. The tombstone is
-                # final, so everything under the scene is removed here, after the last write.
+                # them: a file finished after that listing would stay behind. The delete is final
+                # (the row's state), so everything under the scene is removed here, after the
+                # last write.
                 ts.delete_prefix(f"scenes/{scene_id}/")
             raise
         return _publish(state, tenant, record, n, size, summary)
@@ -294,7 +274,7 @@ def _complete_files(
             try:
                 state.store.complete_multipart_upload(ts.prefix + up["key"], up["upload_id"], parts)  # type: ignore[attr-defined]
             except (InputError, ArtifactNotFound) as exc:
-                if is_deleted(ts, scene_id):
+                if _deleted(state, tenant, scene_id):
                     raise gone(scene_id) from None
                 if _assembled(ts, up):  # an earlier, failed completion got this file done
                     pass
@@ -314,7 +294,7 @@ def _complete_files(
             ts.get_file(up["key"], local)
             files.append(UploadedFile(up["field"], up["name"], local))
         _pause(state, "complete:fetched", scene_id)
-        if is_deleted(ts, scene_id):  # deleted meanwhile: skip the copy (the publish step checks again)
+        if _deleted(state, tenant, scene_id):  # deleted meanwhile: skip the copy (publishing checks again)
             raise gone(scene_id)
         try:
             alignment = body is None or body.alignment_check
@@ -322,7 +302,7 @@ def _complete_files(
         except InputError as exc:
             raise _unprocessable(exc) from None
     except ArtifactNotFound:  # a staged object vanished: only a delete removes them
-        if is_deleted(ts, scene_id):
+        if _deleted(state, tenant, scene_id):
             raise gone(scene_id) from None
         raise
     finally:
@@ -342,29 +322,28 @@ def _assembled(ts: PrefixedStore, up: dict) -> bool:
 def _publish(
     state: AppState, tenant: str, record: SceneRecord, n: int, size: int, summary: dict
 ) -> SceneRecord:
-    """Write the ready record unless the scene was deleted meanwhile (then remove the copy and
-    answer 404): the tombstone check and the write happen under the scene lock, which `delete`
-    holds while it writes the tombstone."""
+    """Make the record ready unless the scene was deleted meanwhile (then remove the copy and
+    answer 404): the state check and the change are one transaction holding the scene's row,
+    which `delete` needs to mark the scene deleting."""
     scene_id = record.id
     ts = state.tenant(tenant)
     _pause(state, "complete:before_publish", scene_id)
-    with scene_lock(state.jobs.database, tenant, [scene_id]):
-        _pause(state, "complete:publishing", scene_id)
-        if is_deleted(ts, scene_id):
+    with scene_refusals():  # published by another completion meanwhile: 409
+        try:
+            ready = state.scenes.publish_ready(
+                tenant, scene_id, files=n, size=size, summary=summary,
+                while_locked=lambda: _pause(state, "complete:publishing", scene_id),
+            )  # fmt: skip
+        except SceneGone:  # deleted after the copy began: what it copied goes too
             ts.delete_prefix(f"scenes/{scene_id}/")
-            raise gone(scene_id)
-        ready = record.model_copy(
-            update={"state": SceneState.ready, "files": n, "bytes": size, "summary": summary,
-                    "pending_uploads": [], "updated_at": utcnow()}
-        )  # fmt: skip
-        _save_scene(state, ready)
+            raise gone(scene_id) from None
     ts.delete_prefix(f"scenes/{scene_id}/staging/")
     return ready
 
 
 @router.get("/{scene_id}", response_model=SceneRecord, summary="Get a scene", responses=ERRORS)
 def get_scene(scene_id: str, tenant: Tenant, state: State) -> SceneRecord:
-    return _load_scene(state, tenant, scene_id)
+    return load_scene(state, tenant, scene_id)
 
 
 @router.get("", response_model=SceneList, summary="List scenes, newest first", responses=ERRORS)
@@ -374,17 +353,8 @@ def list_scenes(
     limit: Annotated[int, Query(ge=1, le=500)] = 50,
     cursor: Annotated[str | None, Query(description="next_cursor of the previous page")] = None,
 ) -> SceneList:
-    prefix = "index/scenes/"
-    ids = sorted((k[len(prefix) :] for k in state.tenant(tenant).list(prefix)), reverse=True)
-    ids = [i for i in ids if cursor is None or i < cursor]
-    page = ids[:limit]
-    items = []
-    for scene_id in page:
-        try:
-            items.append(_load_scene(state, tenant, scene_id))
-        except HTTPException:
-            continue
-    return SceneList(items=items, next_cursor=page[-1] if len(ids) > limit else None)
+    items, next_cursor = state.scenes.list(tenant, limit, cursor)
+    return SceneList(items=items, next_cursor=next_cursor)
 
 
 @router.delete(
@@ -395,25 +365,17 @@ def list_scenes(
     responses={**ERRORS, 409: {"model": Problem}},
 )
 def delete_scene(scene_id: str, tenant: Tenant, state: State) -> Response:
-    """Tombstone the scene under its lock (after checking it has no active job), then remove its
-    objects. Once the tombstone is written the scene is gone for every route, and a completion
-    still running cannot publish it again (`scene_lifecycle`); what a failure here leaves behind,
-    the sweeper removes."""
-    record = _load_scene(state, tenant, scene_id)
+    """Mark the scene deleting (one transaction on its row, refused while a job on it is queued
+    or running), then abort its multipart uploads, remove its objects and drop its row. Once the
+    mark is committed the scene is gone for every route, and a completion still running cannot
+    publish it again (`scene_lifecycle`); what a failure here leaves behind, the sweeper removes."""
+    check_id("scene", scene_id, "s_")
+    with scene_refusals():
+        record = state.scenes.mark_deleting(tenant, scene_id)
+    _pause(state, "delete:marked", scene_id)
     ts = state.tenant(tenant)
-    with scene_lock(state.jobs.database, tenant, [scene_id]):
-        if is_deleted(ts, scene_id):
-            raise not_found("scene", scene_id)
-        for job_state in (JobState.queued, JobState.running):
-            active, _ = state.jobs.list(tenant, state=job_state, scene_id=scene_id, limit=1)
-            if active:
-                raise HTTPException(
-                    status.HTTP_409_CONFLICT, f"scene {scene_id!r} has {job_state.value} job {active[0].id}"
-                )
-        mark_deleted(ts, scene_id)
-    _pause(state, "delete:tombstoned", scene_id)
-    ts.delete(f"index/scenes/{scene_id}")
     for up in record.pending_uploads:
         state.store.abort_multipart_upload(ts.prefix + up["key"], up["upload_id"])  # type: ignore[attr-defined]
     ts.delete_prefix(f"scenes/{scene_id}/")
+    state.scenes.purge(tenant, scene_id)
     return Response(status_code=status.HTTP_204_NO_CONTENT)

@@ -15,7 +15,11 @@ rounds it:
 
 Figures are medians over the rounds (status and page: the median of 5 reads per round, then of the
 rounds). `--other-tenant` also measures tenant B's `GET /v1/jobs?limit=20` latency, idle and while
-A submits the largest batch, and prints the p50 / p99 of each.
+A submits the largest batch, and prints the p50 / p99 of each; with `--api-processes 2` tenant B is
+served by a second API process on the same records (two replicas behind a balancer), as a
+deployment that sizes its API for fleet submissions would run it. The control process runs beside
+the API (its dispatcher sends up to the dispatch bound of each tenant's jobs to a queue no worker
+reads; they stay queued and are cancelled with the rest).
 
 The machine's 1-minute load average is printed with each size. Usage (repository root):
 
@@ -44,9 +48,11 @@ PAGE = 100
 
 
 @contextmanager
-def batch_stack(workdir: Path, max_batch: int) -> Iterator[Any]:
-    """Redis + S3 + PostgreSQL database + one API, no workers (jobs only wait)."""
+def batch_stack(workdir: Path, max_batch: int, api_processes: int = 1) -> Iterator[Any]:
+    """Redis + S3 + PostgreSQL database + one API (and its control process), no workers (jobs only
+    wait); with `api_processes` 2, a second API process on the same records (`stack.other_api`)."""
     from tests.integration.fixtures.s3_server import S3Server
+    from tests.integration.fixtures.services import ApiServer
     from tests.service.private_stack import PrivateStack
 
     extra = {
@@ -55,16 +61,24 @@ def batch_stack(workdir: Path, max_batch: int) -> Iterator[Any]:
     }
     s3 = S3Server(workdir / "s3").start()
     stack = PrivateStack(workdir, s3.env(), dict(KEYS), extra)
+    other = None
     try:
         stack.start()
+        stack.other_api = stack.api  # type: ignore[attr-defined]
+        if api_processes > 1:
+            other = ApiServer(env=stack.env, log_dir=workdir / "api2", keys=dict(KEYS), control=False).start()
+            stack.other_api = other  # type: ignore[attr-defined]
         yield stack
     finally:
+        if other is not None:
+            other.stop()
         stack.stop()
         s3.stop()
 
 
-def _client(stack: Any, tenant: str, timeout_s: float) -> httpx.Client:
-    return httpx.Client(base_url=stack.api.base_url, headers=stack.api.headers(tenant), timeout=timeout_s)
+def _client(stack: Any, tenant: str, timeout_s: float, *, other: bool = False) -> httpx.Client:
+    api = stack.other_api if other else stack.api
+    return httpx.Client(base_url=api.base_url, headers=api.headers(tenant), timeout=timeout_s)
 
 
 def _timed(fn: Callable[[], httpx.Response]) -> tuple[float, httpx.Response]:
@@ -137,7 +151,7 @@ def _pct(values: list[float], q: float) -> float:
 def other_tenant(stack: Any, scene_id: str, size: int) -> dict[str, float]:
     """Tenant B's listing latency idle (10 s), then while tenant A submits a batch of `size`."""
     client_a = _client(stack, "tenant-a", 600)
-    client_b = _client(stack, "tenant-b", 60)
+    client_b = _client(stack, "tenant-b", 60, other=True)
     idle: list[float] = []
     stop = threading.Event()
     thread = threading.Thread(target=_latencies, args=(client_b, stop, idle))
@@ -163,16 +177,18 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--json", type=Path, help="write the per-size medians here")
     parser.add_argument("--other-tenant", action="store_true", help="tenant B's latency during A's submit")
+    parser.add_argument("--api-processes", type=int, choices=(1, 2), default=1,
+                        help="2: tenant B is served by a second API process")  # fmt: skip
     args = parser.parse_args()
     sizes = [int(s) for s in args.sizes.split(",")]
 
     from tests.service.private_stack import upload
     from tests.service.scene_factory import make_scene
 
-    out: dict[str, Any] = {"sizes": {}, "repeats": args.repeats}
+    out: dict[str, Any] = {"sizes": {}, "repeats": args.repeats, "api_processes": args.api_processes}
     with (
         tempfile.TemporaryDirectory(prefix="bench-batch-ops-") as tmp,
-        batch_stack(Path(tmp), max(sizes)) as stack,
+        batch_stack(Path(tmp), max(sizes), args.api_processes) as stack,
     ):
         client = _client(stack, "tenant-a", 1200)
         scene_id = upload(_client(stack, "tenant-a", 120), make_scene(Path(tmp) / "scene"))

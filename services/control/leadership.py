@@ -31,13 +31,14 @@ _KEEPALIVES = {"tcp_keepalives_idle": 5, "tcp_keepalives_interval": 2, "tcp_keep
 
 
 class Leadership:
-    """The advisory lock of one deployment (`namespace`: two deployments on one database elect
-    apart), held on a connection of its own (never returned to a pool)."""
+    """The advisory lock of one deployment, held on a connection of its own (never returned to a
+    pool). One per database (advisory locks are the database's): the jobs table is the queue, so
+    a deployment is its database, and two deployments never share one."""
 
-    def __init__(self, database: Engine, namespace: str) -> None:
+    def __init__(self, database: Engine) -> None:
         url = database.url.render_as_string(hide_password=False)
         self._engine = create_engine(url, poolclass=NullPool, connect_args={"connect_timeout": 5})
-        self.key = lock_key("control-leader", namespace)
+        self.key = lock_key("control-leader")
         self._conn: Connection | None = None
         self._held = threading.Event()
 

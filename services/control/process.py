@@ -88,7 +88,7 @@ class ControlProcess:
         self.database = open_records(settings.database_url, migrate_first=settings.migrate_on_start)
         self.jobs = JobStore(self.store, self.redis, self.database)
         self.scenes = SceneStore(self.database)
-        self.leadership = Leadership(self.database, settings.gpu_queue)
+        self.leadership = Leadership(self.database)
         self.stop = threading.Event()
         self.alive_at = time.time()
         self._callbacks: CallbackSender | None = None

@@ -19,6 +19,7 @@ from pathlib import Path
 import httpx
 import pytest
 
+from tests.integration.fixtures.postgres import create_database, drop_database
 from tests.integration.fixtures.services import ApiServer, WorkerPool
 
 from .conftest import SERVICE_ENV, scene_form
@@ -88,12 +89,22 @@ def encoder_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 @pytest.fixture(scope="module")
+def fleet_database() -> Iterator[str]:
+    """A records database of this module's own: its control process (with the callback settings
+    above) leads there, instead of standing by behind the session's, which sends no callbacks."""
+    url = create_database()
+    yield url
+    drop_database(url)
+
+
+@pytest.fixture(scope="module")
 def fleet_api(
-    tmp_path_factory: pytest.TempPathFactory, service_env: dict[str, str], test_api_keys: dict[str, str]
-) -> Iterator[ApiServer]:
+    tmp_path_factory: pytest.TempPathFactory, service_env: dict[str, str], test_api_keys: dict[str, str],
+    fleet_database: str,
+) -> Iterator[ApiServer]:  # fmt: skip
     # tenant-idle runs nothing anywhere in the session: its usage must read 0 whatever ran before
     keys = {**test_api_keys, IDLE_TENANT: "key-idle-" + secrets.token_urlsafe(16)}
-    env = {**service_env, **SERVICE_ENV, **FLEET_ENV,
+    env = {**service_env, **SERVICE_ENV, **FLEET_ENV, "BFIELDS_DATABASE_URL": fleet_database,
            "BFIELDS_API_KEYS": json.dumps({key: tenant for tenant, key in keys.items()})}  # fmt: skip
     server = ApiServer(
         env=env, log_dir=tmp_path_factory.mktemp("fleet-api"), keys=keys,
@@ -107,8 +118,10 @@ def fleet_workers(
     celery_workers: WorkerPool,
     worker_env: dict[str, str],  # noqa: F811 - the fixture imported above
     encoder_log: Path,
+    fleet_database: str,
 ) -> Iterator[WorkerPool]:
-    env = {**SERVICE_ENV, **FLEET_ENV, **worker_env, "BFIELDS_TEST_ENCODER_CALL_LOG": str(encoder_log)}
+    env = {**SERVICE_ENV, **FLEET_ENV, **worker_env, "BFIELDS_TEST_ENCODER_CALL_LOG": str(encoder_log),
+           "BFIELDS_DATABASE_URL": fleet_database}  # fmt: skip
     started = [
         celery_workers.start("gpu", pool="prefork", concurrency=3, extra_env=env),
         celery_workers.start("cpu", pool="prefork", concurrency=2, extra_env=env),

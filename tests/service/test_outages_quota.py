@@ -21,6 +21,7 @@ import redis
 
 from bayesian_fields_service.common.jobs import JobStore
 from bayesian_fields_service.records.database import engine
+from tests.integration.fixtures.postgres import create_database, drop_database
 from tests.integration.fixtures.redis_server import RedisServer
 from tests.integration.fixtures.s3_server import S3Server
 from tests.integration.fixtures.services import ApiServer, build_service_env
@@ -136,7 +137,8 @@ def two_apis(
     tmp_path: Path, svc_env: dict[str, str], stored_scene: dict
 ) -> Iterator[tuple[list[ApiServer], str]]:
     """Two API processes at an admission bound of 16 (15 waiting + 1 dispatched) for a fresh
-    tenant, on queues no worker consumes."""
+    tenant, on queues no worker consumes, with a records database of their own (their control
+    processes lead there: the session's would dispatch to its own queues)."""
     tenant = "tenant-q" + secrets.token_hex(3)
     keys = {tenant: "key-q-" + secrets.token_urlsafe(12)}
     env = {
@@ -146,11 +148,13 @@ def two_apis(
         "BFIELDS_API_KEYS": json.dumps({keys[tenant]: tenant}),
         "BFIELDS_GPU_QUEUE": "quota-test-gpu",
         "BFIELDS_CPU_QUEUE": "quota-test-cpu",
+        "BFIELDS_DATABASE_URL": create_database(),
     }
     apis = [ApiServer(env=env, log_dir=tmp_path / f"api{i}", keys=keys).start() for i in range(2)]
     yield apis, tenant
     for api in apis:
         api.stop()
+    drop_database(env["BFIELDS_DATABASE_URL"])
 
 
 def test_quota_is_exact_under_100_concurrent_submissions(two_apis, scene_dir: Path) -> None:  # noqa: ANN001

@@ -28,6 +28,7 @@ from bayesian_fields_service.common.scenes import (
 )
 from bayesian_fields_service.common.settings import ServiceSettings
 from bayesian_fields_service.common.storage import tenant_store
+from bayesian_fields_service.jobs.service import JobService
 
 _ID = re.compile(r"^[sjb]_[0-9a-f]{22}$")
 
@@ -41,9 +42,11 @@ class AppState:
     key_ring: ApiKeyRing
     metrics_registry: Any = None
     scenes: SceneStore = field(init=False)
+    service: JobService = field(init=False)
 
     def __post_init__(self) -> None:
         self.scenes = SceneStore(self.jobs.database)  # the one records engine of the process
+        self.service = JobService(self.settings, self.jobs, self.scenes, self.redis)
 
     def tenant(self, tenant: str) -> PrefixedStore:
         return tenant_store(self.store, tenant)

@@ -121,10 +121,11 @@ def get_result(job_id: str, tenant: Tenant, state: State) -> JobResult:
     except ArtifactNotFound:
         summary = {}
     artifacts = []
+    transfers = state.transfers(tenant)
     for key in ts.list(prefix):
         rel = key[len(record.job_prefix) :]
-        if state.can_presign():
-            url = state.presigned_get(tenant, key, filename=PurePosixPath(key).name)
+        if transfers is not None:
+            url = transfers.link(key, filename=PurePosixPath(key).name)
         else:
             url = f"/v1/jobs/{job_id}/artifacts/{rel}"
         artifacts.append(Artifact(path=rel, size=ts.size(key), url=url))

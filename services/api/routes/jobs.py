@@ -193,9 +193,11 @@ def submit_batch(
         ),
     ] = None,
 ) -> BatchStatus:
-    shared = {"parameters": body.parameters, "model_profile": body.model_profile, "priority": body.priority}
-    items = [JobAsk(i.scene_id, i.tasks, idempotency_key=i.idempotency_key, **shared) for i in body.items]
-    items += [JobAsk(s, t, **shared) for s in body.scene_ids for t in body.task_lists]
+    def item(scene_id: str, tasks: list[str], key: str | None = None) -> JobAsk:
+        return JobAsk(scene_id, tasks, body.parameters, body.model_profile, body.priority, idempotency_key=key)
+
+    items = [item(i.scene_id, i.tasks, i.idempotency_key) for i in body.items]
+    items += [item(s, t) for s in body.scene_ids for t in body.task_lists]
     ask = BatchAsk(items, body.priority, body.callback_url,
                    body_digest(body.model_dump_json()) if idempotency_key else "")  # fmt: skip
     submitted = state.service.submit_batch(tenant, ask, idempotency_key or None)

@@ -44,12 +44,14 @@ SERVICE_LAYERS: list[set[str]] = [
     {"client", "admin"},
     {"api", "control"},
     {"worker"},
+    {"jobs"},
     {"common"},
     {"records"},
     {"__init__"},
 ]
 """The service's packages, top down: the control process sends stages through the worker's Celery
-app and sits beside the API (neither imports the other); the operator's `admin` commands (which
+app and sits beside the API (neither imports the other); both and the workers call the jobs
+domain (`jobs`), which works over the records (`common`); the operator's `admin` commands (which
 start the control process) sit beside the user's client; the records schema is below everything
 that reads or writes it."""
 

@@ -8,7 +8,8 @@ are not UTF-8) and the headers the API reads, with a 422 naming the field. Multi
 are decoded by `bayesian_fields_service.api.multipart` with replacement, so they never carry surrogates.
 
 The handlers give every 4xx/5xx the `Problem` body: ``detail`` is always a string; request
-validation adds ``errors`` (one entry per field). Backend outages (Redis, the broker, the bucket)
+validation adds ``errors`` (one entry per field). The domain's refusals (`jobs.refusals`, the
+scenes' exceptions) are answered here, so a route only calls the domain and shapes the answer. Backend outages (Redis, the broker, the bucket)
 become 503 with ``Retry-After`` and no internal detail (that goes to the log).
 """
 
@@ -28,6 +29,17 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from bayesian_fields_service.common.sanitize import redact_locations, scrub_text
+from bayesian_fields_service.common.scenes import SceneBusy, SceneGone, SceneNotReady, SceneNotUploading
+from bayesian_fields_service.jobs.refusals import Busy, Conflict, Invalid, Missing, OverQuota, Refused
+
+#: The HTTP status of each kind of the jobs domain's refusals.
+REFUSAL_STATUS: dict[type[Refused], int] = {
+    Invalid: 422,
+    Missing: 404,
+    Conflict: 409,
+    Busy: 409,
+    OverQuota: 429,
+}
 
 log = logging.getLogger(__name__)
 
@@ -206,6 +218,22 @@ def install_handlers(app: FastAPI, retry_after_s: int) -> None:
             redact_locations(str(exc.detail)),
             headers=dict(exc.headers) if exc.headers else None,
         )
+
+    @app.exception_handler(Refused)
+    async def _refused(request: Request, exc: Refused) -> JSONResponse:
+        """The jobs domain's refusals (`jobs.refusals`): each kind its status."""
+        headers = {"Retry-After": str(exc.retry_after_s)} if isinstance(exc, OverQuota) else None
+        return problem(REFUSAL_STATUS[type(exc)], redact_locations(str(exc)), headers=headers)
+
+    @app.exception_handler(SceneGone)
+    async def _scene_gone(request: Request, exc: SceneGone) -> JSONResponse:
+        return problem(404, f"scene {exc.scene_id!r} not found")
+
+    async def _scene_conflict(request: Request, exc: Exception) -> JSONResponse:
+        return problem(409, redact_locations(str(exc)))
+
+    for scene_refusal in (SceneNotReady, SceneNotUploading, SceneBusy):
+        app.add_exception_handler(scene_refusal, _scene_conflict)
 
     async def _outage(request: Request, exc: Exception) -> JSONResponse:
         backend = "object storage" if isinstance(exc, StorageError) else "the queue (Redis)"

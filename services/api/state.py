@@ -27,7 +27,8 @@ from bayesian_fields_service.common.scenes import (
     SceneStore,
 )
 from bayesian_fields_service.common.settings import ServiceSettings
-from bayesian_fields_service.common.storage import tenant_store
+from bayesian_fields_service.common.storage import TenantTransfers, direct_transfers, tenant_store
+from bayesian_fields_service.jobs.service import JobService
 
 _ID = re.compile(r"^[sjb]_[0-9a-f]{22}$")
 
@@ -41,19 +42,22 @@ class AppState:
     key_ring: ApiKeyRing
     metrics_registry: Any = None
     scenes: SceneStore = field(init=False)
+    service: JobService = field(init=False)
 
     def __post_init__(self) -> None:
         self.scenes = SceneStore(self.jobs.database)  # the one records engine of the process
+        self.service = JobService(self.settings, self.jobs, self.scenes, self.redis)
 
     def tenant(self, tenant: str) -> PrefixedStore:
         return tenant_store(self.store, tenant)
 
-    def can_presign(self) -> bool:
-        return hasattr(self.store, "presigned_get")
-
-    def presigned_get(self, tenant: str, key: str, filename: str | None = None) -> str:
-        full = self.tenant(tenant).prefix + key
-        return self.store.presigned_get(full, self.settings.presign_expiry_s, filename=filename)  # type: ignore[attr-defined]
+    def transfers(self, tenant: str) -> TenantTransfers | None:
+        """The tenant's direct transfers (presigned links, multipart uploads), or None where the
+        storage backend has none (a local folder: uploads go through the API, results too)."""
+        bucket = direct_transfers(self.store)
+        if bucket is None:
+            return None
+        return TenantTransfers(bucket, self.tenant(tenant), self.settings.presign_expiry_s)
 
 
 def get_state(request: Request) -> AppState:

@@ -8,9 +8,11 @@ keys with '..' or a leading '/'), not something each endpoint must remember to c
 from __future__ import annotations
 
 import re
+from dataclasses import dataclass
+from typing import Any, Protocol
 
 from bayesian_fields_core.errors import InputError
-from bayesian_fields_core.job.store import LocalStore, PrefixedStore, Store
+from bayesian_fields_core.job.store import LocalStore, PrefixedStore, Store, validate_key
 from bayesian_fields_service.common.settings import TENANT_PATTERN, ServiceSettings
 
 TENANTS_ROOT = "tenants"
@@ -39,3 +41,53 @@ def tenant_store(store: Store, tenant: str) -> PrefixedStore:
     if not re.match(TENANT_PATTERN, tenant):
         raise InputError(f"invalid tenant name {tenant!r}")
     return PrefixedStore(store, f"{TENANTS_ROOT}/{tenant}")
+
+
+class DirectTransfers(Protocol):
+    """What a bucket offers beyond `Store`: links a client uses to move bytes straight to or from
+    it (presigned GETs, multipart uploads with presigned parts). `S3Store` has them; a local
+    folder has none."""
+
+    def presigned_get(self, key: str, expires_s: int = 3600, *, filename: str | None = None) -> str: ...
+    def create_multipart_upload(self, key: str, *, content_type: str | None = None) -> str: ...
+    def presigned_upload_part(self, key: str, upload_id: str, part_number: int, expires_s: int = 3600) -> str: ...
+    def complete_multipart_upload(self, key: str, upload_id: str, parts: list[dict[str, Any]] | None = None) -> None: ...
+    def abort_multipart_upload(self, key: str, upload_id: str) -> None: ...
+
+
+def direct_transfers(store: Store) -> DirectTransfers | None:
+    """The bucket's direct transfers, or None for a backend without them (a local folder)."""
+    try:
+        from bayesian_fields_service.common.s3_store import S3Store
+    except ImportError:  # boto3 is only installed where S3 is used
+        return None
+    return store if isinstance(store, S3Store) else None
+
+
+@dataclass(frozen=True)
+class TenantTransfers:
+    """One tenant's direct transfers: keys relative to its part of the bucket (as `tenant_store`
+    gives them), links valid for `expires_s`. Why a view: every key a tenant's request names goes
+    through the tenant's prefix here too, so a link or an upload can never reach another tenant."""
+
+    bucket: DirectTransfers
+    view: PrefixedStore
+    expires_s: int
+
+    def _full(self, key: str) -> str:
+        return self.view.prefix + validate_key(key)  # refuses '..', a leading '/', and the like
+
+    def link(self, key: str, filename: str | None = None) -> str:
+        return self.bucket.presigned_get(self._full(key), self.expires_s, filename=filename)
+
+    def start(self, key: str) -> str:
+        return self.bucket.create_multipart_upload(self._full(key))
+
+    def part_link(self, key: str, upload_id: str, part_number: int) -> str:
+        return self.bucket.presigned_upload_part(self._full(key), upload_id, part_number, self.expires_s)
+
+    def complete(self, key: str, upload_id: str, parts: list[dict[str, Any]] | None) -> None:
+        self.bucket.complete_multipart_upload(self._full(key), upload_id, parts)
+
+    def abort(self, key: str, upload_id: str) -> None:
+        self.bucket.abort_multipart_upload(self._full(key), upload_id)

@@ -38,7 +38,7 @@ from bayesian_fields_service.common.callbacks import CallbackSender
 from bayesian_fields_service.common.jobs import JobStore
 from bayesian_fields_service.common.scenes import SceneStore
 from bayesian_fields_service.common.settings import ServiceSettings, apply_log_level, get_settings
-from bayesian_fields_service.common.storage import build_store
+from bayesian_fields_service.common.storage import build_store, direct_transfers
 from bayesian_fields_service.control.bucket_sweep import sweep_bucket
 from bayesian_fields_service.control.dispatcher import Dispatcher
 from bayesian_fields_service.control.leadership import Leadership
@@ -102,8 +102,8 @@ class ControlProcess:
         ]
 
     def _sweep(self) -> None:
-        if not hasattr(self.store, "list_multipart_uploads"):
-            return  # a local folder: no multipart uploads, and uploads write the record last
+        if direct_transfers(self.store) is None:
+            return  # a local folder: no multipart uploads, and uploads write the row last
         report = sweep_bucket(self.store, self.scenes, self.settings.orphan_max_age_s)
         if report.aborted_uploads or report.deleted_prefixes:
             log.warning("orphan sweep: aborted %d multipart uploads, deleted %d scene prefixes: %s %s",

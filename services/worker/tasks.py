@@ -39,20 +39,21 @@ from celery.utils.log import get_logger
 from bayesian_fields_core.errors import CancelledError, InputError, ModelError
 from bayesian_fields_core.job.context import JobContext, Models
 from bayesian_fields_core.job.pipeline import discard_result, load_models, run_stage
-from bayesian_fields_core.job.stage_table import STAGE_TABLE, STAGES, StageSpec
+from bayesian_fields_core.job.stage_table import STAGE_TABLE, StageSpec
 from bayesian_fields_core.job.store import Store
 from bayesian_fields_core.params import PipelineParams
 from bayesian_fields_service.common import redis_keys
 from bayesian_fields_service.common.heartbeat_lock import HeartbeatLock
-from bayesian_fields_service.common.jobs import JobRecord, JobState, JobStore, overall_progress, utcnow
+from bayesian_fields_service.common.jobs import JobRecord, JobState, JobStore
+from bayesian_fields_service.common.metrics import observe_stage
 from bayesian_fields_service.common.pause_points import pause
 from bayesian_fields_service.common.redis_text import text
 from bayesian_fields_service.common.settings import ServiceSettings
 from bayesian_fields_service.common.storage import build_store, tenant_store
+from bayesian_fields_service.jobs import lifecycle
 from bayesian_fields_service.records.database import open_records
 from bayesian_fields_service.worker.accounting import StageMeter, account_stage
 from bayesian_fields_service.worker.celery_app import app
-from bayesian_fields_service.worker.metrics import observe_job, observe_stage
 from bayesian_fields_service.worker.scene_cache import SceneCache
 from bayesian_fields_service.worker.single_flight import RedisFlight
 
@@ -244,16 +245,7 @@ def stage_lock_key(tenant: str, job_id: str, stage: str) -> str:
 
 
 def _finish(rt: _Runtime, record: JobRecord, state: JobState, error: str | None = None) -> JobRecord:
-    now = utcnow()
-    update: dict[str, Any] = {"state": state, "error": error, "finished_at": now}
-    if state == JobState.succeeded:
-        update["progress"] = 100.0
-    before = rt.jobs.load(record.tenant, record.id)
-    saved = rt.jobs.save(record.model_copy(update=update))
-    if saved.state == state and (before is None or not before.state.terminal):  # this call ended it
-        start = saved.started_at or saved.created_at
-        observe_job(rt.redis, state.value, (now - start).total_seconds())
-    return saved
+    return lifecycle.finish(rt.jobs, record, state, error)
 
 
 def execute_stage(task: Task, stage: str, tenant: str, job_id: str, lock_waits: int = 0) -> str:
@@ -266,7 +258,7 @@ def execute_stage(task: Task, stage: str, tenant: str, job_id: str, lock_waits: 
         return "missing"
     if record.state.terminal:
         return f"already {record.state.value}"
-    if record.cancel_requested or rt.jobs.is_cancel_requested(tenant, job_id):
+    if lifecycle.should_stop(rt.jobs, record):
         _finish(rt, record, JobState.cancelled, "cancelled by request")
         return "cancelled"
     if stage in record.stages_done:
@@ -308,20 +300,9 @@ class SharedSceneCopy:
 
 def _run_locked(rt: _Runtime, record: JobRecord, stage: str) -> str:
     tenant, job_id = record.tenant, record.id
-    record = rt.jobs.save(
-        record.model_copy(
-            update={
-                "state": JobState.running,
-                "stage": stage,
-                "started_at": record.started_at or utcnow(),
-                "stage_runs": record.stage_runs + 1,
-                "progress": overall_progress(record.stages_done, stage, 0.0),
-            }
-        )
-    )
+    record = lifecycle.start_stage(rt.jobs, record, stage)
     if record.state.terminal:
         return f"already {record.state.value}"
-    rt.jobs.set_progress(record, stage, 0.0)  # phase 'active': this worker holds the stage lock
     last = [0.0]
 
     def progress(name: str, fraction: float) -> None:
@@ -394,18 +375,10 @@ def _run_locked(rt: _Runtime, record: JobRecord, stage: str) -> str:
         _finish(rt, record, JobState.failed, f"{stage}: internal error: {type(exc).__name__}: {exc}")
         return "failed"
     observe_stage(rt.redis, stage, seconds)
-    done = [s for s in STAGES if s in {*record.stages_done, stage}]
-    record = rt.jobs.save(
-        account_stage(rt.store, rt.jobs.database, record, stage, meter).model_copy(
-            update={
-                "stages_done": done,
-                "timings": {**record.timings, stage: round(report.get("seconds", seconds), 3)},
-                "stage_reports": {**record.stage_reports, stage: report},
-                "progress": overall_progress(done, None, 0.0),
-            }
-        )
+    record = lifecycle.stage_done(
+        rt.jobs, account_stage(rt.store, rt.jobs.database, record, stage, meter), stage, report, seconds
     )
-    if set(done) == set(STAGES):
+    if lifecycle.all_stages_done(record):
         final = _finish(rt, record, JobState.succeeded)
         if final.state == JobState.cancelled:  # a cancel accepted before the success was stored
             discard_result(tenant_store(rt.store, tenant), record.job_prefix)

@@ -182,7 +182,8 @@ def start_upload(body: UploadRequest, tenant: Tenant, state: State) -> UploadPla
     """Returns presigned multipart PUT URLs per file; then call POST /v1/scenes/{id}/complete."""
     from bayesian_fields_service.common.s3_store import plan_parts
 
-    if not state.can_presign():
+    transfers = state.transfers(tenant)
+    if transfers is None:
         raise HTTPException(status.HTTP_501_NOT_IMPLEMENTED, "the storage backend cannot presign URLs")
     total = sum(f.size for f in body.files)
     if total > state.settings.max_upload_bytes:
@@ -191,7 +192,6 @@ def start_upload(body: UploadRequest, tenant: Tenant, state: State) -> UploadPla
             f"upload of {total} bytes exceeds the limit of {state.settings.max_upload_bytes} bytes",
         )
     scene_id = new_id("s_")
-    ts = state.tenant(tenant)
     part_size = state.settings.s3_multipart_chunk_bytes
     uploads, pending = [], []
     try:
@@ -199,13 +199,8 @@ def start_upload(body: UploadRequest, tenant: Tenant, state: State) -> UploadPla
             name = clean_filename(spec.name, field_name=spec.field)
             key = f"scenes/{scene_id}/staging/{spec.field}/{name}"
             parts = plan_parts(spec.size, part_size)
-            upload_id = state.store.create_multipart_upload(ts.prefix + key)  # type: ignore[attr-defined]
-            urls = [
-                state.store.presigned_upload_part(  # type: ignore[attr-defined]
-                    ts.prefix + key, upload_id, p.part_number, state.settings.presign_expiry_s
-                )
-                for p in parts
-            ]
+            upload_id = transfers.start(key)
+            urls = [transfers.part_link(key, upload_id, p.part_number) for p in parts]
             uploads.append(
                 PresignedUpload(
                     field=spec.field, name=name, upload_id=upload_id, part_size=part_size, part_urls=urls
@@ -263,6 +258,9 @@ def _complete_files(
     """Finish the multipart uploads, fetch, validate and copy the scene into ``input/``."""
     scene_id = record.id
     ts = state.tenant(tenant)
+    transfers = state.transfers(tenant)
+    if transfers is None:  # no multipart upload can have been started on this backend
+        raise HTTPException(status.HTTP_501_NOT_IMPLEMENTED, "the storage backend cannot presign URLs")
     work = upload_workdir("complete")
     try:
         _pause(state, "complete:claimed", scene_id)
@@ -272,7 +270,7 @@ def _complete_files(
             if body is not None and body.parts is not None and up["name"] in body.parts:
                 parts = [p.model_dump() for p in body.parts[up["name"]]]
             try:
-                state.store.complete_multipart_upload(ts.prefix + up["key"], up["upload_id"], parts)  # type: ignore[attr-defined]
+                transfers.complete(up["key"], up["upload_id"], parts)
             except (InputError, ArtifactNotFound) as exc:
                 if _deleted(state, tenant, scene_id):
                     raise gone(scene_id) from None
@@ -374,8 +372,10 @@ def delete_scene(scene_id: str, tenant: Tenant, state: State) -> Response:
         record = state.scenes.mark_deleting(tenant, scene_id)
     _pause(state, "delete:marked", scene_id)
     ts = state.tenant(tenant)
-    for up in record.pending_uploads:
-        state.store.abort_multipart_upload(ts.prefix + up["key"], up["upload_id"])  # type: ignore[attr-defined]
+    transfers = state.transfers(tenant)
+    if transfers is not None:  # a backend without them has no multipart upload to abort
+        for up in record.pending_uploads:
+            transfers.abort(up["key"], up["upload_id"])
     ts.delete_prefix(f"scenes/{scene_id}/")
     state.scenes.purge(tenant, scene_id)
     return Response(status_code=status.HTTP_204_NO_CONTENT)

@@ -48,6 +48,9 @@ from bayesian_fields_service.worker.celery_app import make_celery
 
 log = logging.getLogger(__name__)
 
+#: How often a loop of a replica that does not lead looks whether it leads now.
+STANDBY_POLL_S = 0.5
+
 
 @dataclass
 class Loop:
@@ -63,14 +66,16 @@ class Loop:
 
     def run(self) -> None:
         while not self.stop.is_set():
-            if self.leads():
-                try:
-                    self.work()
-                    self.last_ok = time.time()
-                except redis.RedisError as exc:  # an outage, not a bug: one line per round
-                    log.warning("control loop %s: Redis unavailable (%s)", self.name, exc)
-                except Exception:  # keep going whatever one round hit (the bucket, the database)
-                    log.exception("control loop %s failed", self.name)
+            if not self.leads():  # a standby: look again soon, so a new leader starts at once
+                self.stop.wait(STANDBY_POLL_S)
+                continue
+            try:
+                self.work()
+                self.last_ok = time.time()
+            except redis.RedisError as exc:  # an outage, not a bug: one line per round
+                log.warning("control loop %s: Redis unavailable (%s)", self.name, exc)
+            except Exception:  # keep going whatever one round hit (the bucket, the database)
+                log.exception("control loop %s failed", self.name)
             self.stop.wait(self.interval_s)
 
     def start(self) -> None:

@@ -3,7 +3,8 @@
 What a killed API leaves: its upload temp folder (the request was streaming), multipart uploads
 whose scene row was never inserted, and scene files copied before the row was (both made
 here with the very S3 calls the upload routes make, as a kill between them leaves them). The
-restarted API's start-up sweep removes those older than BFIELDS_ORPHAN_MAX_AGE_S, and leaves
+restarted API's start-up sweep (its temp folders) and the restarted control process's (the
+bucket) remove those older than BFIELDS_ORPHAN_MAX_AGE_S, and leave
 alone: a ready scene, a presigned upload in progress (its record lists the multipart upload),
 orphans younger than the age, and a temp folder whose owner process is alive.
 
@@ -124,6 +125,11 @@ def test_sweep_after_api_sigkill_mid_upload(
         time.sleep(0.05)
     api.process.kill()
     release.set()
+
+    def control_log() -> str:
+        assert api.controller is not None and api.controller.process is not None
+        return api.controller.process.log_text()
+
     sender.join(30)
     killed = list(stack.temp_dir.glob(f"bfields-upload-{api_pid}-*"))
     assert len(killed) == 1  # what the kill left: nothing else would ever delete it
@@ -136,7 +142,11 @@ def test_sweep_after_api_sigkill_mid_upload(
     (live_tmp / "parts" / "part-00000").write_bytes(b"x")
     os.utime(live_tmp / "parts" / "part-00000", (time.time() - 10 * MAX_AGE_S,) * 2)
 
-    api.start()  # the restarted API sweeps at start
+    # the restarted API sweeps its temp folder at start; the bucket is the control process's to
+    # sweep (one per deployment), which its leader does at start too
+    assert api.controller is not None
+    api.controller.stop()
+    api.start()
     deadline = time.monotonic() + 60
     while (
         old_upload + "staging/images/images.zip" in _uploads(store)
@@ -145,7 +155,7 @@ def test_sweep_after_api_sigkill_mid_upload(
     ):
         assert time.monotonic() < deadline, (
             f"not swept: uploads {_uploads(store)}, files {store.list(old_files)}, "
-            f"temp {killed[0].exists()}\n{api.process.log_tail()}"
+            f"temp {killed[0].exists()}\n{api.process.log_tail()}\n{control_log()}"
         )
         time.sleep(0.2)
 
@@ -159,5 +169,5 @@ def test_sweep_after_api_sigkill_mid_upload(
         assert client.get(f"/v1/scenes/{ready_id}").json()["state"] == "ready"
         assert client.get(f"/v1/scenes/{uploading_id}").json()["state"] == "uploading"
     assert store.list(f"tenants/tenant-a/scenes/{ready_id}/input/")
-    log = api.process.log_text()
-    assert "orphan sweep: aborted" in log and "orphan sweep failed" not in log
+    log = control_log()
+    assert "orphan sweep: aborted" in log and "control loop sweep failed" not in log, log

@@ -395,11 +395,11 @@ class JobStore:
     def _queue_callbacks(conn: Connection, ended: builtins.list[JobRecord]) -> None:
         """In the transaction that ended `ended`: their callback events and those of the batches
         that finished with them (`batch_records.finished_batches`), rows of the outbox
-        (`callbacks`), and their usage ledger rows (`usage.record_job_end`), committed with the
+        (`callbacks`), and their usage ledger rows (`usage.record_job_ends`), committed with the
         change or not at all: every end counts once, a job cancelled while waiting included."""
         for record in ended:
             on_job_terminal(conn, record)
-            usage.record_job_end(conn, record)
+        usage.record_job_ends(conn, ended)
         for batch in batch_records.finished_batches(conn, [r.id for r in ended]):
             on_batch_finished(conn, batch)
 

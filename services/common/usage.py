@@ -12,7 +12,7 @@ and crashed runs that reached the end of their stage included: they used the mac
 
 Per tenant and day (UTC): the ``usage_ledger`` table of the records database. Every stage
 execution is one row written by the worker that ran it (`record_stage`); every job end is one row
-written in the same transaction as the job's terminal state (`record_job_end`, called by the jobs
+written in the same transaction as the job's terminal state (`record_job_ends`, called by the jobs
 domain whoever ends the job: a worker, a cancel of a waiting job, a batch cancel, recovery), so a
 job cancelled before any worker saw it is counted like any other. Each row has a unique
 ``entry_id``, so a retried write never counts twice; the totals are one aggregate query over the
@@ -21,6 +21,7 @@ job cancelled before any worker saw it is counted like any other. Each row has a
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from datetime import UTC, date, datetime, time, timedelta
 from typing import Any, Protocol
 
@@ -71,7 +72,7 @@ class JobUsage(BaseModel):
 
 
 class EndedJob(Protocol):
-    """What `record_job_end` reads of a job record."""
+    """What `record_job_ends` reads of a job record."""
 
     id: str
     tenant: str
@@ -82,9 +83,13 @@ class EndedJob(Protocol):
     def state(self) -> Any: ...
 
 
-def _insert(conn: Connection, row: dict[str, Any]) -> None:
+def _insert(conn: Connection, rows: dict[str, Any] | list[dict[str, Any]]) -> None:
+    """One INSERT of one row or many (a batch's cancel ends thousands of jobs in one transaction:
+    one statement, not one round trip per job); an entry already there is left as it is."""
+    if not rows:
+        return
     conn.execute(
-        pg_insert(usage_ledger).values(**row).on_conflict_do_nothing(index_elements=[usage_ledger.c.entry_id])
+        pg_insert(usage_ledger).values(rows).on_conflict_do_nothing(index_elements=[usage_ledger.c.entry_id])
     )
 
 
@@ -96,14 +101,15 @@ def record_stage(database: Engine, tenant: str, job_id: str, stage: str, run: in
                        "stage": stage, "cpu_s": cpu_s, "gpu_s": gpu_s, "recorded_at": when})  # fmt: skip
 
 
-def record_job_end(conn: Connection, job: EndedJob) -> None:
-    """The job's end (its outcome and the bytes it leaves stored), in `conn`'s transaction: the one
-    that made the job terminal (entry ``<job>.end``: once per job)."""
-    _insert(conn, {
-        "entry_id": f"{job.id}.end", "tenant": job.tenant, "job_id": job.id, "kind": "end",
-        "state": str(getattr(job.state, "value", job.state)), "bytes_stored": job.usage.bytes_stored,
-        "recorded_at": job.finished_at or datetime.now(UTC),
-    })  # fmt: skip
+def record_job_ends(conn: Connection, ended: Sequence[EndedJob]) -> None:
+    """The jobs' ends (outcome, the bytes each leaves stored), in `conn`'s transaction: the one
+    that made them terminal (entry ``<job>.end``: once per job)."""
+    _insert(conn, [
+        {"entry_id": f"{job.id}.end", "tenant": job.tenant, "job_id": job.id, "kind": "end",
+         "state": str(getattr(job.state, "value", job.state)), "bytes_stored": job.usage.bytes_stored,
+         "recorded_at": job.finished_at or datetime.now(UTC)}
+        for job in ended
+    ])  # fmt: skip
 
 
 def _empty() -> dict[str, Any]:

@@ -161,7 +161,8 @@ def finished_batches(conn: Connection, job_ids: Sequence[str]) -> list[BatchReco
     one's mark."""
     if not job_ids:
         return []
-    holding = select(batch_jobs.c.batch_id).where(batch_jobs.c.job_id.in_(list(job_ids)))
+    # one array parameter, not one bound value per job (a 50,000-job cancel ends them all here)
+    holding = select(batch_jobs.c.batch_id).where(batch_jobs.c.job_id == func.any(cast(list(job_ids), ARRAY(ID))))
     rows = conn.execute(
         update(batches)
         .where(

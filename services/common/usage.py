@@ -83,14 +83,20 @@ class EndedJob(Protocol):
     def state(self) -> Any: ...
 
 
+#: Rows per INSERT: PostgreSQL takes at most 65,535 bound values per statement (8 columns a row).
+ROWS_PER_INSERT = 4000
+
+
 def _insert(conn: Connection, rows: dict[str, Any] | list[dict[str, Any]]) -> None:
-    """One INSERT of one row or many (a batch's cancel ends thousands of jobs in one transaction:
-    one statement, not one round trip per job); an entry already there is left as it is."""
-    if not rows:
-        return
-    conn.execute(
-        pg_insert(usage_ledger).values(rows).on_conflict_do_nothing(index_elements=[usage_ledger.c.entry_id])
-    )
+    """INSERT one row or many, a few thousand per statement (a batch's cancel ends up to 50,000
+    jobs in one transaction: a dozen statements, not a round trip per job); an entry already
+    there is left as it is."""
+    many = [rows] if isinstance(rows, dict) else rows
+    for start in range(0, len(many), ROWS_PER_INSERT):
+        chunk = many[start : start + ROWS_PER_INSERT]
+        conn.execute(
+            pg_insert(usage_ledger).values(chunk).on_conflict_do_nothing(index_elements=[usage_ledger.c.entry_id])
+        )
 
 
 def record_stage(database: Engine, tenant: str, job_id: str, stage: str, run: int, cpu_s: float, gpu_s: float,

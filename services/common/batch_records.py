@@ -107,7 +107,7 @@ def batch_job_rows(
     return [(r["position"], r) for r in conn.execute(query).mappings()]
 
 
-def cancel_jobs(conn: Connection, tenant: str, batch_id: str) -> list[Any]:
+def cancel_jobs(conn: Connection, tenant: str, batch_id: str, columns: Sequence[Any] | None = None) -> list[Any]:
     """Accept a cancel for every active job of the batch, in `conn`'s transaction: a waiting
     (queued) job is cancelled at once, a running one flagged (its worker stops at the next frame
     or stage and stores *cancelled*). Terminal jobs are untouched. Returns the changed rows.
@@ -115,7 +115,8 @@ def cancel_jobs(conn: Connection, tenant: str, batch_id: str) -> list[Any]:
     Two statements: the batch's job ids (its index range), then one UPDATE by primary key. The
     single-statement form (IN (subquery) or UPDATE ... FROM batch_jobs) is planned from
     statistics that, right after a batch went in, say "one row": it became a nested loop over the
-    whole batch for each job (1.7 s for 5,000)."""
+    whole batch for each job (1.7 s for 5,000). `columns` (default: all) are what comes back of
+    each changed row: decoding every JSON column of 5,000 rows took a third of a cancel."""
     ids = list(conn.execute(select(batch_jobs.c.job_id).where(batch_jobs.c.batch_id == batch_id)).scalars())
     if not ids:
         return []
@@ -134,7 +135,7 @@ def cancel_jobs(conn: Connection, tenant: str, batch_id: str) -> list[Any]:
             error=case((queued, "cancelled by request"), else_=jobs.c.error),
             updated_at=func.now(),
         )
-        .returning(*jobs.c)
+        .returning(*(columns if columns is not None else jobs.c))
     )
     return list(conn.execute(statement).mappings())
 

@@ -31,6 +31,7 @@ import re
 import secrets
 import time
 from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
 from datetime import UTC, datetime
 from enum import StrEnum
 from typing import Any
@@ -248,6 +249,33 @@ def _record_of(row: Any) -> JobRecord:
     return _redacted(JobRecord.model_validate(scrub(data)))
 
 
+#: What a batch's cancel reads back of each job it changed.
+_CANCELLED_COLUMNS = (jobs.c.id, jobs.c.tenant, jobs.c.scene_id, jobs.c.batch_id, jobs.c.state, jobs.c.error,
+                      jobs.c.callback_url, jobs.c.finished_at, jobs.c.usage)  # fmt: skip
+
+
+@dataclass
+class CancelledJob:
+    """A job a batch's cancel changed: what its callback event and usage row read
+    (`callbacks.TerminalJob`, `usage.EndedJob`), without the whole record."""
+
+    id: str
+    tenant: str
+    scene_id: str
+    batch_id: str | None
+    state: JobState
+    error: str | None
+    callback_url: str | None
+    finished_at: datetime | None
+    usage: JobUsage
+
+    @classmethod
+    def of(cls, row: Any) -> CancelledJob:
+        return cls(row["id"], row["tenant"], row["scene_id"], row["batch_id"], JobState(row["state"]),
+                   row["error"], row["callback_url"], row["finished_at"],
+                   JobUsage(bytes_stored=int((row["usage"] or {}).get("bytes_stored", 0))))  # fmt: skip
+
+
 class JobStore:
     """Reads and writes job records (`jobs` rows + Redis live state + cancel flags).
 
@@ -319,8 +347,9 @@ class JobStore:
         tenant's unfinished jobs are counted next under its admission lock (`job_queue.admit`:
         `AdmissionRefused`).
 
-        Committed, the jobs wait in their tenant's queue; the live hashes written afterwards are
-        only progress display, so a Redis failure there is logged, not raised (the jobs exist)."""
+        Committed, the jobs wait in their tenant's queue. Nothing goes to Redis: a job gets its
+        live hash when the dispatcher sends it (`touch_live`), so a submission needs no Redis at
+        all and a cancel of waiting jobs has no hash to update."""
         digests = digests or {}
         with self.database.begin() as conn:
             if records and scene_ids:
@@ -344,13 +373,6 @@ class JobStore:
                                                batch_digest, batch.id)  # fmt: skip
             if retry_in is not None:
                 batch_records.replace_jobs(conn, retry_in, {r.retry_of: r.id for r in records if r.retry_of})
-        try:
-            pipe = self.redis.pipeline(transaction=False)
-            for record in records:
-                self._queue_live(pipe, record)
-            pipe.execute()
-        except redis.RedisError as exc:
-            log.warning("stored %d jobs; their live progress starts later (Redis: %s)", len(records), exc)
 
     def save(self, record: JobRecord) -> JobRecord:
         """Write `record`, merged with the stored row (see `_merge`) under the row's lock so the
@@ -392,7 +414,7 @@ class JobStore:
         return merged
 
     @staticmethod
-    def _queue_callbacks(conn: Connection, ended: builtins.list[JobRecord]) -> None:
+    def _queue_callbacks(conn: Connection, ended: Sequence[JobRecord | CancelledJob]) -> None:
         """In the transaction that ended `ended`: their callback events and those of the batches
         that finished with them (`batch_records.finished_batches`), rows of the outbox
         (`callbacks`), and their usage ledger rows (`usage.record_job_ends`), committed with the
@@ -524,23 +546,27 @@ class JobStore:
         except redis.RedisError as exc:
             log.warning("cancel flags of %d jobs not set (Redis: %s); their rows say so", len(records), exc)
 
-    def cancel_batch(self, tenant: str, batch_id: str) -> builtins.list[JobRecord]:
+    def cancel_batch(self, tenant: str, batch_id: str) -> builtins.list[CancelledJob]:
         """`request_cancel` for every active job of a batch: one UPDATE (`batch_records.
-        cancel_jobs`), then the Redis side in one pipeline (cancel flags for the workers, live
-        hashes). Returns the changed records."""
+        cancel_jobs`) returning only what the callbacks and the usage ledger read, then the Redis
+        side: a cancel flag for each job a worker runs (a few: the tenant's dispatch bound), and
+        the live hashes of the jobs cancelled at once removed in one command (only dispatched jobs
+        have one). Returns what changed."""
         with self.database.begin() as conn:
-            rows = batch_records.cancel_jobs(conn, tenant, batch_id)
-            changed = [_record_of(r) for r in rows]
-            ended = [r for r in changed if r.state.terminal]
+            rows = batch_records.cancel_jobs(conn, tenant, batch_id, columns=_CANCELLED_COLUMNS)
+            changed = [CancelledJob.of(r) for r in rows]
+            ended = [c for c in changed if c.state.terminal]
             self._queue_callbacks(conn, ended)
-        self._flag_cancelled(changed)
         try:
+            running = [c for c in changed if not c.state.terminal]
             pipe = self.redis.pipeline(transaction=False)
-            for record in changed:
-                self._queue_live(pipe, record)
+            for job in running:
+                pipe.set(self.cancel_key(job.tenant, job.id), b"1", ex=FINISHED_HASH_TTL_S * 7)
+            if ended:
+                pipe.delete(*[self.live_key(job.tenant, job.id) for job in ended])
             pipe.execute()
-        except redis.RedisError as exc:  # display only: the rows are written
-            log.warning("live state of %d cancelled jobs not updated (Redis: %s)", len(changed), exc)
+        except redis.RedisError as exc:  # the rows are the truth: running jobs end at their next save
+            log.warning("cancel flags / live state of %d jobs not updated (Redis: %s)", len(changed), exc)
         return changed
 
     def is_cancel_requested(self, tenant: str, job_id: str) -> bool:

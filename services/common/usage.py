@@ -26,7 +26,7 @@ from datetime import UTC, date, datetime, time, timedelta
 from typing import Any, Protocol
 
 from pydantic import BaseModel, Field, computed_field
-from sqlalchemy import Connection, Engine, Integer, cast, func, select
+from sqlalchemy import Connection, Engine, Integer, cast, func, select, text
 from sqlalchemy.dialects.postgresql import insert as pg_insert
 
 from bayesian_fields_service.records.tables import usage_ledger
@@ -83,20 +83,21 @@ class EndedJob(Protocol):
     def state(self) -> Any: ...
 
 
-#: Rows per INSERT: PostgreSQL takes at most 65,535 bound values per statement (8 columns a row).
-ROWS_PER_INSERT = 4000
+def _insert(conn: Connection, row: dict[str, Any]) -> None:
+    conn.execute(
+        pg_insert(usage_ledger).values(**row).on_conflict_do_nothing(index_elements=[usage_ledger.c.entry_id])
+    )
 
 
-def _insert(conn: Connection, rows: dict[str, Any] | list[dict[str, Any]]) -> None:
-    """INSERT one row or many, a few thousand per statement (a batch's cancel ends up to 50,000
-    jobs in one transaction: a dozen statements, not a round trip per job); an entry already
-    there is left as it is."""
-    many = [rows] if isinstance(rows, dict) else rows
-    for start in range(0, len(many), ROWS_PER_INSERT):
-        chunk = many[start : start + ROWS_PER_INSERT]
-        conn.execute(
-            pg_insert(usage_ledger).values(chunk).on_conflict_do_nothing(index_elements=[usage_ledger.c.entry_id])
-        )
+#: The end rows of many jobs in one statement: arrays unnested (a multi-row VALUES of thousands of
+#: rows spends longer compiling than PostgreSQL spends inserting, and PostgreSQL binds at most
+#: 65,535 values a statement: a 50,000-job cancel ends them all in one transaction).
+_INSERT_ENDS = text(
+    "INSERT INTO usage_ledger (entry_id, tenant, job_id, kind, state, bytes_stored, recorded_at) "
+    "SELECT e, t, j, 'end', s, b, r FROM unnest(CAST(:e AS varchar[]), CAST(:t AS varchar[]), "
+    "CAST(:j AS varchar[]), CAST(:s AS varchar[]), CAST(:b AS bigint[]), CAST(:r AS timestamptz[])) "
+    "AS ends(e, t, j, s, b, r) ON CONFLICT (entry_id) DO NOTHING"
+)
 
 
 def record_stage(database: Engine, tenant: str, job_id: str, stage: str, run: int, cpu_s: float, gpu_s: float,
@@ -109,13 +110,15 @@ def record_stage(database: Engine, tenant: str, job_id: str, stage: str, run: in
 
 def record_job_ends(conn: Connection, ended: Sequence[EndedJob]) -> None:
     """The jobs' ends (outcome, the bytes each leaves stored), in `conn`'s transaction: the one
-    that made them terminal (entry ``<job>.end``: once per job)."""
-    _insert(conn, [
-        {"entry_id": f"{job.id}.end", "tenant": job.tenant, "job_id": job.id, "kind": "end",
-         "state": str(getattr(job.state, "value", job.state)), "bytes_stored": job.usage.bytes_stored,
-         "recorded_at": job.finished_at or datetime.now(UTC)}
-        for job in ended
-    ])  # fmt: skip
+    that made them terminal (entry ``<job>.end``: once per job). One statement however many."""
+    if not ended:
+        return
+    now = datetime.now(UTC)
+    conn.execute(_INSERT_ENDS, {
+        "e": [f"{job.id}.end" for job in ended], "t": [job.tenant for job in ended],
+        "j": [job.id for job in ended], "s": [str(getattr(job.state, "value", job.state)) for job in ended],
+        "b": [job.usage.bytes_stored for job in ended], "r": [job.finished_at or now for job in ended],
+    })  # fmt: skip
 
 
 def _empty() -> dict[str, Any]:

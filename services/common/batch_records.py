@@ -107,7 +107,9 @@ def batch_job_rows(
     return [(r["position"], r) for r in conn.execute(query).mappings()]
 
 
-def cancel_jobs(conn: Connection, tenant: str, batch_id: str, columns: Sequence[Any] | None = None) -> list[Any]:
+def cancel_jobs(
+    conn: Connection, tenant: str, batch_id: str, columns: Sequence[Any] | None = None
+) -> list[Any]:
     """Accept a cancel for every active job of the batch, in `conn`'s transaction: a waiting
     (queued) job is cancelled at once, a running one flagged (its worker stops at the next frame
     or stage and stores *cancelled*). Terminal jobs are untouched. Returns the changed rows.
@@ -163,7 +165,9 @@ def finished_batches(conn: Connection, job_ids: Sequence[str]) -> list[BatchReco
     if not job_ids:
         return []
     # one array parameter, not one bound value per job (a 50,000-job cancel ends them all here)
-    holding = select(batch_jobs.c.batch_id).where(batch_jobs.c.job_id == func.any(cast(list(job_ids), ARRAY(ID))))
+    holding = select(batch_jobs.c.batch_id).where(
+        batch_jobs.c.job_id == func.any(cast(list(job_ids), ARRAY(ID)))
+    )
     rows = conn.execute(
         update(batches)
         .where(

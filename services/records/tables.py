@@ -155,7 +155,12 @@ jobs = Table(
         "id",
         postgresql_where=text("dispatched_at IS NOT NULL AND state IN ('queued', 'running')"),
     ),
-    Index("ix_jobs_dispatch_times", "tenant", "dispatched_at", postgresql_where=text("dispatched_at IS NOT NULL")),
+    Index(
+        "ix_jobs_dispatch_times",
+        "tenant",
+        "dispatched_at",
+        postgresql_where=text("dispatched_at IS NOT NULL"),
+    ),
 )
 
 batch_jobs = Table(

@@ -80,7 +80,8 @@ def private_stack(
 
 
 def test_a_redis_outage_costs_progress_only_and_a_bucket_outage_refuses_uploads_quickly(
-    private_stack, scene_dir: Path  # noqa: ANN001
+    private_stack,
+    scene_dir: Path,  # noqa: ANN001
 ) -> None:
     api, redis_server, s3 = private_stack
     times: list[float] = []
@@ -106,7 +107,9 @@ def test_a_redis_outage_costs_progress_only_and_a_bucket_outage_refuses_uploads_
         # a scene's record, a job's record and the listing are the records database's, so they
         # answer through a bucket outage, and so does a submission (its workers wait for the
         # bucket as for any stage); these two are then cancelled
-        during_s3 = [client.request(method, path, **kw) for method, path, kw in _requests(scene_id, job_id)[:2]]
+        during_s3 = [
+            client.request(method, path, **kw) for method, path, kw in _requests(scene_id, job_id)[:2]
+        ]
         assert [r.status_code for r in during_s3] == [202, 202], [r.text for r in during_s3]
         assert client.get(f"/v1/scenes/{scene_id}").json()["state"] == "ready"
         assert client.get(f"/v1/jobs/{job_id}").json()["state"] == "queued"

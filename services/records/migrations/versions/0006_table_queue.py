@@ -41,7 +41,13 @@ def upgrade() -> None:
 def downgrade() -> None:
     op.drop_index("ix_jobs_dispatch_times", table_name="jobs", postgresql_where=_STAMPED)
     op.drop_index("ix_jobs_dispatched", table_name="jobs", postgresql_where=_DISPATCHED)
-    op.add_column("jobs", sa.Column("submitted", sa.Boolean(), server_default=sa.text("true"), nullable=False))
+    op.add_column(
+        "jobs", sa.Column("submitted", sa.Boolean(), server_default=sa.text("true"), nullable=False)
+    )
     op.create_index(
-        "ix_jobs_unsubmitted", "jobs", ["tenant", "id"], unique=False, postgresql_where=sa.text("NOT submitted")
+        "ix_jobs_unsubmitted",
+        "jobs",
+        ["tenant", "id"],
+        unique=False,
+        postgresql_where=sa.text("NOT submitted"),
     )

@@ -24,11 +24,16 @@ def database() -> Iterator[Engine]:
 
 
 def _kill_sessions_holding(db: Engine, key: int) -> int:
-    """Terminate the session holding advisory lock `key` (what the server does to a dead client)."""
+    """Terminate the session holding advisory lock `key` in this database (what the server does to
+    a dead client); advisory locks are per database, and other tests' leaders hold the same key in
+    theirs."""
     high, low = (key >> 32) & 0xFFFFFFFF, key & 0xFFFFFFFF
     with db.connect() as conn:
         pids = conn.execute(
-            text("SELECT pid FROM pg_locks WHERE locktype = 'advisory' AND granted AND classid = :h AND objid = :l"),
+            text(
+                "SELECT pid FROM pg_locks WHERE locktype = 'advisory' AND granted AND classid = :h AND objid = :l "
+                "AND database = (SELECT oid FROM pg_database WHERE datname = current_database())"
+            ),
             {"h": high, "l": low},
         ).scalars().all()  # fmt: skip
         for pid in pids:

@@ -57,8 +57,7 @@ def compose_copy(tmp_path: Path) -> Path:
     """docker-compose.yml in a scratch folder (no .env there), next to the Dockerfiles it names."""
     shutil.copy(REPO / "docker-compose.yml", tmp_path / "docker-compose.yml")
     for dockerfile in (
-        "services/api/Dockerfile",
-        "services/worker/Dockerfile",
+        "services/Dockerfile",
         "services/worker/Dockerfile.gpu",
     ):
         (tmp_path / dockerfile).parent.mkdir(parents=True, exist_ok=True)

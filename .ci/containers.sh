@@ -42,7 +42,8 @@ cleanup() {
     fi
     compose down -v >/dev/null 2>&1 || true
   fi
-  [ -n "${WROTE_ENV:-}" ] && rm -f .env
+  [ -z "${WROTE_ENV:-}" ] || rm -f .env
+  [ -z "${MADE_MODELS_DIR:-}" ] || rmdir models 2>/dev/null || true
   rm -rf "$WORK"
   [ "$rc" -eq 0 ] || log "containers stage FAILED (exit $rc) in step '${CURRENT_STEP:-?}' after $((SECONDS - STAGE_START))s"
 }
@@ -139,6 +140,8 @@ env_file() {
   [ ! -e .env ] || { log ".env exists in the checkout: this stage writes its own; move yours aside"; return 1; }
   cat .env.example .ci/containers/ci.env >.env
   WROTE_ENV=1
+  # podman-compose (like Docker) makes the models folder the compose file mounts when it is absent
+  [ -e models ] || MADE_MODELS_DIR=1
   API_URL="http://127.0.0.1:$(sed -n 's/^BFIELDS_API_PORT=//p' .env | tail -1)"
 }
 

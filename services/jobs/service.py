@@ -31,21 +31,13 @@ from bayesian_fields_service.common.metrics import JOB_KEY, read_histogram
 from bayesian_fields_service.common.scenes import SceneStore
 from bayesian_fields_service.common.settings import ServiceSettings
 from bayesian_fields_service.jobs.refusals import Busy, Invalid, Missing, OverQuota
-from bayesian_fields_service.jobs.validation import JobAsk, Validation, checked_callback
+from bayesian_fields_service.jobs.validation import JobAsk, Validation, check_id, checked_callback
 from bayesian_fields_service.records.locks import LockBusy, session_lock
 
 #: How long a request waits for another request holding the same Idempotency-Key or batch retry.
 KEY_LOCK_WAIT_S = 60.0
 JOB_ID = "j_"
 BATCH_ID = "b_"
-
-
-def _check_id(kind: str, ident: str, prefix: str) -> None:
-    """Ids are the service's own: anything else cannot exist (`Missing`, never a lookup)."""
-    if not (
-        ident.startswith(prefix) and len(ident) == 24 and all(c in "0123456789abcdef" for c in ident[2:])
-    ):
-        raise Missing(f"{kind} {ident!r} not found")
 
 
 def _key_reused(key: str, what: str) -> Invalid:
@@ -85,14 +77,14 @@ class JobService:
 
     # ---- reading -------------------------------------------------------------------------------
     def job(self, tenant: str, job_id: str) -> JobRecord:
-        _check_id("job", job_id, JOB_ID)
+        check_id("job", job_id, JOB_ID)
         record = self.jobs.get(tenant, job_id)
         if record is None:
             raise Missing(f"job {job_id!r} not found")
         return record
 
     def batch(self, tenant: str, batch_id: str) -> BatchRecord:
-        _check_id("batch", batch_id, BATCH_ID)
+        check_id("batch", batch_id, BATCH_ID)
         batch = self.jobs.load_batch(tenant, batch_id)
         if batch is None:
             raise Missing(f"batch {batch_id!r} not found")
@@ -154,7 +146,7 @@ class JobService:
             raise Invalid("items: an idempotency_key appears twice in the batch")
         checked_callback(self.settings, ask.callback_url)  # a refused URL before any work
         for item in ask.items:  # before any lock: an id that cannot exist is a plain `Missing`
-            _check_id("scene", item.scene_id, "s_")
+            check_id("scene", item.scene_id, "s_")
         if not idempotency_key:
             return self._new_batch(tenant, ask, None)
         with self._key_lock(tenant, "batches", idempotency_key):

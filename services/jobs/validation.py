@@ -40,6 +40,13 @@ class JobAsk:
     idempotency_key: str | None = None
 
 
+def check_id(kind: str, ident: str, prefix: str) -> None:
+    """Ids are the service's own (`prefix` + 22 hex digits): anything else cannot exist, so it is
+    `Missing` before any lookup (a NUL or a stray byte never reaches the database)."""
+    if not (ident.startswith(prefix) and len(ident) == 24 and all(c in "0123456789abcdef" for c in ident[2:])):
+        raise Missing(f"{kind} {ident!r} not found")
+
+
 def checked_callback(settings: ServiceSettings, url: str | None) -> str | None:
     """`url` when a callback may go there (None stays None); `Invalid` naming the rule."""
     if url is None:
@@ -85,6 +92,7 @@ class Validation:
 
     def scene(self, scene_id: str) -> SceneRecord:
         if scene_id not in self._scenes:
+            check_id("scene", scene_id, "s_")
             record = self.scenes.get(self.tenant, scene_id)
             if record is None:
                 raise Missing(f"scene {scene_id!r} not found")

@@ -192,3 +192,18 @@ def test_validation_errors_are_problems_and_documented(
         if path.startswith("/v1/"):
             for op in methods.values():
                 assert "503" in op["responses"], path
+
+
+def test_ids_and_cursors_with_a_nul_or_stray_characters_are_refused_not_looked_up(
+    client_a: httpx.Client, stored_scene: dict
+) -> None:
+    """Ids and cursors are the service's own: a NUL (which PostgreSQL refuses in text: it was a
+    500) or any other character outside an id is a 404 / 422 before any lookup (schemathesis)."""
+    for scene_id in ("s_\u0000" + "0" * 21, "*\u00c9\u001f+,\u00f0c\u0000", stored_scene["id"] + "\u0000"):
+        resp = client_a.post("/v1/jobs", json={"scene_id": scene_id, "tasks": ["a"]})
+        assert resp.status_code == 404 and "not found" in resp.json()["detail"], resp.text
+        batch = client_a.post("/v1/batches", json={"scene_ids": [scene_id], "task_lists": [["a"]]})
+        assert batch.status_code == 404, batch.text
+    listed = client_a.get("/v1/scenes", params={"cursor": "\u0000"})
+    assert listed.status_code == 422 and "cursor" in listed.text, listed.text
+    assert client_a.get("/v1/scenes", params={"cursor": stored_scene["id"]}).status_code == 200

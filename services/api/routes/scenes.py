@@ -349,7 +349,10 @@ def list_scenes(
     tenant: Tenant,
     state: State,
     limit: Annotated[int, Query(ge=1, le=500)] = 50,
-    cursor: Annotated[str | None, Query(description="next_cursor of the previous page")] = None,
+    cursor: Annotated[
+        str | None,
+        Query(pattern=r"^s_[0-9a-f]{22}$", description="next_cursor of the previous page (a scene id)"),
+    ] = None,
 ) -> SceneList:
     items, next_cursor = state.scenes.list(tenant, limit, cursor)
     return SceneList(items=items, next_cursor=next_cursor)

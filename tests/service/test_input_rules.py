@@ -207,3 +207,10 @@ def test_ids_and_cursors_with_a_nul_or_stray_characters_are_refused_not_looked_u
     listed = client_a.get("/v1/scenes", params={"cursor": "\u0000"})
     assert listed.status_code == 422 and "cursor" in listed.text, listed.text
     assert client_a.get("/v1/scenes", params={"cursor": stored_scene["id"]}).status_code == 200
+
+
+def test_a_scene_name_with_control_characters_is_refused(client_a: httpx.Client) -> None:
+    """A NUL in a scene's name reached PostgreSQL's text column (500): refused with 422 first."""
+    spec = {"name": "kitchen\u0000", "files": [{"field": "images", "name": "images.zip", "size": 10}]}
+    resp = client_a.post("/v1/scenes/uploads", json=spec)
+    assert resp.status_code == 422 and "name" in resp.json()["detail"], resp.text

@@ -131,6 +131,16 @@ def _ingest(
     return n, size, summary
 
 
+def _checked_name(name: str | None) -> str | None:
+    """A scene's optional name as stored: at most 200 characters, no control characters (a NUL is
+    refused by PostgreSQL's text, and none belongs in a name); 422 naming the field otherwise."""
+    if not name:
+        return None
+    if len(name) > 200 or any(ord(c) < 0x20 or ord(c) == 0x7F for c in name):
+        raise HTTPException(422, "name: at most 200 characters, and no control characters")
+    return name
+
+
 def _unprocessable(exc: InputError) -> HTTPException:
     return HTTPException(422, str(exc))
 
@@ -160,7 +170,7 @@ async def upload_scene(request: Request, tenant: Tenant, state: State) -> SceneR
             raise _unprocessable(exc) from None
         now = utcnow()
         record = SceneRecord(
-            id=scene_id, tenant=tenant, name=form.fields.get("name") or None, files=n, bytes=size,
+            id=scene_id, tenant=tenant, name=_checked_name(form.fields.get("name")), files=n, bytes=size,
             summary=summary, created_at=now, updated_at=now,
         )  # fmt: skip
         # the row last, once every file is in the bucket: a process killed while copying leaves
@@ -182,6 +192,7 @@ def start_upload(body: UploadRequest, tenant: Tenant, state: State) -> UploadPla
     """Returns presigned multipart PUT URLs per file; then call POST /v1/scenes/{id}/complete."""
     from bayesian_fields_service.common.s3_store import plan_parts
 
+    name = _checked_name(body.name)  # before anything is started in the bucket
     transfers = state.transfers(tenant)
     if transfers is None:
         raise HTTPException(status.HTTP_501_NOT_IMPLEMENTED, "the storage backend cannot presign URLs")
@@ -213,7 +224,7 @@ def start_upload(body: UploadRequest, tenant: Tenant, state: State) -> UploadPla
         raise _unprocessable(exc) from None
     now = utcnow()
     record = SceneRecord(
-        id=scene_id, tenant=tenant, name=body.name, state=SceneState.uploading,
+        id=scene_id, tenant=tenant, name=name, state=SceneState.uploading,
         pending_uploads=pending, created_at=now, updated_at=now,
     )  # fmt: skip
     state.scenes.create(record)  # after the uploads exist: the sweeper aborts those no row lists

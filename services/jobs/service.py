@@ -20,7 +20,7 @@ from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
-from typing import Any
+from typing import Any, TypeVar
 
 import redis
 
@@ -34,10 +34,19 @@ from bayesian_fields_service.jobs.refusals import Busy, Invalid, Missing, OverQu
 from bayesian_fields_service.jobs.validation import JobAsk, Validation, check_id, checked_callback
 from bayesian_fields_service.records.locks import LockBusy, session_lock
 
+T = TypeVar("T")
+
 #: How long a request waits for another request holding the same Idempotency-Key or batch retry.
 KEY_LOCK_WAIT_S = 60.0
 JOB_ID = "j_"
 BATCH_ID = "b_"
+
+
+def _found(kind: str, ident: str, value: T | None) -> T:
+    """`value`, or `Missing` naming what was asked for."""
+    if value is None:
+        raise Missing(f"{kind} {ident!r} not found")
+    return value
 
 
 def _key_reused(key: str, what: str) -> Invalid:
@@ -78,17 +87,11 @@ class JobService:
     # ---- reading -------------------------------------------------------------------------------
     def job(self, tenant: str, job_id: str) -> JobRecord:
         check_id("job", job_id, JOB_ID)
-        record = self.jobs.get(tenant, job_id)
-        if record is None:
-            raise Missing(f"job {job_id!r} not found")
-        return record
+        return _found("job", job_id, self.jobs.get(tenant, job_id))
 
     def batch(self, tenant: str, batch_id: str) -> BatchRecord:
         check_id("batch", batch_id, BATCH_ID)
-        batch = self.jobs.load_batch(tenant, batch_id)
-        if batch is None:
-            raise Missing(f"batch {batch_id!r} not found")
-        return batch
+        return _found("batch", batch_id, self.jobs.load_batch(tenant, batch_id))
 
     def with_queue_position(self, record: JobRecord) -> JobRecord:
         """The record with its place in the tenant's queue and an estimated start while it waits:

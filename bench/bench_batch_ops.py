@@ -15,11 +15,13 @@ rounds it:
 
 Figures are medians over the rounds (status and page: the median of 5 reads per round, then of the
 rounds). `--other-tenant` also measures tenant B's `GET /v1/jobs?limit=20` latency, idle and while
-A submits a batch of up to 5,000 (five times, for enough samples), and prints the p50 / p99 of each; with `--api-processes 2` tenant B is
+A submits a batch of up to 5,000 (five times, for enough samples), from a probe process of its
+own (bench/latency_probe.py), and prints the p50 / p99 of each; with `--api-processes 2` tenant B is
 served by a second API process on the same records (two replicas behind a balancer), as a
 deployment that sizes its API for fleet submissions would run it. The control process runs beside
 the API (its dispatcher sends up to the dispatch bound of each tenant's jobs to a queue no worker
-reads; they stay queued and are cancelled with the rest).
+reads; they stay queued and are cancelled with the rest). Batches are served by each API process's
+bulk lane (docs/service/records.md), or inside the API process with `--no-bulk-lane`.
 
 The machine's 1-minute load average is printed with each size. Usage (repository root):
 
@@ -33,8 +35,9 @@ import argparse
 import json
 import os
 import statistics
+import subprocess
+import sys
 import tempfile
-import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -48,7 +51,9 @@ PAGE = 100
 
 
 @contextmanager
-def batch_stack(workdir: Path, max_batch: int, api_processes: int = 1) -> Iterator[Any]:
+def batch_stack(
+    workdir: Path, max_batch: int, api_processes: int = 1, bulk_lane: bool = True
+) -> Iterator[Any]:
     """Redis + S3 + PostgreSQL database + one API (and its control process), no workers (jobs only
     wait); with `api_processes` 2, a second API process on the same records (`stack.other_api`)."""
     from tests.integration.fixtures.s3_server import S3Server
@@ -58,6 +63,7 @@ def batch_stack(workdir: Path, max_batch: int, api_processes: int = 1) -> Iterat
     extra = {
         "BFIELDS_MAX_BATCH_JOBS": str(max_batch),
         "BFIELDS_MAX_WAITING_JOBS_PER_TENANT": str(4 * max_batch),
+        "BFIELDS_API_BULK_LANE": "true" if bulk_lane else "false",
     }
     s3 = S3Server(workdir / "s3").start()
     stack = PrivateStack(workdir, s3.env(), dict(KEYS), extra)
@@ -135,42 +141,51 @@ def one_round(client: httpx.Client, scene_id: str, size: int, tag: str) -> dict[
             "page_s": statistics.median(pages), "cancel_s": cancel_s}  # fmt: skip
 
 
-def _latencies(client: httpx.Client, stop: threading.Event, out: list[float]) -> None:
-    while not stop.is_set():
-        dt, resp = _timed(lambda: client.get("/v1/jobs", params={"limit": 20}))
-        _ok(resp)
-        out.append(dt)
-        time.sleep(0.05)
-
-
 def _pct(values: list[float], q: float) -> float:
     ordered = sorted(values)
     return ordered[min(len(ordered) - 1, int(q * len(ordered)))]
 
 
+def _start_probe(stack: Any) -> subprocess.Popen[str]:
+    """Tenant B's probe (bench/latency_probe.py), a process of its own, on B's API process."""
+    api = stack.other_api
+    return subprocess.Popen(
+        [sys.executable, "-m", "bench.latency_probe", api.base_url, KEYS["tenant-b"]],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, cwd=Path(__file__).resolve().parent.parent,
+    )  # fmt: skip
+
+
+def _overlaps(start: float, took: float, windows: list[tuple[float, float]]) -> bool:
+    return any(start < w_end and start + took > w_start for w_start, w_end in windows)
+
+
 def other_tenant(stack: Any, scene_id: str, size: int, rounds: int = 5) -> dict[str, float]:
-    """Tenant B's listing latency idle (10 s), then while tenant A submits a batch of `size`,
-    `rounds` times (each batch cancelled after): one submit lasts about a second, so one round
-    gives only a dozen samples and its p99 is its maximum."""
+    """Tenant B's listing latency idle (the first 10 s), then while tenant A submits a batch of
+    `size`, `rounds` times (each batch cancelled after, with a pause). B's requests come from a
+    probe process (bench/latency_probe.py says why); a request is "busy" when it overlaps one of
+    A's submits (from A's send to A's decoded answer), and requests that overlap a cancel or a
+    pause are not counted. One submit lasts about a second, so a round gives a dozen samples."""
     client_a = _client(stack, "tenant-a", 600)
-    client_b = _client(stack, "tenant-b", 60, other=True)
-    idle: list[float] = []
-    stop = threading.Event()
-    thread = threading.Thread(target=_latencies, args=(client_b, stop, idle))
-    thread.start()
-    time.sleep(10)
-    stop.set()
-    thread.join()
-    busy: list[float] = []
-    for n in range(rounds):
-        stop = threading.Event()
-        thread = threading.Thread(target=_latencies, args=(client_b, stop, busy))
-        thread.start()
-        items = [{"scene_id": scene_id, "tasks": [f"other {n} {i}"]} for i in range(size)]
-        batch = _ok(client_a.post("/v1/batches", json={"items": items})).json()
-        stop.set()
-        thread.join()
-        _ok(client_a.post(f"/v1/batches/{batch['id']}/cancel"))
+    probe = _start_probe(stack)
+    try:
+        started = time.monotonic()
+        time.sleep(10)
+        idle_until = time.monotonic()
+        windows: list[tuple[float, float]] = []
+        for n in range(rounds):
+            items = [{"scene_id": scene_id, "tasks": [f"other {n} {i}"]} for i in range(size)]
+            w_start = time.monotonic()
+            batch = _ok(client_a.post("/v1/batches", json={"items": items})).json()
+            windows.append((w_start, time.monotonic()))
+            _ok(client_a.post(f"/v1/batches/{batch['id']}/cancel"))
+            time.sleep(1)
+    finally:
+        out, _ = probe.communicate("", timeout=120)
+    if probe.returncode:
+        raise RuntimeError(f"the latency probe failed (exit {probe.returncode})")
+    samples = [(float(a), float(b)) for a, b in (line.split() for line in out.splitlines())]
+    idle = [t for s, t in samples if started <= s and s + t <= idle_until]
+    busy = [t for s, t in samples if _overlaps(s, t, windows)]
     return {"idle_p50_s": _pct(idle, 0.5), "idle_p99_s": _pct(idle, 0.99), "idle_n": len(idle),
             "busy_p50_s": _pct(busy, 0.5), "busy_p99_s": _pct(busy, 0.99), "busy_n": len(busy)}  # fmt: skip
 
@@ -181,6 +196,8 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--json", type=Path, help="write the per-size medians here")
     parser.add_argument("--other-tenant", action="store_true", help="tenant B's latency during A's submit")
+    parser.add_argument("--no-bulk-lane", action="store_true",
+                        help="batches served inside the API process (BFIELDS_API_BULK_LANE=false), as before the lane")  # fmt: skip
     parser.add_argument("--api-processes", type=int, choices=(1, 2), default=1,
                         help="2: tenant B is served by a second API process")  # fmt: skip
     args = parser.parse_args()
@@ -189,10 +206,11 @@ def main() -> None:
     from tests.service.private_stack import upload
     from tests.service.scene_factory import make_scene
 
-    out: dict[str, Any] = {"sizes": {}, "repeats": args.repeats, "api_processes": args.api_processes}
+    out: dict[str, Any] = {"sizes": {}, "repeats": args.repeats, "api_processes": args.api_processes,
+                           "bulk_lane": not args.no_bulk_lane}  # fmt: skip
     with (
         tempfile.TemporaryDirectory(prefix="bench-batch-ops-") as tmp,
-        batch_stack(Path(tmp), max(sizes), args.api_processes) as stack,
+        batch_stack(Path(tmp), max(sizes), args.api_processes, not args.no_bulk_lane) as stack,
     ):
         client = _client(stack, "tenant-a", 1200)
         scene_id = upload(_client(stack, "tenant-a", 120), make_scene(Path(tmp) / "scene"))

@@ -11,16 +11,22 @@ about a second (`bayesian_fields_service.api.edge`), while the workers keep thei
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import AsyncIterator, Callable
+
 import redis
 from fastapi import FastAPI
 from redis.backoff import ConstantBackoff
 from redis.retry import Retry
 
+from bayesian_fields_service.api.bulk_lane import BulkLane, settle_child
 from bayesian_fields_service.api.edge import Utf8Guard, install_handlers
+from bayesian_fields_service.api.json_body import add_body_schemas
 from bayesian_fields_service.api.routes import events, health, jobs, scenes, ui, usage
 from bayesian_fields_service.api.routes.health import metrics_registry
+from bayesian_fields_service.api.schemas import BatchRequest
 from bayesian_fields_service.api.state import AppState
-from bayesian_fields_service.api.sweeper import Sweeper, lifespan
+from bayesian_fields_service.api.sweeper import Sweeper
 from bayesian_fields_service.common.api_keys import ApiKeyRing
 from bayesian_fields_service.common.jobs import JobStore
 from bayesian_fields_service.common.settings import ServiceSettings, apply_log_level, get_settings
@@ -56,6 +62,39 @@ def _redis_client(settings: ServiceSettings) -> redis.Redis:
     )
 
 
+def _lifespan(state: AppState) -> Callable[[FastAPI], contextlib.AbstractAsyncContextManager[None]]:
+    """What runs beside the app while it serves: the sweeper of what a killed request of this
+    process left in its temp folder (sweeper.py), and the bulk lane (bulk_lane.py). The dispatcher
+    and every other background loop run in the control process."""
+    settings = state.settings
+
+    @contextlib.asynccontextmanager
+    async def run(_: FastAPI) -> AsyncIterator[None]:
+        sweeper = Sweeper(settings.orphan_max_age_s, settings.orphan_sweep_interval_s)
+        sweeper.start()
+        lane = BulkLane() if settings.api_bulk_lane else None
+        if lane is not None:
+            lane.start()
+        state.bulk_lane = lane
+        try:
+            yield
+        finally:
+            state.bulk_lane = None
+            if lane is not None:
+                await lane.aclose()
+                lane.stop()
+            sweeper.stop()
+
+    return run
+
+
+def create_lane_app() -> FastAPI:
+    """The app of an API process's bulk lane child (bulk_lane.py): the same app with the lane off,
+    at a lower CPU priority, and stopping with the API process."""
+    settle_child()
+    return create_app(get_settings().model_copy(update={"api_bulk_lane": False}))
+
+
 def create_app(settings: ServiceSettings | None = None) -> FastAPI:
     settings = settings or get_settings()
     apply_log_level(settings)
@@ -71,14 +110,14 @@ def create_app(settings: ServiceSettings | None = None) -> FastAPI:
         key_ring=ApiKeyRing.from_settings(settings),
     )
     state.metrics_registry = metrics_registry(state)
-    # what a killed request of this process left in its temp folder (see sweeper.py); the
-    # dispatcher and every other background loop run in the control process
-    sweeper = lifespan(lambda: Sweeper(settings.orphan_max_age_s, settings.orphan_sweep_interval_s))
-    app = FastAPI(title="Bayesian Fields API", version="1.0.0", description=DESCRIPTION, lifespan=sweeper)
+    app = FastAPI(
+        title="Bayesian Fields API", version="1.0.0", description=DESCRIPTION, lifespan=_lifespan(state)
+    )
     app.state.bf = state
     app.state.key_ring = state.key_ring
     for module in (scenes, jobs, health, ui, events, usage):
         app.include_router(module.router)
+    add_body_schemas(app, [BatchRequest])  # the bodies routes parse themselves (json_body.py)
     install_handlers(app, settings.retry_after_s)
     app.add_middleware(Utf8Guard)
     return app

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import logging
+import re
 from typing import Any
 from urllib.parse import unquote_to_bytes
 
@@ -28,6 +29,7 @@ from kombu.exceptions import OperationalError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from bayesian_fields_service.api.bulk_lane import LaneUnavailable
 from bayesian_fields_service.common.sanitize import redact_locations, scrub_text
 from bayesian_fields_service.common.scenes import SceneBusy, SceneGone, SceneNotReady, SceneNotUploading
 from bayesian_fields_service.jobs.refusals import Busy, Conflict, Invalid, Missing, OverQuota, Refused
@@ -51,6 +53,10 @@ CHECKED_HEADERS = {
 }
 #: JSON bodies larger than this are left to FastAPI unparsed here (the routes' bodies are small).
 MAX_CHECKED_BODY = 16 * 1024 * 1024
+
+_SURROGATE_ESCAPE = re.compile(r"\\u[dD][89a-fA-F]")
+"""The only way a body that decodes as UTF-8 can carry a lone surrogate: a JSON escape of one. A
+body without any is not parsed a second time (a fleet-sized batch's parse held the event loop)."""
 
 
 def problem(status: int, detail: str, errors: list[dict[str, Any]] | None = None,
@@ -159,6 +165,8 @@ class Utf8Guard:
             text = body.decode("utf-8")
         except UnicodeDecodeError as exc:
             return _not_utf8(["body"], f"byte {exc.start} is not UTF-8")
+        if _SURROGATE_ESCAPE.search(text) is None:
+            return None  # valid UTF-8 text holds no surrogate but through a \\uD800-\\uDFFF escape
         try:
             data = json.loads(text)
         except (json.JSONDecodeError, RecursionError):
@@ -244,6 +252,11 @@ def install_handlers(app: FastAPI, retry_after_s: int) -> None:
             f"{backend} is unavailable; the request was not carried out, retry in {retry_after_s} s",
             headers={"Retry-After": str(retry_after_s)},
         )
+
+    @app.exception_handler(LaneUnavailable)
+    async def _lane(request: Request, exc: LaneUnavailable) -> JSONResponse:
+        log.warning("%s %s: %s", request.method, request.url.path, exc)
+        return problem(503, str(exc), headers={"Retry-After": str(retry_after_s)})
 
     for kind in (redis.ConnectionError, redis.TimeoutError, OperationalError, StorageError):
         app.add_exception_handler(kind, _outage)

@@ -14,6 +14,7 @@ import redis
 from fastapi import Depends, HTTPException, Request, status
 
 from bayesian_fields_core.job.store import PrefixedStore, Store
+from bayesian_fields_service.api.bulk_lane import BulkLane
 from bayesian_fields_service.api.schemas import Problem
 from bayesian_fields_service.common.api_keys import ApiKeyRing
 from bayesian_fields_service.common.auth import require_tenant
@@ -41,6 +42,7 @@ class AppState:
     jobs: JobStore
     key_ring: ApiKeyRing
     metrics_registry: Any = None
+    bulk_lane: BulkLane | None = None  # set while the app serves, where the lane is on
     scenes: SceneStore = field(init=False)
     service: JobService = field(init=False)
 

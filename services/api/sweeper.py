@@ -17,9 +17,7 @@ import shutil
 import tempfile
 import threading
 import time
-from collections.abc import AsyncIterator, Callable
 from pathlib import Path
-from typing import Any
 
 log = logging.getLogger(__name__)
 
@@ -112,18 +110,3 @@ class Sweeper:
 
     def stop(self) -> None:
         self._stop.set()
-
-
-def lifespan(make: Callable[[], Sweeper]) -> Callable[[Any], contextlib.AbstractAsyncContextManager[None]]:
-    """A FastAPI lifespan that runs the temp sweeper while the app serves."""
-
-    @contextlib.asynccontextmanager
-    async def run(_: Any) -> AsyncIterator[None]:
-        sweeper = make()
-        sweeper.start()
-        try:
-            yield
-        finally:
-            sweeper.stop()
-
-    return run

@@ -663,7 +663,9 @@ class JobStore:
             return {}
         with self.database.connect() as conn:
             rows = conn.execute(
-                select(idempotency_keys.c.key, idempotency_keys.c.target_id, idempotency_keys.c.body_sha256).where(
+                select(
+                    idempotency_keys.c.key, idempotency_keys.c.target_id, idempotency_keys.c.body_sha256
+                ).where(
                     idempotency_keys.c.tenant == tenant,
                     idempotency_keys.c.endpoint == JOBS_ENDPOINT,
                     idempotency_keys.c.key.in_(keys),
@@ -713,7 +715,12 @@ class JobStore:
         return batch.model_copy(update={"counts": counts, "active_progress": progress})
 
     def batch_jobs(
-        self, batch: BatchRecord, *, start: int = 0, limit: int | None = None, states: Sequence[str] | None = None
+        self,
+        batch: BatchRecord,
+        *,
+        start: int = 0,
+        limit: int | None = None,
+        states: Sequence[str] | None = None,
     ) -> builtins.list[tuple[int, JobRecord]]:
         """(position, record) of the batch's jobs in submission order, live overlay included."""
         with self.database.connect() as conn:

@@ -131,6 +131,12 @@ class ServiceSettings(BaseSettings):
     max_batch_jobs: int = Field(
         50_000, gt=0, description="Most jobs in one batch submission (accepted whole, or refused whole)."
     )
+    api_bulk_lane: bool = Field(
+        True,
+        description="Each API process serves POST /v1/batches through a child process of its own "
+        "(api/bulk_lane.py), so parsing and storing a fleet-sized batch never holds the interpreter "
+        "that answers other tenants' requests; false handles batches in the API process itself.",
+    )
 
     # ---- jobs ------------------------------------------------------------------------------------
     model_profile: Path | None = Field(

@@ -12,11 +12,13 @@ from datetime import UTC, datetime
 from pathlib import PurePosixPath
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Header, HTTPException, Query, Response, status
+from fastapi import APIRouter, Header, HTTPException, Query, Request, Response, status
+from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import FileResponse
 
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.job.store import ArtifactNotFound, LocalStore, get_json, validate_key
+from bayesian_fields_service.api.json_body import openapi_body, parse_body
 from bayesian_fields_service.api.schemas import (
     Artifact,
     BatchJob,
@@ -179,12 +181,12 @@ _BATCH_ERRORS: dict[int | str, dict[str, Any]] = {
     summary="Submit many jobs at once (items, or scenes x task lists)",
     tags=["batches"],
     responses=_BATCH_ERRORS,
+    openapi_extra=openapi_body(BatchRequest),
 )
-def submit_batch(
-    body: BatchRequest,
+async def submit_batch(
+    request: Request,
     tenant: Tenant,
     state: State,
-    response: Response,
     idempotency_key: Annotated[
         str | None,
         Header(
@@ -192,9 +194,23 @@ def submit_batch(
             description="Retries with the same key return the first batch instead of a new one.",
         ),
     ] = None,
-) -> BatchStatus:
+) -> Response:
+    """The body is read here; the bulk lane's child process serves the rest (bulk_lane.py), or,
+    with the lane off (and in the child), a worker thread: a fleet-sized batch must not hold the
+    event loop (json_body.py says why)."""
+    raw = await request.body()
+    if state.bulk_lane is not None:  # served by this process's child (bulk_lane.py says why)
+        return await state.bulk_lane.forward(request, raw)
+    return await run_in_threadpool(_submit_batch, state, tenant, raw, idempotency_key)
+
+
+def _submit_batch(state: AppState, tenant: str, raw: bytes, idempotency_key: str | None) -> Response:
+    body = parse_body(BatchRequest, raw)
+
     def item(scene_id: str, tasks: list[str], key: str | None = None) -> JobAsk:
-        return JobAsk(scene_id, tasks, body.parameters, body.model_profile, body.priority, idempotency_key=key)
+        return JobAsk(
+            scene_id, tasks, body.parameters, body.model_profile, body.priority, idempotency_key=key
+        )
 
     items = [item(i.scene_id, i.tasks, i.idempotency_key) for i in body.items]
     items += [item(s, t) for s in body.scene_ids for t in body.task_lists]
@@ -202,9 +218,11 @@ def submit_batch(
                    body_digest(body.model_dump_json()) if idempotency_key else "")  # fmt: skip
     submitted = state.service.submit_batch(tenant, ask, idempotency_key or None)
     if not submitted.jobs:  # the earlier batch of this Idempotency-Key
-        response.status_code = status.HTTP_200_OK
-        return _batch_status(state, submitted.batch, created=0)
-    return _status_of(submitted.batch, submitted.jobs, created=submitted.created)
+        answer, code = _batch_status(state, submitted.batch, created=0), status.HTTP_200_OK
+    else:
+        answer = _status_of(submitted.batch, submitted.jobs, created=submitted.created)
+        code = status.HTTP_202_ACCEPTED
+    return Response(answer.model_dump_json(), status_code=code, media_type="application/json")
 
 
 def _status_of(batch: BatchRecord, jobs: Sequence[JobRecord | None], *, created: int = 0,

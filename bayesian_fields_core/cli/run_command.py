@@ -179,9 +179,10 @@ def run(args: argparse.Namespace) -> int:
     from bayesian_fields_core.cli.run_config import RunConfig, read_run_config
 
     base = read_run_config(Path(args.config)) if args.config else None
-    if args.scene is None and base is None:
+    scene = args.scene if args.scene is not None else (str(base.scene) if base else None)
+    if scene is None:
         raise InputError("give a scene folder (or --config FILE of an earlier run)", source="bfields run")
-    scene_dir = _scene_folder(args.scene if args.scene is not None else str(base.scene))  # type: ignore[union-attr]
+    scene_dir = _scene_folder(scene)
     tasks = resolve_tasks(args.task, args.tasks, scene_dir, fallback=base.tasks if base else None)
     raw = {**(base.parameters if base else {}), **parameter_overrides(args.params, args.param)}
     params = validate_parameters(raw)

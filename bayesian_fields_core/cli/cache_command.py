@@ -12,10 +12,12 @@ import os
 import re
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from bayesian_fields_core.errors import InputError
-from bayesian_fields_core.job.cache_index import data_keys, list_entries, prune
-from bayesian_fields_core.job.store import LocalStore
+
+if TYPE_CHECKING:
+    from bayesian_fields_core.job.store import LocalStore
 
 DEFAULT_CACHE_DIR = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "bfields"
 """Where `bfields run`, `bfields cache` and `bfields view --job` keep what they cache."""
@@ -40,6 +42,36 @@ def parse_size(text: str) -> int:
     return int(float(m.group(1)) * _SIZE_UNITS[m.group(2)])
 
 
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add `cache ls | prune` to the `bfields` parser."""
+    cache = sub.add_parser("cache", help="list or prune the local perception/visibility cache")
+    cache_sub = cache.add_subparsers(dest="cache_command", required=True)
+    ls = cache_sub.add_parser("ls", help="entries (scene + profile) with size and last use")
+    ls.add_argument("--json", action="store_true", help="print the entries as JSON")
+    prune_parser = cache_sub.add_parser("prune", help="drop entries least recently used first")
+    prune_parser.add_argument(
+        "--older-than", type=parse_duration, metavar="DUR", help="drop entries unused for DUR (30m, 12h, 7d)"
+    )
+    prune_parser.add_argument(
+        "--max-size", type=parse_size, metavar="SIZE", help="then keep at most SIZE (500M, 2G), LRU first"
+    )
+    for p in (ls, prune_parser):
+        p.add_argument("--cache-dir", help=f"the cache folder (default {DEFAULT_CACHE_DIR})")
+    cache.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """List or prune the cache in --cache-dir (default `DEFAULT_CACHE_DIR`)."""
+    cache_dir = Path(args.cache_dir) if args.cache_dir else DEFAULT_CACHE_DIR
+    if args.cache_command == "ls":
+        print(cache_ls(cache_dir, json_output=args.json))
+    else:
+        if args.older_than is None and args.max_size is None:
+            raise InputError("give --older-than DUR and/or --max-size SIZE", source="cache prune")
+        print(cache_prune(cache_dir, older_than_s=args.older_than, max_size=args.max_size))
+    return 0
+
+
 def human_size(n: int) -> str:
     for unit in ("B", "KiB", "MiB", "GiB"):
         if n < 1024 or unit == "GiB":
@@ -56,6 +88,8 @@ def human_age(seconds: float) -> str:
 
 
 def _store(cache_dir: Path) -> LocalStore:
+    from bayesian_fields_core.job.store import LocalStore
+
     if cache_dir.exists() and not cache_dir.is_dir():
         raise InputError("not a folder", source=str(cache_dir))
     return LocalStore(cache_dir)
@@ -64,6 +98,8 @@ def _store(cache_dir: Path) -> LocalStore:
 def cache_ls(cache_dir: Path, *, json_output: bool = False) -> str:
     """The listing `bfields cache ls` prints: one line per scene + profile, most recent first."""
     import json
+
+    from bayesian_fields_core.job.cache_index import data_keys, list_entries
 
     store = _store(cache_dir)
     entries = list_entries(store)
@@ -101,6 +137,8 @@ def cache_ls(cache_dir: Path, *, json_output: bool = False) -> str:
 
 def cache_prune(cache_dir: Path, *, older_than_s: float | None, max_size: int | None) -> str:
     """Prune and describe what was removed."""
+    from bayesian_fields_core.job.cache_index import prune
+
     store = _store(cache_dir)
     report = prune(store, older_than_s=older_than_s, max_size=max_size)
     return (

@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 from typing import Any
 
 from rich.console import Console, JustifyMethod
+from rich.measure import Measurement
 from rich.table import Table
 
 from bayesian_fields_core.results.format import Result, SelectedObject
@@ -70,61 +72,73 @@ def _ranked_value(obj: SelectedObject) -> float:
     return float(obj.probability if obj.score is None else obj.score)
 
 
-def result_summary(result: Result, reports: dict[str, dict[str, Any]], out: Path) -> dict[str, Any]:
-    """A JSON-able digest of a run for `--json` and scripts: per task its ranked objects (with
-    oriented box and export path), the preview image and the task's recoloured splat."""
-    files = _files(out)
-    objects_ply = files.get("object_exports", {})
-    return {
+def result_summary(
+    out: Path, reports: dict[str, dict[str, Any]], *, config_path: Path | None = None
+) -> dict[str, Any]:
+    """What `--json` prints: the result's own summary.json, so the two share one schema
+    (`results/summary.schema.json`), plus the optional `run` block only the CLI knows: the output
+    folder, the result folder that summary.json's relative file names are relative to, the run's
+    configuration file and each stage's seconds."""
+    root = out / "result"
+    summary: dict[str, Any] = json.loads((root / "summary.json").read_text(encoding="utf-8"))
+    summary["run"] = {
         "output": str(out),
-        "tasks": {
-            task: [
-                {
-                    "object_id": o.object_id,
-                    "score": round(_ranked_value(o), 4),
-                    "probability": round(o.probability, 4),
-                    "num_gaussians": o.num_gaussians,
-                    "centroid": [round(float(c), 4) for c in o.centroid],
-                    **(
-                        {"capture_centroid": [round(float(c), 4) for c in o.capture_centroid]}
-                        if o.capture_centroid is not None
-                        else {}
-                    ),
-                    **(
-                        {"world_centroid": [round(float(c), 4) for c in o.world_centroid]}
-                        if o.world_centroid is not None
-                        else {}
-                    ),
-                    "box": o.box.to_dict(),
-                    "export": objects_ply.get(o.object_id),
-                }
-                for o in objects
-            ]
-            for task, objects in result.selections.items()
-        },
-        "not_found": {task: nf.to_dict() for task, nf in result.not_found.items()},
-        "ranked_by": result.ranked_by or "relevance",
-        "scene_scale": result.scene_scale,
-        "previews": files.get("previews", {}),
-        "contact_sheet": files.get("contact_sheet"),
-        "task_exports": files.get("task_exports", {}),
-        "scene_export": files.get("scene_export"),
-        "counts": result.counts(),
-        "frames": {
-            "layout": result.layout,
-            "splat_to_capture": None if result.splat_to_capture is None else result.splat_to_capture.tolist(),
-            "capture_to_world": None if result.capture_to_world is None else result.capture_to_world.tolist(),
-            "centroids": "splat file frame"
-            + ("; capture_centroid: cameras' frame" if result.splat_to_capture is not None else "")
-            + (
-                "; world_centroid: the data's world (COLMAP) frame"
-                if result.capture_to_world is not None
-                else ""
-            ),
-            "units": units(result),
-        },
+        "result": str(root),
+        "config": None if config_path is None else str(config_path),
         "stage_seconds": {name: round(float(r.get("seconds", 0.0)), 3) for name, r in reports.items()},
     }
+    return summary
+
+
+TSV_COLUMNS = (
+    "task",
+    "rank",
+    "object",
+    "score",
+    "probability",
+    "gaussians",
+    "centroid_x",
+    "centroid_y",
+    "centroid_z",
+    "note",
+)
+"""`--format tsv`: one row per answer (the task on every row), a task without one as a row with
+empty numbers and its "not found" reason in `note`. Centroids in the splat file's frame."""
+
+
+def answer_rows(result: Result) -> list[list[str]]:
+    """The rows of `--format tsv` (without the header), in the table's order."""
+    rows: list[list[str]] = []
+    for task, objects in result.selections.items():
+        if not objects:
+            missing = result.not_found.get(task)
+            note = f"not found: {missing.reason}" if missing else "no object"
+            rows.append([task, *[""] * (len(TSV_COLUMNS) - 2), note])
+        for rank, obj in enumerate(objects, start=1):
+            rows.append(
+                [
+                    task,
+                    str(rank),
+                    str(obj.object_id),
+                    f"{_ranked_value(obj):.6g}",
+                    f"{obj.probability:.6g}",
+                    str(obj.num_gaussians),
+                    *(f"{float(c):.6g}" for c in obj.centroid),
+                    "",
+                ]
+            )
+    return rows
+
+
+def tsv_text(result: Result) -> str:
+    """Tab-separated answers with a header line; tabs and newlines inside a task become spaces."""
+
+    def cell(text: str) -> str:
+        return " ".join(text.split())
+
+    lines = ["\t".join(TSV_COLUMNS)]
+    lines += ["\t".join(cell(c) for c in row) for row in answer_rows(result)]
+    return "\n".join(lines) + "\n"
 
 
 def answer_table(result: Result) -> Table:
@@ -161,14 +175,35 @@ def answer_table(result: Result) -> Table:
     return table
 
 
-def print_result(
-    result: Result, reports: dict[str, dict[str, Any]], out: Path, *, json_output: bool = False
-) -> None:
-    if json_output:
-        print(json.dumps(result_summary(result, reports, out), indent=2))
-        return
+def stdout_console(table: Table) -> Console:
+    """A console for the answers: the terminal's width on a terminal; otherwise (a pipe, a file)
+    wide enough for `table` at its natural width, so no cell is ever wrapped or cut, and with
+    the lines under the table left whole (a script greps them)."""
     console = Console()
-    console.print(answer_table(result))
+    if console.is_terminal:
+        return console
+    natural = Measurement.get(console, console.options.update(max_width=1 << 16), table).maximum
+    return Console(width=max(natural, console.width), soft_wrap=True)  # lines below: unwrapped too
+
+
+def print_result(
+    result: Result,
+    reports: dict[str, dict[str, Any]],
+    out: Path,
+    *,
+    output_format: str = "table",
+    config_path: Path | None = None,
+) -> None:
+    """Print the answers in `output_format` (table, tsv or json) on stdout."""
+    if output_format == "json":
+        print(json.dumps(result_summary(out, reports, config_path=config_path), indent=2))
+        return
+    if output_format == "tsv":
+        sys.stdout.write(tsv_text(result))
+        return
+    table = answer_table(result)
+    console = stdout_console(table)
+    console.print(table)
     console.print(ranking_caption(result), soft_wrap=True)
     scale = result.scene_scale or {}
     if scale.get("value") is not None:
@@ -182,7 +217,7 @@ def print_result(
     if result.splat_to_capture is not None:
         console.print(
             f"centroids are in the splat file's frame ({result.layout} layout: the splat was mapped into the "
-            "cameras' frame for the run); --json also gives capture_centroid, summary.json capture_frame boxes"
+            "cameras' frame for the run); --json and summary.json also give capture_frame centroids and boxes"
         )
     counts = result.counts()
     timing = ", ".join(f"{name} {float(r.get('seconds', 0.0)):.1f}s" for name, r in reports.items())
@@ -194,6 +229,8 @@ def print_result(
         f"{perceive.get('frames_cached', 0)} from cache"
     )
     console.print(f"result written to {out / 'result'}")
+    if config_path is not None:
+        console.print(f"configuration: {config_path} (bfields run --config {config_path} runs it again)")
     files = _files(out)
     if files.get("contact_sheet"):
         console.print(f"previews: {files['contact_sheet']} (all tasks)")

@@ -14,13 +14,13 @@ from pathlib import Path
 from bayesian_fields_core.cli.arguments import int_at_least
 from bayesian_fields_core.cli.cache_command import DEFAULT_CACHE_DIR
 from bayesian_fields_core.errors import InputError
-from bayesian_fields_core.viewer.data import DEFAULT_MAX_GAUSSIANS
 
 JOB_DOWNLOAD_GROUP = "bayesian_fields.job_download"
 """Entry point: `download(job_id, out, *, server, api_key)`, lent by the service client."""
 
 
-def add_view_parser(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add `view` to the `bfields` parser (the viewer itself is imported when it starts)."""
     view = sub.add_parser("view", help="look at a result in the browser (needs the 'view' extra)")
     view.add_argument("result", nargs="?", help="run folder of `bfields run --out` (or its result/ folder)")
     view.add_argument("--job", help="instead: a job id on the server (its result is downloaded first)")
@@ -33,11 +33,12 @@ def add_view_parser(sub: argparse._SubParsersAction) -> None:
     view.add_argument("--host", default="127.0.0.1")
     view.add_argument("--port", type=int, default=8080)
     view.add_argument(
-        "--max-gaussians", type=int_at_least(1), default=DEFAULT_MAX_GAUSSIANS,
-        help=f"cap on Gaussians sent to the browser (default {DEFAULT_MAX_GAUSSIANS:,}; selected objects are always kept)",
+        "--max-gaussians", type=int_at_least(1), metavar="N",
+        help="cap on Gaussians sent to the browser (default: the viewer's, "
+        "viewer.data.DEFAULT_MAX_GAUSSIANS; selected objects are always kept)",
     )  # fmt: skip
     view.add_argument("--no-browser", action="store_true", help="do not open a browser")
-    view.set_defaults(func=cmd_view)
+    view.set_defaults(func=run)
 
 
 def _fetch_job(args: argparse.Namespace) -> Path:
@@ -52,19 +53,22 @@ def _fetch_job(args: argparse.Namespace) -> Path:
     return out
 
 
-def cmd_view(args: argparse.Namespace) -> int:
+def run(args: argparse.Namespace) -> int:
+    """Load the result, start the viewer, serve until Ctrl-C."""
     try:
         from bayesian_fields_core.viewer.server import ResultViewer
     except ImportError:
         raise InputError("the viewer needs the 'view' extra: pip install 'bayesian-fields[view]'") from None
-    from bayesian_fields_core.viewer.data import load_view
+    from bayesian_fields_core.viewer.data import DEFAULT_MAX_GAUSSIANS, load_view
 
     if bool(args.result) == bool(args.job):
         raise InputError("give a result folder or --job ID (one of them)", source="bfields view")
     t0 = time.perf_counter()
     folder = _fetch_job(args) if args.job else Path(args.result)
     data = load_view(
-        folder, scene_dir=Path(args.scene) if args.scene else None, max_gaussians=args.max_gaussians
+        folder,
+        scene_dir=Path(args.scene) if args.scene else None,
+        max_gaussians=args.max_gaussians or DEFAULT_MAX_GAUSSIANS,
     )
     viewer = ResultViewer(data, host=args.host, port=args.port)
     print(

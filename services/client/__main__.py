@@ -2,6 +2,6 @@
 
 import sys
 
-from bayesian_fields_service.client.commands import main
+from bayesian_fields_service.client.verbs import main
 
 sys.exit(main())

@@ -322,7 +322,7 @@ def _download(client: httpx.Client, url: str, dest: Path, on_bytes: ProgressFn |
     fd, tmp = tempfile.mkstemp(dir=dest.parent, prefix=".part-")
     size = 0
     try:
-        with os.fdopen(fd, "wb") as fh, client.stream("GET", url) as resp:
+        with os.fdopen(fd, "wb") as fh, _streamed(client, url, dest) as resp:
             if resp.status_code != 200:
                 raise ClientError(
                     f"download of {dest.name} failed: HTTP {resp.status_code}", resp.status_code
@@ -336,6 +336,20 @@ def _download(client: httpx.Client, url: str, dest: Path, on_bytes: ProgressFn |
         yield size
     finally:
         Path(tmp).unlink(missing_ok=True)
+
+
+@contextmanager
+def _streamed(client: httpx.Client, url: str, dest: Path) -> Iterator[httpx.Response]:
+    """`client.stream("GET", url)`, with a transport failure (an unreachable link, a dropped
+    connection) as a one-line `ClientError` naming the file and the host, not httpx's traceback."""
+    try:
+        with client.stream("GET", url) as resp:
+            yield resp
+    except httpx.HTTPError as exc:
+        host = httpx.URL(url).host or url
+        raise ClientError(
+            f"download of {dest.name} from {host} failed: {type(exc).__name__}: {exc}"
+        ) from None
 
 
 def _json(obj: Any) -> str:

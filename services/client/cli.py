@@ -6,6 +6,8 @@
   fetches a job's result for `bfields view --job`.
 
 So the library's CLI never imports the service: a library-only install simply has fewer verbs.
+Loading this module (as `bfields` does for every command, `--help` included) imports argparse and
+the verbs' wiring only; httpx and the verbs' code come when a verb runs.
 """
 
 from __future__ import annotations
@@ -14,8 +16,7 @@ import argparse
 from pathlib import Path
 
 from bayesian_fields_core.errors import InputError
-from bayesian_fields_service.client.api import BFieldsClient, ClientError
-from bayesian_fields_service.client.commands import register_client_commands as _register_client_verbs
+from bayesian_fields_service.client.verbs import register_client_commands as _register_client_verbs
 
 
 def cmd_serve(args: argparse.Namespace) -> int:
@@ -40,6 +41,8 @@ def register_client_commands(sub: argparse._SubParsersAction) -> None:
 
 def download_job(job_id: str, out: Path, *, server: str, api_key: str | None) -> None:
     """Download job `job_id`'s artifacts into `out` (for `bfields view --job`)."""
+    from bayesian_fields_service.client.api import BFieldsClient, ClientError
+
     try:
         with BFieldsClient(server, api_key) as client:
             client.download_artifacts(job_id, out)

@@ -1,20 +1,19 @@
-"""`bfields submit | status | fetch | batch`: the service from the command line.
+"""`bfields submit | status | fetch | batch`: what the client verbs do.
 
-`register_client_commands(subparsers)` adds the four sub-commands to the `bfields` argparse
-parser; each handler is also a plain function (`submit`, `status`, `fetch`, `batch`) returning an
-exit code. The server comes from ``--server`` or ``BFIELDS_SERVER``, the key from ``--api-key``
+Each is a plain function (`submit`, `status`, `fetch`, `batch`) returning an exit code; their
+arguments are wired in `verbs` (which imports this module only when a verb runs: it imports
+httpx and rich). The server comes from ``--server`` or ``BFIELDS_SERVER``, the key from ``--api-key``
 or ``BFIELDS_API_KEY`` (so it stays out of shell history).
 """
 
 from __future__ import annotations
 
-import argparse
 import hashlib
 import json
 import os
-import sys
 import time
 import uuid
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -30,11 +29,12 @@ from rich.progress import (
     TransferSpeedColumn,
 )
 
+from bayesian_fields_core.cli.job_options import parameter_overrides, resolve_tasks, validate_parameters
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.job.task_list import load_tasks, normalise_tasks
 from bayesian_fields_service.client.api import BFieldsClient, ClientError
+from bayesian_fields_service.client.defaults import DEFAULT_SERVER
 
-DEFAULT_SERVER = "http://127.0.0.1:8000"
 console = Console(stderr=True)
 
 
@@ -73,30 +73,25 @@ def _print(obj: Any) -> None:
     print(json.dumps(obj, indent=2, sort_keys=True, default=str))
 
 
-def _parameters(path: str | None) -> dict[str, Any]:
-    if not path:
-        return {}
-    try:
-        data = yaml.safe_load(Path(path).read_text())
-    except (OSError, yaml.YAMLError) as exc:
-        raise InputError(f"cannot read parameters: {exc}", source=path) from None
-    if not isinstance(data, dict):
-        raise InputError("parameters must be a mapping", source=path)
-    return data
-
-
-def submit(scene_dir: str | Path, tasks_file: str | Path, *, server: str | None = None, api_key: str | None = None,
-           wait: bool = False, parameters: str | None = None, poll_s: float = 1.0,
+def submit(scene_dir: str | Path, tasks_file: str | Path | None = None, *, task: Sequence[str] = (),
+           server: str | None = None, api_key: str | None = None, wait: bool = False,
+           parameters: str | Path | None = None, param: Sequence[str] = (), poll_s: float = 1.0,
            priority: str = "interactive") -> int:  # fmt: skip
-    """Upload a scene folder, submit a job for the task list; with `wait`, poll until it ends.
-    A 429 / 503 is retried after the server's Retry-After (bounded); the submission carries one
-    Idempotency-Key across those retries, so it never makes two jobs."""
-    tasks = load_tasks(tasks_file)
+    """Upload a scene folder, submit a job for its tasks; with `wait`, poll until it ends.
+
+    The tasks and parameters are read as `bfields run` reads them (`job_options`): `task` texts,
+    else the `tasks_file`, else the scene's tasks.yaml; the `parameters` file (a YAML mapping)
+    with each `param` NAME=VALUE over it, checked here before anything is uploaded. A 429 / 503 is
+    retried after the server's Retry-After (bounded); the submission carries one Idempotency-Key
+    across those retries, so it never makes two jobs."""
+    tasks = resolve_tasks(task, None if tasks_file is None else str(tasks_file), Path(scene_dir))
+    overrides = parameter_overrides(None if parameters is None else str(parameters), param)
+    validate_parameters(overrides)
     with _client(server, api_key) as client:
         scene = _upload(client, Path(scene_dir))
         console.print(f"scene {scene['id']}: {scene['summary'].get('frames')} frames, "
                       f"{scene['summary'].get('gaussians')} Gaussians")  # fmt: skip
-        job = client.submit_job(scene["id"], tasks, parameters=_parameters(parameters),
+        job = client.submit_job(scene["id"], tasks, parameters=overrides,
                                 idempotency_key=str(uuid.uuid4()), priority=priority)  # fmt: skip
         print(job["id"])
         if not wait:
@@ -108,9 +103,16 @@ def submit(scene_dir: str | Path, tasks_file: str | Path, *, server: str | None 
         return 0 if final["state"] == "succeeded" else 1
 
 
+SUPERSEDED_FIELDS = ("attempts",)
+"""Fields of a job record the API still sends for older clients under a former name (`attempts`
+is `stage_runs`); `bfields status` does not show them."""
+
+
 def status(job_id: str, *, server: str | None = None, api_key: str | None = None) -> int:
+    """Print a job's record as JSON (without the superseded names)."""
     with _client(server, api_key) as client:
-        _print(client.job(job_id))
+        job = client.job(job_id)
+    _print({k: v for k, v in job.items() if k not in SUPERSEDED_FIELDS})
     return 0
 
 
@@ -175,14 +177,20 @@ def _follow(client: BFieldsClient, state: dict[str, Any], poll_s: float) -> dict
 
 
 def batch(manifest: str | Path, *, server: str | None = None, api_key: str | None = None, wait: bool = True,
-          out: str | Path | None = None, poll_s: float = 2.0, priority: str = "bulk") -> int:  # fmt: skip
+          out: str | Path | None = None, poll_s: float = 2.0, priority: str = "bulk",
+          params: str | Path | None = None, param: Sequence[str] = ()) -> int:  # fmt: skip
     """Upload the manifest's scenes, submit scenes x task lists as one batch, follow it with a
     progress bar. Every item carries an Idempotency-Key derived from the item (`item_key`) and
     the batch one derived from the whole body, so a re-run manifest (after a crash, a 429 that ran
-    out of retries, a Ctrl-C) creates no job twice."""
+    out of retries, a Ctrl-C) creates no job twice. `params` (a YAML mapping) and `param`
+    (NAME=VALUE) go over the manifest's `parameters`, as `bfields run` reads them."""
     path = Path(manifest)
     spec = _manifest(path)
-    parameters = spec.get("parameters") or {}
+    parameters = {
+        **(spec.get("parameters") or {}),
+        **parameter_overrides(None if params is None else str(params), param),
+    }
+    validate_parameters(parameters)
     model_profile = spec.get("model_profile", "default")
     with _client(server or spec.get("server"), api_key) as client:
         items = []
@@ -226,68 +234,13 @@ def batch(manifest: str | Path, *, server: str | None = None, api_key: str | Non
         return 0 if not failed else 1
 
 
-# ---- argparse wiring ---------------------------------------------------------------------------
-
-
-def _common(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--server", help=f"API base URL (default: $BFIELDS_SERVER or {DEFAULT_SERVER})")
-    p.add_argument("--api-key", help="API key (default: $BFIELDS_API_KEY)")
-
-
-def _priority(p: argparse.ArgumentParser, default: str) -> None:
-    p.add_argument("--priority", choices=("interactive", "bulk"), default=default,
-                   help=f"class in your fair-share queue: interactive jobs go first (default: {default})")  # fmt: skip
-
-
-def _run(fn: Any, **kwargs: Any) -> int:
+def run_verb(fn: Any, **kwargs: Any) -> int:
+    """Call a client verb; a client or input error is one red line and exit status 2."""
     try:
         return fn(**kwargs)
     except (ClientError, InputError) as exc:
-        console.print(f"[red]error:[/] {exc}")
+        console.print(f"[red]error:[/] {' '.join(str(exc).split())}", soft_wrap=True)
         return 2
 
 
-def register_client_commands(subparsers: argparse._SubParsersAction) -> None:
-    """Add submit/status/fetch/batch to a `bfields` argparse parser (handler in `func`)."""
-    p = subparsers.add_parser("submit", help="upload a scene folder and submit a job to the service")
-    p.add_argument("scene_dir")
-    p.add_argument("--tasks", required=True, help="task list (.yaml, .json or one task per line)")
-    p.add_argument("--parameters", help="YAML/JSON mapping of pipeline parameters")
-    p.add_argument("--wait", action="store_true", help="poll until the job ends (exit 1 unless it succeeded)")
-    _priority(p, "interactive")
-    _common(p)
-    p.set_defaults(func=lambda a: _run(submit, scene_dir=a.scene_dir, tasks_file=a.tasks, server=a.server,
-                                       api_key=a.api_key, wait=a.wait, parameters=a.parameters,
-                                       priority=a.priority))  # fmt: skip
-
-    p = subparsers.add_parser("status", help="show a job's state, stage, progress and timings")
-    p.add_argument("job_id")
-    _common(p)
-    p.set_defaults(func=lambda a: _run(status, job_id=a.job_id, server=a.server, api_key=a.api_key))
-
-    p = subparsers.add_parser("fetch", help="download every artifact of a finished job")
-    p.add_argument("job_id")
-    p.add_argument("--out", required=True, help="output folder")
-    _common(p)
-    p.set_defaults(func=lambda a: _run(fetch, job_id=a.job_id, out=a.out, server=a.server, api_key=a.api_key))
-
-    p = subparsers.add_parser("batch", help="run many scenes x task lists from a YAML manifest")
-    p.add_argument("manifest")
-    p.add_argument("--out", help="download the results of succeeded jobs here")
-    p.add_argument("--no-wait", action="store_true", help="submit and print the batch id only")
-    _priority(p, "bulk")
-    _common(p)
-    p.set_defaults(func=lambda a: _run(batch, manifest=a.manifest, server=a.server, api_key=a.api_key,
-                                       wait=not a.no_wait, out=a.out, priority=a.priority))  # fmt: skip
-
-
-def main(argv: list[str] | None = None) -> int:
-    """Stand-alone entry (``python -m bayesian_fields_service.client``) with the same sub-commands."""
-    parser = argparse.ArgumentParser(prog="bfields-client")
-    register_client_commands(parser.add_subparsers(dest="command", required=True))
-    args = parser.parse_args(argv)
-    return int(args.func(args))
-
-
-if __name__ == "__main__":
-    sys.exit(main())
+_run = run_verb  # the name tests and older callers use

@@ -72,8 +72,12 @@ def test_metres_only_for_a_declared_metric_capture(
 
 
 def test_json_gives_the_ranking_score(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
-    print_result(_result("scene units"), {}, tmp_path, json_output=True)
+    from bayesian_fields_core.job.store import LocalStore
+    from bayesian_fields_core.results.writer import write_result
+
+    write_result(LocalStore(tmp_path), "result/", _result("scene units"))
+    print_result(_result("scene units"), {}, tmp_path, output_format="json")
     summary = json.loads(capsys.readouterr().out)
     assert summary["ranked_by"] == "evidence"
-    assert [o["score"] for o in summary["tasks"][TASKS[0]]] == [14.2, 9.7]
-    assert summary["frames"]["units"] == "scene units"
+    assert [o["score"] for o in summary["selections"][0]["objects"]] == [14.2, 9.7]
+    assert summary["scene_scale"]["units"] == "scene units"

@@ -11,7 +11,8 @@ from typing import Any
 import pytest
 
 from bayesian_fields_core.cli.cache_command import parse_duration, parse_size
-from bayesian_fields_core.cli.main import local_context, main
+from bayesian_fields_core.cli.main import main
+from bayesian_fields_core.cli.run_command import local_context
 from bayesian_fields_core.job.pipeline import run_job
 from bayesian_fields_core.params import PipelineParams
 

@@ -44,17 +44,18 @@ def test_run_prints_objects_per_task(
     args = _run_args(scene_dir, tmp_path, profile_yaml, "--task", tasks[0], "--task", tasks[1])
     assert main([*args, "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)
-    assert list(summary["tasks"]) == tasks
-    assert any(summary["tasks"].values())
-    for objects in summary["tasks"].values():
-        for obj in objects:
+    assert summary["tasks"] == tasks and [s["task"] for s in summary["selections"]] == tasks
+    assert any(s["objects"] for s in summary["selections"])
+    root = Path(summary["run"]["result"])
+    assert root == tmp_path / "out" / "result" and (root / "summary.json").is_file()
+    for selection in summary["selections"]:
+        for obj in selection["objects"]:
             assert obj["num_gaussians"] > 0 and 0.0 <= obj["probability"] <= 1.0
-            assert len(obj["box"]["extents"]) == 3 and Path(obj["export"]).is_file()
-    assert (tmp_path / "out" / "result" / "summary.json").is_file()
-    assert Path(summary["contact_sheet"]).is_file() and list(summary["previews"]) == tasks
-    assert all(
-        Path(summary["previews"][t]).is_file() and Path(summary["task_exports"][t]).is_file() for t in tasks
-    )
+            assert len(obj["box"]["extents"]) == 3 and (root / obj["export"]).is_file()
+    previews = summary["previews"]
+    assert (root / previews["contact_sheet"]).is_file() and [p["task"] for p in previews["tasks"]] == tasks
+    assert all((root / p["file"]).is_file() for p in previews["tasks"])
+    assert all((root / summary["exports"]["tasks"][t]).is_file() for t in tasks)
 
     # The human table, on a second run of the same scene: perception comes from the cache.
     assert main(args) == 0
@@ -69,7 +70,7 @@ def test_run_reads_a_tasks_file(
     tasks_file = tmp_path / "tasks.txt"
     tasks_file.write_text("# one per line\nthe mug\nred chair\n")
     assert main([*_run_args(scene_dir, tmp_path, profile_yaml, "--tasks", str(tasks_file)), "--json"]) == 0
-    assert list(json.loads(capsys.readouterr().out)["tasks"]) == ["the mug", "red chair"]
+    assert json.loads(capsys.readouterr().out)["tasks"] == ["the mug", "red chair"]
 
 
 BAD_TASK_FILES = {

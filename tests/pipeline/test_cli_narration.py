@@ -20,7 +20,8 @@ from typing import Any
 
 import pytest
 
-from bayesian_fields_core.cli.main import local_context, main
+from bayesian_fields_core.cli.main import main
+from bayesian_fields_core.cli.run_command import local_context
 from bayesian_fields_core.job.pipeline import load_models, run_job
 from bayesian_fields_core.params import PipelineParams
 
@@ -71,7 +72,7 @@ def first_run(
 
 def test_it_says_which_models_it_loads_and_that_it_compiles(first_run: dict[str, Any]) -> None:
     done = first_run["done"]
-    assert list(json.loads(done.stdout)["tasks"]) == ["red chair"]
+    assert json.loads(done.stdout)["tasks"] == ["red chair"]
     lines = done.stderr.splitlines()
     assert "loading models: segmenter classical, encoder hf_clip (tiny-clip, cpu)" in lines
     assert "compiling kernels (first run only, ~10 s)" in lines
@@ -107,7 +108,7 @@ def test_verbose_and_quiet(
 
     assert main([*args, "--out", str(tmp_path / "c"), "-q", "--json"]) == 0
     out, err = capsys.readouterr()
-    assert list(json.loads(out)["tasks"]) == ["red chair"]
+    assert json.loads(out)["tasks"] == ["red chair"]
     # The encoder still loads (for the task texts), silently; nothing but the check's line.
     assert err.strip() == "alignment check: off", err
 

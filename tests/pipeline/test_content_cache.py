@@ -17,7 +17,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from bayesian_fields_core.cli.main import local_context, main
+from bayesian_fields_core.cli.main import main
+from bayesian_fields_core.cli.run_command import local_context
 from bayesian_fields_core.job.pipeline import run_job
 from bayesian_fields_core.params import PipelineParams
 

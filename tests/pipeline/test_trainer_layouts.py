@@ -165,18 +165,15 @@ def test_cli_splat_transform_and_source_path(
     summary = json.loads(capsys.readouterr().out)
     assert summary["frames"]["layout"] == "nerfstudio"
     to_capture = Similarity.from_matrix(summary["frames"]["splat_to_capture"], source="summary")
-    objects = summary["tasks"]["red chair"]
-    assert objects
+    objects = summary["selections"][0]["objects"]
+    assert summary["selections"][0]["task"] == "red chair" and objects
     for obj in objects:
-        np.testing.assert_allclose(to_capture.points(obj["centroid"]), obj["capture_centroid"], atol=1e-3)
+        np.testing.assert_allclose(
+            to_capture.points(obj["centroid"]), obj["capture_frame"]["centroid"], atol=1e-3
+        )
 
     out = inria_output(src, tmp_path / "output", tmp_path / "dataset")
     assert main(["run", str(out), "--out", str(tmp_path / "out2"), "--task", "red chair", *common]) == 0
     summary = json.loads(capsys.readouterr().out)
-    assert summary["frames"] == {
-        "layout": "inria",
-        "splat_to_capture": None,
-        "capture_to_world": None,
-        "centroids": "splat file frame",
-        "units": "scene units",
-    }
+    assert summary["frames"]["layout"] == "inria" and list(summary["frames"]["names"]) == ["splat"]
+    assert summary["frames"]["splat_to_capture"] is None and summary["frames"]["capture_to_world"] is None

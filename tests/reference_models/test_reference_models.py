@@ -204,7 +204,7 @@ def test_bfields_run_completes_with_each_reference_profile(
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=900, cwd=ROOT)
     assert proc.returncode == 0, proc.stderr[-3000:]
     summary = json.loads(proc.stdout[proc.stdout.index("{") :])
-    assert set(summary["stage_seconds"]) == {"perceive", "fuse", "cluster"}
+    assert set(summary["run"]["stage_seconds"]) == {"perceive", "fuse", "cluster"}
     assert summary["counts"]["gaussians"] > 0
     tasks = yaml.safe_load((SAMPLE / "tasks.yaml").read_text())["tasks"]
     assert len(summary["tasks"]) == len(tasks)

@@ -166,7 +166,7 @@ def test_parameters_must_be_finite_bounded_and_fit_the_scene(
 
 
 def test_cli_params_get_the_same_bounds() -> None:
-    from bayesian_fields_core.cli.main import build_params
+    from bayesian_fields_core.cli.job_options import build_params
 
     for item, fragment in [("top_k=1000000000000000000", "top_k"), ("s=.nan", "s"), ("prior=.inf", "prior")]:
         with pytest.raises(InputError) as err:

@@ -197,7 +197,9 @@ def test_cli_submit_status_fetch(
     out = io.StringIO()
     with redirect_stdout(out):
         assert status(job_id, server=api.base_url) == 0
-    assert json.loads(out.getvalue())["state"] == "succeeded"
+    shown = json.loads(out.getvalue())
+    assert shown["state"] == "succeeded" and "stage_runs" in shown
+    assert "attempts" not in shown  # the API's deprecated former name of stage_runs is not shown
     assert fetch(job_id, tmp_path / "out", server=api.base_url) == 0
     _assert_same_result(tmp_path / "out", reference)
 

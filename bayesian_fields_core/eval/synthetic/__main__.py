@@ -15,7 +15,8 @@ from pydantic import ValidationError
 from bayesian_fields_core.eval.synthetic.spec import SceneSpec, suite_specs
 
 
-def _parser() -> argparse.ArgumentParser:
+def generator_parser() -> argparse.ArgumentParser:
+    """The generator's parser (also shown by `bfields generate --help`)."""
     p = argparse.ArgumentParser(
         prog="python -m bayesian_fields_core.eval.synthetic", description=__doc__.split("\n")[0]
     )
@@ -41,7 +42,7 @@ def _value(raw: str, default: object) -> object:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = _parser().parse_args(argv)
+    args = generator_parser().parse_args(argv)
     base = next((s for s in suite_specs() if s.name == args.suite), SceneSpec())
     overrides = {
         name: _value(getattr(args, name), getattr(base, name))

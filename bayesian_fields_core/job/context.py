@@ -269,8 +269,7 @@ class JobContext:
         """Every length of this job in scene units: the parameters' fractions of the scene scale
         (measured once per scene), or their absolute overrides (`scene/scale.py`)."""
         if self._lengths is None:
-            derived = None if self.params.scene_scale is not None else self.scene().scale()
-            self._lengths = scene_lengths(self.params, derived)
+            self._lengths = scene_lengths(self.params, lambda: self.scene().scale())
         return self._lengths
 
     def alignment(self) -> AlignmentReport | None:

@@ -513,6 +513,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_view_parser(sub)
 
+    from bayesian_fields_core.cli import compare_command, export_command
+
+    export_command.register(sub)
+    compare_command.register(sub)
+
     # Verbs of installed plug-ins: the service adds submit, status, fetch, batch and serve
     # (entry-point group `bayesian_fields.cli`, see pyproject.toml).
     for plugin in entry_points(group=CLI_PLUGIN_GROUP):

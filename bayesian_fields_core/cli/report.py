@@ -81,6 +81,7 @@ def result_summary(result: Result, reports: dict[str, dict[str, Any]], out: Path
             task: [
                 {
                     "object_id": o.object_id,
+                    "key": o.key,
                     "score": round(_ranked_value(o), 4),
                     "probability": round(o.probability, 4),
                     "num_gaussians": o.num_gaussians,

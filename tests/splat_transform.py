@@ -1,0 +1,38 @@
+"""Find PlayCanvas `splat-transform` (npm `@playcanvas/splat-transform`) for the tests that read
+exported files back with it: `$BFIELDS_SPLAT_TRANSFORM`, else the copy `.ci/run` installs under
+`build/node/`, else one on PATH. Tests skip, saying how to install it, when there is none."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+INSTALL = "the splat-transform stage of .ci/run: npm install --prefix build/node @playcanvas/splat-transform"
+"""How to get it (`.ci/run` pins the version the format fixtures were made with)."""
+
+
+def splat_transform() -> str:
+    """Path of the splat-transform executable, or skip the test."""
+    candidates = [
+        os.environ.get("BFIELDS_SPLAT_TRANSFORM"),
+        str(ROOT / "build" / "node" / "node_modules" / ".bin" / "splat-transform"),
+        shutil.which("splat-transform"),
+    ]
+    for candidate in candidates:
+        if candidate and Path(candidate).is_file():
+            return candidate
+    pytest.skip(f"splat-transform not installed (run: {INSTALL})")
+
+
+def convert(source: Path, target: Path) -> Path:
+    """`splat-transform source target` (it picks both formats from the names); returns target."""
+    done = subprocess.run(
+        [splat_transform(), "-q", "-w", str(source), str(target)], capture_output=True, text=True, timeout=300
+    )
+    assert done.returncode == 0, done.stderr + done.stdout
+    return target

@@ -92,10 +92,10 @@ def test_the_cli_names_each_format_it_writes() -> None:
         (["--task", "lamp"], "has no answer"),
         (
             ["--task", "mug", "--format", "obj"],
-            "unknown format 'obj'; use one of: ply, compressed-ply, spz, splat",
+            "unknown format 'obj'; use one of: ply, compressed-ply, spz, splat, glb",
         ),
         (["--task", "mug", "--format", "sog"], "npx @playcanvas/splat-transform objects.ply objects.sog"),
-        (["--task", "mug", "--format", "glb"], "no Python writer exists"),
+        (["--task", "mug", "--format", "sog"], "no Python writer exists for it"),
         ([], "say what to export: --task TEXT, --object ID or --all-tasks"),
     ],
 )

@@ -9,10 +9,12 @@ One function, `write_splat(path, gaussians, fmt)`, with the writer chosen per fo
                   are first turned into SPZ's right-up-back axes (the reader turns them back)
   splat           the project's antimatter15 writer (no Python library writes `.splat`;
                   degree-0 colour only, as the format holds)
+  glb             the project's glTF writer (`gltf_write`: no Python library writes
+                  `KHR_gaussian_splatting`), laid out as splat-transform's own `.glb`
 
-SOG (PlayCanvas) and glTF (`KHR_gaussian_splatting`) have no Python writer; `write_splat`
-refuses them with the `splat-transform` command that converts the PLY export
-(`UNWRITABLE`), rather than writing a file nobody has checked against the format's owners.
+SOG (PlayCanvas: WebP images and k-means codebooks) has no Python writer and is not written here;
+`write_splat` refuses it with the `splat-transform` command that converts the PLY export
+(`UNWRITABLE`), rather than writing a file nobody has checked against the format's owner.
 Formats are named by the `EXPORT_FORMATS` keys, file names end in their `SUFFIXES`.
 """
 
@@ -30,15 +32,19 @@ EXPORT_FORMATS = {
     "compressed-ply": "PlayCanvas compressed PLY (gsply)",
     "spz": "Niantic SPZ v4 (gsply)",
     "splat": "antimatter15 .splat (degree-0 colour only)",
+    "glb": "binary glTF with KHR_gaussian_splatting",
 }
 """The formats `write_splat` writes, with what each is."""
 
-SUFFIXES = {"ply": ".ply", "compressed-ply": ".compressed.ply", "spz": ".spz", "splat": ".splat"}
-
-UNWRITABLE = {
-    "sog": ".sog",
+SUFFIXES = {
+    "ply": ".ply",
+    "compressed-ply": ".compressed.ply",
+    "spz": ".spz",
+    "splat": ".splat",
     "glb": ".glb",
 }
+
+UNWRITABLE = {"sog": ".sog"}
 """Formats asked for but not written here (no Python writer exists): name -> suffix, for the
 refusal that names the conversion command."""
 
@@ -49,7 +55,7 @@ PLY_TO_RUB = np.diag([1.0, -1.0, -1.0])
 
 def check_format(fmt: str) -> str:
     """`fmt` if `write_splat` writes it, else an InputError naming the supported formats (and, for
-    SOG and glTF, the command that converts a PLY export)."""
+    SOG, the command that converts a PLY export)."""
     if fmt in EXPORT_FORMATS:
         return fmt
     supported = ", ".join(EXPORT_FORMATS)
@@ -77,6 +83,10 @@ def write_splat(path: str | Path, gaussians: Gaussians, fmt: str) -> Path:
         from bayesian_fields_core.scene.formats.antimatter import write_antimatter
 
         write_antimatter(path, gaussians)
+    elif fmt == "glb":
+        from bayesian_fields_core.scene.formats.gltf_write import write_glb
+
+        write_glb(path, gaussians)
     else:
         _write_gsply(path, gaussians, compressed=fmt == "compressed-ply")
     return path

@@ -1,6 +1,10 @@
 """The result reader is light (issue 31, item 2): importing it in a fresh process loads only the
 standard library, numpy and the project's own numpy-only modules, and takes < 0.3 s (median of
-five fresh processes), so a robot-side process can read the id map and tables without torch."""
+five fresh processes), so a robot-side process can read the id map and tables without torch.
+
+The time is numpy's import plus ours. On a machine whose cores other work keeps busy, numpy alone
+can take 0.3 s, so the budget is 0.3 s or numpy's own time plus `OWN_BUDGET_S`, whichever is
+larger, and our share alone must stay under `OWN_BUDGET_S` (it was ~4 s with torch and scipy)."""
 
 from __future__ import annotations
 
@@ -33,12 +37,16 @@ ALLOWED_PROJECT = {
 PROBE = """
 import json, sys, time
 t0 = time.perf_counter()
+import numpy
+t1 = time.perf_counter()
 import bayesian_fields_core.results
-seconds = time.perf_counter() - t0
-print(json.dumps({"seconds": seconds, "modules": sorted(sys.modules), "stdlib": sorted(sys.stdlib_module_names)}))
+t2 = time.perf_counter()
+print(json.dumps({"numpy": t1 - t0, "own": t2 - t1, "seconds": t2 - t0, "modules": sorted(sys.modules),
+                  "stdlib": sorted(sys.stdlib_module_names)}))
 """
 
 BUDGET_S = 0.3
+OWN_BUDGET_S = 0.1
 
 
 def _probe() -> dict:
@@ -68,8 +76,10 @@ def test_reader_import_loads_only_stdlib_numpy_and_light_project_modules() -> No
 
 
 def test_reader_import_is_fast() -> None:
-    times = [_probe()["seconds"] for _ in range(5)]
-    assert statistics.median(times) < BUDGET_S, times
+    probes = [_probe() for _ in range(5)]
+    total, numpy_s, own = (statistics.median(p[k] for p in probes) for k in ("seconds", "numpy", "own"))
+    assert own < OWN_BUDGET_S, probes
+    assert total < max(BUDGET_S, numpy_s + OWN_BUDGET_S), (total, numpy_s)
 
 
 def test_the_writer_is_still_reachable_from_the_package() -> None:

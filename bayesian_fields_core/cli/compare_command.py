@@ -74,7 +74,7 @@ def _print_table(
     rows: list[ObjectMatch], answers_a: dict[int, list[str]], answers_b: dict[int, list[str]]
 ) -> None:
     """A plain, tab-free table at its natural width (it pipes without wrapping)."""
-    header = ["status", "object B", "key B", "Gaussians", "objects A", "shared", "tasks"]
+    header = ["status", "object B", "key B", "Gaussians", "objects A", "shared", "answers to (either run)"]
     body = [
         [
             r.status,

@@ -61,19 +61,24 @@ class ObjectMatch:
         }
 
 
-def _majority_home(ids_from: np.ndarray, ids_to: np.ndarray, sizes: np.ndarray) -> dict[int, int]:
-    """{object in `ids_from`: the object of `ids_to` holding more than half of its Gaussians}."""
-    both = (ids_from >= 0) & (ids_to >= 0)
-    pairs, counts = np.unique(np.stack([ids_from[both], ids_to[both]]), axis=1, return_counts=True)
-    home = {}
-    for (source, target), count in zip(pairs.T.tolist(), counts.tolist(), strict=True):
-        if 2 * count > sizes[source]:
-            home[source] = target
-    return home
+def _shared(ids_a: np.ndarray, ids_b: np.ndarray) -> dict[tuple[int, int], int]:
+    """{(object of A, object of B): Gaussians they share}, for every pair sharing any."""
+    both = (ids_a >= 0) & (ids_b >= 0)
+    pairs, counts = np.unique(np.stack([ids_a[both], ids_b[both]]), axis=1, return_counts=True)
+    return {(a, b): n for (a, b), n in zip(pairs.T.tolist(), counts.tolist(), strict=True)}
 
 
-def _overlap(ids_a: np.ndarray, ids_b: np.ndarray, a: list[int], b: int) -> int:
-    return int(np.count_nonzero(np.isin(ids_a, a) & (ids_b == b)))
+def _majority_homes(
+    shared: dict[tuple[int, int], int], size_a: np.ndarray, size_b: np.ndarray
+) -> tuple[dict[int, int], dict[int, int]]:
+    """({object of B: the object of A holding more than half of it}, the same from A to B)."""
+    home_in_a, home_in_b = {}, {}
+    for (a, b), n in shared.items():
+        if 2 * n > size_b[b]:
+            home_in_a[b] = a
+        if 2 * n > size_a[a]:
+            home_in_b[a] = b
+    return home_in_a, home_in_b
 
 
 def compare_results(a: Result, b: Result) -> list[ObjectMatch]:
@@ -93,8 +98,8 @@ def compare_results(a: Result, b: Result) -> list[ObjectMatch]:
     size_a = np.bincount(ids_a[ids_a >= 0], minlength=a.num_objects)
     size_b = np.bincount(ids_b[ids_b >= 0], minlength=b.num_objects)
     keys_a, keys_b = a.content_keys(), b.content_keys()
-    home_in_a = _majority_home(ids_b, ids_a, size_b)  # b -> the A object holding most of b
-    home_in_b = _majority_home(ids_a, ids_b, size_a)  # a -> the B object holding most of a
+    shared = _shared(ids_a, ids_b)
+    home_in_a, home_in_b = _majority_homes(shared, size_a, size_b)
     into_b: dict[int, list[int]] = {}
     for obj_a, obj_b in home_in_b.items():
         into_b.setdefault(obj_b, []).append(obj_a)
@@ -113,7 +118,7 @@ def compare_results(a: Result, b: Result) -> list[ObjectMatch]:
                 gaussians_b=int(size_b[obj_b]),
                 objects_a=related,
                 keys_a=[keys_a[o] for o in related],
-                shared=_overlap(ids_a, ids_b, related, obj_b) if related else 0,
+                shared=sum(shared.get((o, obj_b), 0) for o in related),
             )
         )
     linked = set(home_in_b) | set(home_in_a.values())

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from bayesian_fields_core.cli.arguments import int_at_least
 
-FORMAT_NAMES = "ply, compressed-ply, spz, splat, glb"
+FORMAT_NAMES = "ply, compressed-ply, spz, splat, glb, sog"
 """What --format accepts, for the help text (`scene.formats.write.EXPORT_FORMATS` is the source;
 this module does not import it so that `bfields --help` stays light; a test keeps them equal)."""
 

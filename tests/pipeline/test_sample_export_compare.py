@@ -16,6 +16,7 @@ from bayesian_fields_core.results import Result, read_result
 from bayesian_fields_core.results.keys import object_members
 from bayesian_fields_core.results.writer import write_result
 from bayesian_fields_core.scene.formats import read_splat
+from bayesian_fields_core.scene.formats.write import SUFFIXES as SUFFIX
 from bayesian_fields_core.scene.ply import read_ply
 from bayesian_fields_core.scene.types import Gaussians
 from tests.splat_transform import convert, gltf_issues
@@ -33,9 +34,12 @@ TOLERANCE = {
     "spz": (2.5e-4, 1 / 32 + 1e-6, 2e-3, 0.5 / 255 / 0.15 + 1e-4, 0.07),
     "splat": (1e-6, 1e-5, 2e-3, 0.5 / 255 / 0.2820948 + 1e-4, 0.04),
     "glb": (1e-6, 1e-6, 1e-6, 1e-6, 1e-5),
+    # SOG: 16-bit positions of log(1 + |x|); scales and colour are the nearest of 256 codebook
+    # entries (checked against the file's codebooks below, then compared as stored)
+    "sog": (1e-4, 1e-6, 2e-3, 1e-6, 0.04),
 }
-SUFFIX = {"ply": ".ply", "compressed-ply": ".compressed.ply", "spz": ".spz", "splat": ".splat", "glb": ".glb"}
 FIXTURES = Path(__file__).resolve().parents[1] / "fixtures" / "formats"
+assert set(TOLERANCE) == set(SUFFIX), "every export format needs its tolerances here"
 
 
 @pytest.fixture(scope="module")
@@ -76,6 +80,19 @@ def _assert_same_gaussians(back: Gaussians, want: Gaussians, fmt: str, who: str)
     assert relative.max() <= cov, (who, relative.max())
 
 
+def _codebook_quantised(sog: Path, want: Gaussians) -> Gaussians:
+    """`want` with its log-scales and DC colours replaced by their nearest entries of the SOG's
+    codebooks (what the format stores), after checking every stored value is that entry."""
+    import zipfile
+
+    meta = json.loads(zipfile.ZipFile(sog).read("meta.json"))
+    quantised = []
+    for values, block in ((want.log_scales, "scales"), (want.sh[:, 0, :], "sh0")):
+        book = np.asarray(meta[block]["codebook"], np.float32)
+        quantised.append(book[np.abs(values[..., None] - book).argmin(axis=-1)])
+    return Gaussians(want.means, quantised[0], want.quats, want.opacity_logits, quantised[1][:, None, :])
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("fmt", list(SUFFIX))
 def test_exported_mug_reads_back_in_splat_transform_and_gsply(
@@ -93,6 +110,8 @@ def test_exported_mug_reads_back_in_splat_transform_and_gsply(
         )
         == 0
     )
+    if fmt == "sog":
+        want = _codebook_quantised(out, want)
     _assert_same_gaussians(read_splat(out, max_gaussians=10**6), want, fmt, f"bfields reader {fmt}")
     if fmt == "glb":
         # splat-transform writes .glb but does not read it, nor does gsply: the Khronos validator
@@ -106,8 +125,8 @@ def test_exported_mug_reads_back_in_splat_transform_and_gsply(
         return
     # splat-transform reads the file and writes a plain PLY, which the project's PLY reader reads
     _assert_same_gaussians(read_ply(convert(out, tmp_path / "back.ply")), want, fmt, f"splat-transform {fmt}")
-    if fmt == "splat":
-        return  # gsply reads PLY, compressed PLY and SPZ only
+    if fmt in ("splat", "sog"):
+        return  # gsply reads PLY, compressed PLY and SPZ (SOG only with an extra)
     data = gsply.read_spz(out) if fmt == "spz" else gsply.plyread(out)
     means = np.asarray(data.means) * (
         np.array([1.0, -1.0, -1.0]) if fmt == "spz" else 1.0

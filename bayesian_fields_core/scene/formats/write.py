@@ -11,15 +11,14 @@ One function, `write_splat(path, gaussians, fmt)`, with the writer chosen per fo
                   degree-0 colour only, as the format holds)
   glb             the project's glTF writer (`gltf_write`: no Python library writes
                   `KHR_gaussian_splatting`), laid out as splat-transform's own `.glb`
-
-SOG (PlayCanvas: WebP images and k-means codebooks) has no Python writer and is not written here;
-`write_splat` refuses it with the `splat-transform` command that converts the PLY export
-(`UNWRITABLE`), rather than writing a file nobody has checked against the format's owner.
+  sog             the project's SOG writer (`sog_write`: no Python library writes SOG; degree-0
+                  colour only), the inverse of the SOG reader
 Formats are named by the `EXPORT_FORMATS` keys, file names end in their `SUFFIXES`.
 """
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -33,6 +32,7 @@ EXPORT_FORMATS = {
     "spz": "Niantic SPZ v4 (gsply)",
     "splat": "antimatter15 .splat (degree-0 colour only)",
     "glb": "binary glTF with KHR_gaussian_splatting",
+    "sog": "PlayCanvas SOG v2 (degree-0 colour only)",
 }
 """The formats `write_splat` writes, with what each is."""
 
@@ -42,11 +42,12 @@ SUFFIXES = {
     "spz": ".spz",
     "splat": ".splat",
     "glb": ".glb",
+    "sog": ".sog",
 }
 
-UNWRITABLE = {"sog": ".sog"}
-"""Formats asked for but not written here (no Python writer exists): name -> suffix, for the
-refusal that names the conversion command."""
+log = logging.getLogger(__name__)
+DEGREE_ZERO_ONLY = ("splat", "sog")
+"""Formats written with the degree-0 colour only (`write_splat` says so when bands are dropped)."""
 
 SPZ_VERSION = 4
 PLY_TO_RUB = np.diag([1.0, -1.0, -1.0])
@@ -54,18 +55,10 @@ PLY_TO_RUB = np.diag([1.0, -1.0, -1.0])
 
 
 def check_format(fmt: str) -> str:
-    """`fmt` if `write_splat` writes it, else an InputError naming the supported formats (and, for
-    SOG, the command that converts a PLY export)."""
+    """`fmt` if `write_splat` writes it, else an InputError naming the supported formats."""
     if fmt in EXPORT_FORMATS:
         return fmt
-    supported = ", ".join(EXPORT_FORMATS)
-    if fmt in UNWRITABLE:
-        raise InputError(
-            f"format {fmt!r}: no Python writer exists for it, so bfields does not write it; export "
-            f"--format ply and convert: npx @playcanvas/splat-transform objects.ply "
-            f"objects{UNWRITABLE[fmt]} (supported here: {supported})"
-        )
-    raise InputError(f"unknown format {fmt!r}; use one of: {supported}")
+    raise InputError(f"unknown format {fmt!r}; use one of: {', '.join(EXPORT_FORMATS)}")
 
 
 def write_splat(path: str | Path, gaussians: Gaussians, fmt: str) -> Path:
@@ -75,6 +68,13 @@ def write_splat(path: str | Path, gaussians: Gaussians, fmt: str) -> Path:
     path = Path(path)
     if len(gaussians) == 0:
         raise InputError("nothing to export: the selection holds no Gaussians", source=str(path))
+    if fmt in DEGREE_ZERO_ONLY and gaussians.sh_degree > 0:
+        log.warning(
+            "%s: %s holds the degree-0 colour only; SH degrees 1-%d dropped",
+            path.name,
+            fmt,
+            gaussians.sh_degree,
+        )
     if fmt == "ply":
         from bayesian_fields_core.scene.ply import write_ply
 
@@ -87,6 +87,10 @@ def write_splat(path: str | Path, gaussians: Gaussians, fmt: str) -> Path:
         from bayesian_fields_core.scene.formats.gltf_write import write_glb
 
         write_glb(path, gaussians)
+    elif fmt == "sog":
+        from bayesian_fields_core.scene.formats.sog_write import write_sog
+
+        write_sog(path, gaussians)
     else:
         _write_gsply(path, gaussians, compressed=fmt == "compressed-ply")
     return path

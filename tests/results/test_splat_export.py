@@ -116,3 +116,27 @@ def test_a_missing_result_or_scene_is_named(
         InputError, match="objects \\[0\\] have no .ply export in the result; pass --scene DIR"
     ):
         export_objects(folder, object_ids=[0])  # not an answer: no export of its own, no scene known
+
+
+SH_REST_STEP = {"ply": 1e-6, "compressed-ply": 8 / 255 / 2 + 1e-4, "spz": 1 / 256 + 1e-6, "glb": 1e-6}
+"""Largest error of a higher-band SH coefficient each format allows: PLY and glTF store float32;
+PlayCanvas compressed PLY 8 bits over [-4, 4]; SPZ 8 bits, (q - 128) / 128."""
+
+
+@pytest.mark.parametrize("fmt", list(SH_REST_STEP))
+def test_sh_bands_survive_the_export_in_their_frame(fmt: str, tmp_path: Path) -> None:
+    """Degree-3 bands (turned with the axes for SPZ and glTF) read back by splat-transform and the
+    project's readers as written, within the format's step."""
+    from bayesian_fields_core.scene.formats import read_splat
+    from bayesian_fields_core.scene.formats.write import SUFFIXES, write_splat
+    from tests.scene.format_writers import sh3_sample
+    from tests.splat_transform import convert
+
+    sample = sh3_sample(Path(__file__).resolve().parents[2] / "samples" / "tabletop" / "point_cloud.ply")
+    path = write_splat(tmp_path / f"sh3{SUFFIXES[fmt]}", sample, fmt)
+    readers = [read_splat(path, max_gaussians=10**6)]
+    if fmt != "glb":  # splat-transform does not read glTF
+        readers.append(read_ply(convert(path, tmp_path / "back.ply")))
+    for back in readers:
+        assert back.sh_degree == 3
+        np.testing.assert_allclose(back.sh[:, 1:], sample.sh[:, 1:], atol=SH_REST_STEP[fmt], rtol=0)

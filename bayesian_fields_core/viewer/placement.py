@@ -23,12 +23,12 @@ import numpy as np
 
 from bayesian_fields_core.scene.types import Frame
 
-LABEL_HEIGHT = 0.045
-"""A label's height as a share of the view's height (viser's 12 px labels with padding, in a
-window of about 600 px)."""
-LABEL_CHAR_WIDTH = 0.022
-"""Width of one character of a label, as a share of the view's height."""
-LABEL_GAP = 0.006
+LABEL_HEIGHT = 0.035
+"""A label's height as a share of the view's height: viser's labels are about 20 px high (a
+chromium screenshot at 1280x800), kept apart in a view as small as 600 px."""
+LABEL_CHAR_WIDTH = 0.012
+"""Width of one character of a label as a share of the view's height (about 6.5 px)."""
+LABEL_GAP = 0.005
 """Space left between stacked labels, as a share of the view's height."""
 
 

@@ -13,27 +13,20 @@ makes a new key.
 from __future__ import annotations
 
 import logging
-from typing import TYPE_CHECKING
+from collections.abc import Callable
 
 from pydantic import ValidationError
 
-from bayesian_fields_core.checks.alignment import assess_alignment
 from bayesian_fields_core.checks.alignment_reports import AlignmentReport
-from bayesian_fields_core.job.store import ArtifactNotFound
-
-if TYPE_CHECKING:
-    from bayesian_fields_core.job.context import JobContext
+from bayesian_fields_core.job.store import ArtifactNotFound, Store
 
 log = logging.getLogger(__name__)
 
 
-def cached_alignment(ctx: JobContext) -> AlignmentReport:
-    """The scene's alignment report, from the cache when these inputs were checked before
-    (`cached` is then true), else computed and stored. Does not raise on a failed verdict."""
-    store = ctx.scene_store
-    assert store is not None
-    key = ctx.keys.alignment_key()
-    ctx.record_cache_use("alignment", [key])  # before computing: protects the entry from a prune
+def cached_alignment(store: Store, key: str, compute: Callable[[], AlignmentReport]) -> AlignmentReport:
+    """The report stored under `key` (`cached` is then true), else `compute()`'s, stored there.
+    `key` is `CacheKeys.alignment_key`; the caller records it in the cache index first, so a
+    concurrent prune keeps it. Does not raise on a failed verdict."""
     try:
         report = AlignmentReport.model_validate_json(store.get_bytes(key))
     except ArtifactNotFound:
@@ -43,7 +36,6 @@ def cached_alignment(ctx: JobContext) -> AlignmentReport:
     else:
         log.debug("alignment cache: hit %s", key)
         return report.model_copy(update={"cached": True})
-    device = ctx.params.device or ctx.models.render_device
-    report = assess_alignment(ctx.scene(), ctx.params, device=device)
+    report = compute()
     store.put_bytes(key, report.model_dump_json().encode())
     return report

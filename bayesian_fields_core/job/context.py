@@ -281,9 +281,18 @@ class JobContext:
         `AlignmentReport`, or None when `params.alignment_check` is off."""
         if not self._alignment_done:
             if self.params.alignment_check:
+                from bayesian_fields_core.checks.alignment import assess_alignment
                 from bayesian_fields_core.job.alignment_cache import cached_alignment
 
-                self._alignment = cached_alignment(self).raise_if_failed()
+                key = self.keys.alignment_key()
+                self.record_cache_use("alignment", [key])  # before computing: a prune keeps it
+                device = self.params.device or self.models.render_device
+                store = self.scene_store
+                assert store is not None
+                report = cached_alignment(
+                    store, key, lambda: assess_alignment(self.scene(), self.params, device=device)
+                )
+                self._alignment = report.raise_if_failed()
             self._alignment_done = True
         return self._alignment
 

@@ -24,20 +24,19 @@ _OPACITY_EPS = 1e-6
 
 CONVERT_HINT = "npx @playcanvas/splat-transform {source} {target}"
 """The ecosystem's converter, named in refusals (it reads every web format we know of)."""
+CONVERTED_SPLAT = "point_cloud.ply"
+"""The name a conversion writes: the loader's first splat name (`layout.SPLAT_NAMES`)."""
 
 
 def convert_command(path: Path) -> str:
     """The command that turns `path` into an INRIA PLY that the next run loads, for error messages.
 
-    The output is the loader's first splat name (`layout.SPLAT_NAMES`, point_cloud.ply) beside
-    the input: a scene folder's loader takes that name before any other file, so the unread
-    original may stay where it is (a `<stem>.ply` beside it made the next run refuse "several
-    splat files"). Paths are as given (a bare upload name stays bare), quoted for a shell."""
-    from bayesian_fields_core.scene.layout import SPLAT_NAMES  # layout imports this package
-
-    return CONVERT_HINT.format(
-        source=shlex.quote(str(path)), target=shlex.quote(str(path.with_name(SPLAT_NAMES[0])))
-    )
+    The output is `CONVERTED_SPLAT` beside the input: a scene folder's loader takes that name
+    before any other file, so the unread original may stay where it is (a `<stem>.ply` beside it
+    made the next run refuse "several splat files"). Paths are as given (a bare upload name stays
+    bare), quoted for a shell."""
+    target = path.with_name(CONVERTED_SPLAT)
+    return CONVERT_HINT.format(source=shlex.quote(str(path)), target=shlex.quote(str(target)))
 
 
 def logit(opacity: np.ndarray) -> np.ndarray:

@@ -3,8 +3,8 @@
 A key hashes exactly what its `CacheSpec` declares (`stage_table`): the perception key the
 frame's image and the models; the visibility key that key, the splat, the camera and the
 parameters the spec lists; the alignment key the splat with its colours, every camera, the
-photos the check renders against, its parameters and its code. Digests are memoised per frame, since a stage asks for every frame's
-key more than once (recording cache use, then reading).
+photos the check renders against, its parameters and its code. Digests are memoised per frame,
+since a stage asks for every frame's key more than once (recording cache use, then reading).
 """
 
 from __future__ import annotations

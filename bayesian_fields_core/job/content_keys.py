@@ -1,18 +1,20 @@
 """Content keys for the task-independent caches: what a cached artifact was computed from.
 
 A cached alignment verdict depends on the whole splat as drawn (colours too), every camera, the
-photos of the frames it renders, its parameters and its own code. A cached perception frame depends on the pixels the models see (the image file's bytes, plus the
-camera's K and distortion coefficients when the loader undistorts) and on the models; a cached
-visibility frame adds the Gaussians the renderer draws, the camera pose and intrinsics, and the depth
-settings. Paths, folder names, modification times and task files are deliberately absent: moving
-or copying a scene, editing its `tasks.yaml` or writing outputs into it must not invalidate
-anything (ARCHITECTURE, "Caches are keyed on content").
+photos of the frames it renders, its parameters and its own code. A cached perception frame depends
+on the pixels the models see (the image file's bytes, plus the camera's K and distortion
+coefficients when the loader undistorts) and on the models; a cached visibility frame adds the
+Gaussians the renderer draws, the camera pose and intrinsics, and the depth settings. Paths, folder
+names, modification times and task files are deliberately absent: moving or copying a scene,
+editing its `tasks.yaml` or writing outputs into it must not invalidate anything (ARCHITECTURE,
+"Caches are keyed on content").
 
 Hashing: SHA-256 (hardware-accelerated on current x86 and ARM CPUs: about 3x BLAKE2b here) over
 the whole file for images and depth maps (a few MB each), and over the
 in-memory Gaussian arrays that visibility uses (positions, scales, rotations, opacities) rather
 than the .ply bytes: that is the geometry after any frame transform a loader applied, and it
-skips the SH colours, which are most of a splat's bytes and do not change depth.
+skips the SH colours, which are most of a splat's bytes and do not change depth (the alignment
+key hashes them too: its check compares renders with photos).
 """
 
 from __future__ import annotations

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from typing import Any, Literal
 
 from bayesian_fields_core.errors import InputError
-from bayesian_fields_core.job.artifacts import PERCEPTION_CACHE_DIR, VISIBILITY_CACHE_DIR
+from bayesian_fields_core.job.artifacts import ALIGNMENT_CACHE_DIR, PERCEPTION_CACHE_DIR, VISIBILITY_CACHE_DIR
 from bayesian_fields_core.params import PipelineParams
 
 StageFunction = Callable[..., dict[str, Any]]
@@ -87,6 +87,27 @@ VISIBILITY_CACHE = CacheSpec(
     ),
 )
 
+ALIGNMENT_CACHE = CacheSpec(
+    folder=ALIGNMENT_CACHE_DIR,
+    params=(
+        "alignment_min_frustum_share",
+        "alignment_max_extent_ratio",
+        "alignment_min_score",
+        "alignment_frames",
+        "alignment_max_side",
+        "scene_scale",
+    ),
+    inputs=(
+        "splat digest and SH colours (the rendered part draws them)",
+        "every camera's name, K, distortion, pose and size",
+        "image content of the frames the rendered part compares",
+        "the source of the check and of what it calls (renderer, image loader, scene scale)",
+    ),
+)
+"""The alignment check's verdict: not a stage's own cache, but run before `perceive` on every job
+(`job/alignment_cache.py`). `scene_scale` is here because the check renders with the run's near
+plane, a fraction of the scene scale (`alignment_render._near_plane`)."""
+
 STAGE_TABLE: tuple[StageSpec, ...] = (
     StageSpec("perceive", "bayesian_fields_core.stages.perceive:run", "gpu", 0.6, PERCEPTION_CACHE),
     StageSpec("fuse", "bayesian_fields_core.stages.fuse:run", "gpu", 0.25, VISIBILITY_CACHE),
@@ -96,17 +117,18 @@ STAGE_TABLE: tuple[StageSpec, ...] = (
 STAGES: tuple[str, ...] = tuple(spec.name for spec in STAGE_TABLE)
 """Stage names in the order they run."""
 
+CACHES: tuple[CacheSpec, ...] = (
+    *(spec.cache for spec in STAGE_TABLE if spec.cache is not None),
+    ALIGNMENT_CACHE,
+)
+"""Every content-keyed cache: the stages' and the alignment check's."""
+
 NOT_IN_ANY_CACHE_KEY: dict[str, str] = {
     # Which frames are read: they choose cache entries, they never change one.
     "frame_stride": "selects frames",
     "max_frames": "selects frames",
-    # Checks that refuse a scene before any stage computes: they change no output.
+    # Whether the check before perception runs at all (its verdict's inputs: ALIGNMENT_CACHE).
     "alignment_check": "check before perception",
-    "alignment_min_frustum_share": "check before perception",
-    "alignment_max_extent_ratio": "check before perception",
-    "alignment_min_score": "check before perception",
-    "alignment_frames": "check before perception",
-    "alignment_max_side": "check before perception",
     # How fast, not what: batching, prefetching, the backend and device.
     "crop_batch_size": "runtime",
     "prefetch_frames": "runtime",
@@ -143,7 +165,7 @@ NOT_IN_ANY_CACHE_KEY: dict[str, str] = {
     "preview_max_side": "result files",
 }
 """Every `PipelineParams` field that enters no cache key, with why. A field is either here or in
-a `CacheSpec.params`; `tests/pipeline/test_stage_table.py` fails on a field in neither, so a new
+a `CacheSpec.params` of `CACHES`; `tests/pipeline/test_stage_table.py` fails on a field in neither, so a new
 parameter that changes what a cache holds cannot silently reuse stale entries."""
 
 

@@ -10,6 +10,7 @@ import pytest
 from bayesian_fields_core.job.context import JobContext
 from bayesian_fields_core.job.pipeline import load_models
 from bayesian_fields_core.job.stage_table import (
+    CACHES,
     NOT_IN_ANY_CACHE_KEY,
     STAGE_TABLE,
     STAGES,
@@ -24,7 +25,7 @@ SAMPLE = ROOT / "samples" / "tabletop"
 
 
 def cached_params() -> set[str]:
-    return {name for spec in STAGE_TABLE if spec.cache for name in spec.cache.params}
+    return {name for spec in CACHES for name in spec.params}
 
 
 def test_every_parameter_is_declared_for_the_caches_exactly_once() -> None:

@@ -25,6 +25,8 @@ implementation where each ran ('torch' ran on the render device, 'numpy' on the 
 
 
 Reader = Literal["job", "perceive", "fuse", "cluster"]
+CacheName = Literal["perception", "visibility", "alignment"]
+"""A content-keyed cache (`job.stage_table.CACHES`, by the name of its folder)."""
 """Who reads a parameter: a stage of `job.stage_table.STAGE_TABLE`, or "job" for what every stage
 reads through the job itself (which frames, which device)."""
 
@@ -35,21 +37,21 @@ class ReadBy:
 
     Why beside the field and not in a list elsewhere: a new parameter cannot be added without
     saying who reads it, and everything that needs the answer derives it from here: the cache
-    keys (`stage_table`, every `keyed` field of a stage enters that stage's cache key), `bfields
+    keys (`stage_table`: a cache's parameters are the fields whose `keys` name it), `bfields
     params` and the docs' parameter table (its "read by" column), and the rule that lengths are
     read only through `scene.scale.SceneLengths` (`length`; tests/pipeline/test_param_readers.py).
 
     stage: the stage that reads it (module docstring of `Reader`).
     why: what the stage reads it for, in two or three words (shown in `bfields params`).
-    keyed: the value changes what the stage caches per frame, so it enters that stage's cache
-        key; a field that is not keyed must not change a cache entry.
+    keys: the caches whose content key the value enters (it changes what they hold: a change
+        must miss them); a field that keys no cache must not change any cache entry.
     length: a length (or the scale lengths are fractions of) that `scene_lengths` resolves once
         per run; code reads the resolved `SceneLengths`, never the raw field.
     """
 
     stage: Reader
     why: str
-    keyed: bool = False
+    keys: tuple[CacheName, ...] = ()
     length: bool = False
 
 
@@ -72,31 +74,35 @@ class PipelineParams(BaseModel):
     )
 
     # --- alignment check before perception (checks/alignment.py explains the scores) -----------
-    alignment_check: Annotated[bool, ReadBy("perceive", "check before perception")] = Field(
+    alignment_check: Annotated[bool, ReadBy("perceive", "alignment check")] = Field(
         True, description="Refuse a scene whose splat does not line up with its cameras and photos."
     )
-    alignment_min_frustum_share: Annotated[float, ReadBy("perceive", "check before perception")] = Field(
+    alignment_min_frustum_share: Annotated[
+        float, ReadBy("perceive", "alignment check", keys=("alignment",))
+    ] = Field(
         0.5,
         ge=0,
         le=1,
         description="Least opacity-weighted share of the Gaussians inside at least one camera frustum.",
     )
-    alignment_max_extent_ratio: Annotated[float, ReadBy("perceive", "check before perception")] = Field(
+    alignment_max_extent_ratio: Annotated[
+        float, ReadBy("perceive", "alignment check", keys=("alignment",))
+    ] = Field(
         200.0,
         gt=1,
         le=1e9,
         description="Splat extent / camera baseline must lie in [1/r, r] (a unit or scale mix-up otherwise).",
     )
-    alignment_min_score: Annotated[float, ReadBy("perceive", "check before perception")] = Field(
+    alignment_min_score: Annotated[float, ReadBy("perceive", "alignment check", keys=("alignment",))] = Field(
         0.35,
         ge=-1,
         le=1,
         description="Least median render-vs-photo score (alpha-weighted ZNCC of band-passed grey).",
     )
-    alignment_frames: Annotated[int, ReadBy("perceive", "check before perception")] = Field(
+    alignment_frames: Annotated[int, ReadBy("perceive", "alignment check", keys=("alignment",))] = Field(
         4, ge=1, le=1000, description="Frames rendered by the check, spread evenly over the capture."
     )
-    alignment_max_side: Annotated[int, ReadBy("perceive", "check before perception")] = Field(
+    alignment_max_side: Annotated[int, ReadBy("perceive", "alignment check", keys=("alignment",))] = Field(
         160, ge=16, le=4096, description="Longest image side (pixels) the check renders and compares at."
     )
 
@@ -164,7 +170,7 @@ class PipelineParams(BaseModel):
         ),
     )
     depth_source: Annotated[
-        Literal["median", "expected", "input"], ReadBy("fuse", "visibility", keyed=True)
+        Literal["median", "expected", "input"], ReadBy("fuse", "visibility", keys=("visibility",))
     ] = Field(
         "median",
         description="Depth image for visibility: rendered median or expected depth, or the input depth maps.",
@@ -185,7 +191,9 @@ class PipelineParams(BaseModel):
         its two backends; both now run the same ops, on the render device or on the host."""
         return FORMER_FUSION_BACKENDS.get(value, value) if isinstance(value, str) else value
 
-    scene_scale: Annotated[float | None, ReadBy("fuse", "visibility", keyed=True, length=True)] = Field(
+    scene_scale: Annotated[
+        float | None, ReadBy("fuse", "visibility", keys=("visibility", "alignment"), length=True)
+    ] = Field(
         None,
         gt=0,
         le=1e9,
@@ -197,7 +205,9 @@ class PipelineParams(BaseModel):
             "to make the *_scene lengths absolute."
         ),
     )
-    depth_tolerance: Annotated[float | None, ReadBy("fuse", "visibility", keyed=True, length=True)] = Field(
+    depth_tolerance: Annotated[
+        float | None, ReadBy("fuse", "visibility", keys=("visibility",), length=True)
+    ] = Field(
         None,
         ge=0,
         le=1e6,
@@ -207,7 +217,9 @@ class PipelineParams(BaseModel):
             "nerfstudio/gsplat splat into the cameras' frame, so their internal scaling never applies."
         ),
     )
-    depth_tolerance_scene: Annotated[float, ReadBy("fuse", "visibility", keyed=True, length=True)] = Field(
+    depth_tolerance_scene: Annotated[
+        float, ReadBy("fuse", "visibility", keys=("visibility",), length=True)
+    ] = Field(
         0.02704166,
         ge=0,
         le=10,
@@ -218,7 +230,7 @@ class PipelineParams(BaseModel):
             "sample keeps its results exactly."
         ),
     )
-    depth_tolerance_relative: Annotated[float, ReadBy("fuse", "visibility", keyed=True)] = Field(
+    depth_tolerance_relative: Annotated[float, ReadBy("fuse", "visibility", keys=("visibility",))] = Field(
         0.03,
         ge=0,
         le=10,
@@ -380,9 +392,9 @@ def readers() -> dict[str, ReadBy]:
     return {name: read_by(name) for name in PipelineParams.model_fields}
 
 
-def keyed_parameters(stage: Reader) -> tuple[str, ...]:
-    """The fields whose values enter `stage`'s cache key, in declaration order."""
-    return tuple(name for name, r in readers().items() if r.stage == stage and r.keyed)
+def keyed_parameters(cache: CacheName) -> tuple[str, ...]:
+    """The fields whose values enter `cache`'s content key, in declaration order."""
+    return tuple(name for name, r in readers().items() if cache in r.keys)
 
 
 def length_parameters() -> tuple[str, ...]:

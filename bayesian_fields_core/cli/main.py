@@ -19,7 +19,9 @@ from importlib.metadata import entry_points
 from bayesian_fields_core.cli import (
     cache_command,
     calibrate_command,
+    compare_command,
     eval_command,
+    export_command,
     generate_command,
     params_command,
     run_command,
@@ -39,6 +41,8 @@ VERBS = (
     eval_command,
     calibrate_command,
     view_command,
+    export_command,
+    compare_command,
 )
 """The library's own verbs, in the order `bfields --help` lists them."""
 

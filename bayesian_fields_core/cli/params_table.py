@@ -51,8 +51,9 @@ def default_text(value: Any) -> str:
 
 
 def reader_text(reader: ReadBy) -> str:
-    """`fuse: visibility, cache key`: the stage, what for, and whether it keys the stage's cache."""
-    return f"{reader.stage}: {reader.why}" + (", cache key" if reader.keyed else "")
+    """`fuse: visibility; keys the visibility cache`: the stage, what for, and the caches it keys."""
+    keys = f"; keys the {' and '.join(reader.keys)} cache" if reader.keys else ""
+    return f"{reader.stage}: {reader.why}{keys}"
 
 
 def rows() -> list[ParamRow]:

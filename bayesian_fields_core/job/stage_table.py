@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from typing import Any, Literal
 
 from bayesian_fields_core.errors import InputError
-from bayesian_fields_core.job.artifacts import PERCEPTION_CACHE_DIR, VISIBILITY_CACHE_DIR
+from bayesian_fields_core.job.artifacts import ALIGNMENT_CACHE_DIR, PERCEPTION_CACHE_DIR, VISIBILITY_CACHE_DIR
 from bayesian_fields_core.params import PipelineParams, keyed_parameters
 
 StageFunction = Callable[..., dict[str, Any]]
@@ -34,8 +34,8 @@ class CacheSpec:
     folder: where under the cache root its entries live (``perception/``, ``visibility/``).
     params: the `PipelineParams` fields whose values enter the key: a change to any of them
         must miss the cache, and a field that is not here must not change what is cached.
-        Never written here: it is `params.keyed_parameters(stage)`, the fields whose `ReadBy`
-        marker names the stage and says `keyed`, so a parameter declares it beside its default.
+        Never written here: it is `params.keyed_parameters(<cache>)`, the fields whose `ReadBy`
+        marker names this cache in its `keys`, so a parameter declares it beside its default.
     inputs: the other contents the key hashes, in words (images, cameras, splat, models).
     """
 
@@ -69,12 +69,12 @@ class StageSpec:
 
 PERCEPTION_CACHE = CacheSpec(
     folder=PERCEPTION_CACHE_DIR,
-    params=keyed_parameters("perceive"),
+    params=keyed_parameters("perception"),
     inputs=("image bytes", "image size", "K and distortion when the loader undistorts", "model fingerprint"),
 )
 VISIBILITY_CACHE = CacheSpec(
     folder=VISIBILITY_CACHE_DIR,
-    params=keyed_parameters("fuse"),
+    params=keyed_parameters("visibility"),
     inputs=(
         "perception key of the frame",
         "the scene scale the lengths are fractions of (it depends on every frame, not only this one)",
@@ -84,6 +84,20 @@ VISIBILITY_CACHE = CacheSpec(
     ),
 )
 
+ALIGNMENT_CACHE = CacheSpec(
+    folder=ALIGNMENT_CACHE_DIR,
+    params=keyed_parameters("alignment"),
+    inputs=(
+        "splat digest and SH colours (the rendered part draws them)",
+        "every camera's name, K, distortion, pose and size",
+        "image content of the frames the rendered part compares",
+        "the source of the check and of what it calls (renderer, image loader, scene scale)",
+    ),
+)
+"""The alignment check's verdict: not a stage's own cache, but run before `perceive` on every job
+(`job/alignment_cache.py`). `scene_scale` is here because the check renders with the run's near
+plane, a fraction of the scene scale (`alignment_render._near_plane`)."""
+
 STAGE_TABLE: tuple[StageSpec, ...] = (
     StageSpec("perceive", "bayesian_fields_core.stages.perceive:run", "gpu", 0.6, PERCEPTION_CACHE),
     StageSpec("fuse", "bayesian_fields_core.stages.fuse:run", "gpu", 0.25, VISIBILITY_CACHE),
@@ -92,6 +106,12 @@ STAGE_TABLE: tuple[StageSpec, ...] = (
 
 STAGES: tuple[str, ...] = tuple(spec.name for spec in STAGE_TABLE)
 """Stage names in the order they run."""
+
+CACHES: tuple[CacheSpec, ...] = (
+    *(spec.cache for spec in STAGE_TABLE if spec.cache is not None),
+    ALIGNMENT_CACHE,
+)
+"""Every content-keyed cache: the stages' and the alignment check's."""
 
 
 def stage(name: str) -> StageSpec:

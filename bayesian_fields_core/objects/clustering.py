@@ -22,7 +22,8 @@ from bayesian_fields_core.objects.aib import aib
 from bayesian_fields_core.objects.edges import MergedGraph, merge_identical, overlap_edges
 from bayesian_fields_core.objects.knn_filter import statistical_outlier_mask
 from bayesian_fields_core.objects.probabilities import conditionals, per_view_probabilities, primitive_means
-from bayesian_fields_core.objects.select import prune_mask, task_scores, top_k
+from bayesian_fields_core.objects.scores import task_scores
+from bayesian_fields_core.objects.select import prune_mask, top_k
 from bayesian_fields_core.objects.timing import StepTimer
 from bayesian_fields_core.params import PipelineParams
 from bayesian_fields_core.scene.scale import SceneLengths

@@ -14,13 +14,14 @@ suite's present and absent tasks.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from bayesian_fields_core.calibration.model import distribution_min_peak
 from bayesian_fields_core.errors import InputError
-from bayesian_fields_core.fusion.likelihood import LikelihoodParams
+
+if TYPE_CHECKING:  # the record is read by the light result reader: no torch / scipy at import
+    from bayesian_fields_core.fusion.likelihood import LikelihoodParams
 
 RULE = "peak"
 """The score the rule thresholds: the best object's best single view for the task, as a margin
@@ -81,6 +82,8 @@ def resolve_answer_min_peak(
     fitted = getattr(calibration, "answer_min_peak", None)
     if fitted is not None:
         return float(fitted)
+    from bayesian_fields_core.calibration.model import distribution_min_peak
+
     return distribution_min_peak(likelihood.mu0, likelihood.mu1, likelihood.s)
 
 

@@ -75,9 +75,3 @@ def top_k(
         order = np.lexsort((ids, -sizes[ids], -object_pyx[ids, task]))
         out[task, :take] = ids[order[:take]]
     return out
-
-
-def task_scores(probabilities: np.ndarray, relevance: np.ndarray | None) -> np.ndarray:
-    """(O, T) the per-task object score that selection, LeRF queries and reports rank by:
-    p(y = 1 | object) when known, else p(task | object) without the null column."""
-    return np.asarray(relevance) if relevance is not None else np.asarray(probabilities)[:, :-1]

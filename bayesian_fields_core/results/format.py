@@ -20,12 +20,13 @@ from typing import Any
 import numpy as np
 
 from bayesian_fields_core.errors import InputError
-from bayesian_fields_core.geometry.obb import OrientedBox
+from bayesian_fields_core.geometry.box import OrientedBox
 from bayesian_fields_core.objects.not_found import NotFound
-from bayesian_fields_core.objects.select import task_scores
+from bayesian_fields_core.objects.scores import task_scores
+from bayesian_fields_core.results.keys import object_keys
 
 FORMAT_NAME = "bayesian-fields-result"
-FORMAT_VERSION = "1.4"
+FORMAT_VERSION = "1.5"
 """MAJOR.MINOR. A reader accepts any MINOR of its MAJOR (minors only add optional fields and files);
 a new MAJOR (a changed meaning, dtype rule or layout) is refused with a clear error."""
 
@@ -59,7 +60,8 @@ class SelectedObject:
     Gaussians), so ranks follow it even where `probability` saturates; None before 1.4.
     `world_centroid` / `world_box` (format 1.4): the same in the data's own world frame (COLMAP's,
     undoing nerfstudio's `applied_transform`), set only when that frame differs from the cameras'
-    frame (`Result.capture_to_world`)."""
+    frame (`Result.capture_to_world`). `key` (format 1.5): the object's content key
+    (`results.keys`): equal in two runs exactly when the object holds the same Gaussians."""
 
     object_id: int
     probability: float
@@ -73,6 +75,7 @@ class SelectedObject:
     score: float | None = None
     world_centroid: np.ndarray | None = None
     world_box: OrientedBox | None = None
+    key: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {
@@ -83,6 +86,8 @@ class SelectedObject:
             "box": self.box.to_dict(),
             "export": self.export,
         }
+        if self.key is not None:
+            out["key"] = self.key
         if self.peak is not None:
             out["peak"] = float(self.peak)
         if self.score is not None:
@@ -120,6 +125,7 @@ class SelectedObject:
                 score=None if data.get("score") is None else float(data["score"]),
                 world_centroid=world_centroid,
                 world_box=world_box,
+                key=None if data.get("key") is None else str(data["key"]),
             )
         except KeyError as exc:
             raise InputError(f"result summary: selected object missing field {exc.args[0]!r}") from None
@@ -161,6 +167,10 @@ class Result:
         so this is its inverse; None when the camera file is in the world frame itself.
     scene_scale: the run's scene scale and every length derived from it (format 1.4;
         `scene.scale.SceneLengths.record`), None before 1.4.
+    splat_digest: content digest of the splat the run read (`job.content_keys.splat_digest`;
+        format 1.5, '' before): binds the object keys to the scene.
+    keys: each object row's content key (`results.keys`; format 1.5), None until computed:
+        `content_keys()` fills it.
     ranked_by: what `SelectedObject.score` is, the run's `selection_score` (format 1.4: 'evidence', 'relevance' or
         'conditional'; '' before 1.4).
     """
@@ -181,6 +191,8 @@ class Result:
     capture_to_world: np.ndarray | None = None
     scene_scale: dict[str, Any] | None = None
     ranked_by: str = ""
+    splat_digest: str = ""
+    keys: list[str] | None = None
     format_version: str = FORMAT_VERSION
 
     @property
@@ -196,6 +208,12 @@ class Result:
         """(O, T) each task's score of each object: `relevance`, or for 1.0 results (which have
         none) the conditional without its null column."""
         return task_scores(self.probabilities, self.relevance)
+
+    def content_keys(self) -> list[str]:
+        """Each object row's content key, as read or written, else computed from the id map."""
+        if self.keys is None:
+            self.keys = object_keys(self.object_ids, self.num_objects, self.splat_digest)
+        return self.keys
 
     def validate(self) -> None:
         """Raise InputError unless every array and selection is consistent."""
@@ -226,6 +244,8 @@ class Result:
                 raise InputError(f"result: primitive_ids must be an integer array of shape {ids.shape}")
             if prim.size and prim.min() < -1:
                 raise InputError("result: primitive_ids below -1")
+        if self.keys is not None and len(self.keys) != probs.shape[0]:
+            raise InputError(f"result: {len(self.keys)} object keys for {probs.shape[0]} objects")
         if len(set(self.tasks)) != len(self.tasks):
             raise InputError("result: duplicate task names")
         for task, objs in self.selections.items():
@@ -253,6 +273,11 @@ class Result:
             "tasks": len(self.tasks),
             "selected_objects": len({o.object_id for objs in self.selections.values() for o in objs}),
         }
+
+
+def normalise_prefix(prefix: str) -> str:
+    """'' or a key prefix ending in '/'."""
+    return prefix if not prefix or prefix.endswith("/") else prefix + "/"
 
 
 # ---- array encodings ------------------------------------------------------------------------

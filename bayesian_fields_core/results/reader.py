@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -25,9 +25,11 @@ from bayesian_fields_core.results.format import (
     SelectedObject,
     decode_array,
     decode_ids,
+    normalise_prefix,
 )
-from bayesian_fields_core.results.writer import normalise_prefix
-from bayesian_fields_core.scene.types import Gaussians
+
+if TYPE_CHECKING:  # this module stays numpy-only at import (module docstring)
+    from bayesian_fields_core.scene.types import Gaussians
 
 
 def _check_version(summary: dict[str, Any], where: str) -> None:
@@ -105,17 +107,26 @@ def _matrix(frames: dict[str, Any], name: str, prefix: str) -> np.ndarray | None
     return m
 
 
+def result_location(folder: Path) -> tuple[Path, str]:
+    """(folder, prefix) of a result folder itself (prefix '') or of a run folder with `result/`
+    inside; an InputError naming the folder when it holds neither."""
+    if (folder / SUMMARY_KEY).is_file():
+        return folder, ""
+    if (folder / RESULT_PREFIX / SUMMARY_KEY).is_file():
+        return folder, RESULT_PREFIX
+    if not folder.is_dir():
+        raise InputError("no such folder; give a run folder of `bfields run --out`", source=str(folder))
+    raise InputError(
+        f"no result here (neither {SUMMARY_KEY} nor {RESULT_PREFIX}{SUMMARY_KEY})", source=str(folder)
+    )
+
+
 def _folder_source(folder: Path, prefix: str | None) -> tuple[Store, str]:
     """A folder as (store, prefix): a result folder itself, or a folder with `result/` inside."""
     if prefix is not None:
         return LocalStore(folder), prefix
-    if (folder / SUMMARY_KEY).is_file():
-        return LocalStore(folder), ""
-    if (folder / RESULT_PREFIX / SUMMARY_KEY).is_file():
-        return LocalStore(folder), RESULT_PREFIX
-    raise InputError(
-        f"no result here (neither {SUMMARY_KEY} nor {RESULT_PREFIX}{SUMMARY_KEY})", source=str(folder)
-    )
+    root, found = result_location(folder)
+    return LocalStore(root), found
 
 
 def read_result(source: Store | str | Path, prefix: str | None = None) -> Result:
@@ -146,6 +157,7 @@ def read_result(source: Store | str | Path, prefix: str | None = None) -> Result
     except (KeyError, TypeError) as exc:
         raise InputError(f"{prefix}{SUMMARY_KEY}: malformed tasks or selections ({exc!r})") from None
     splat_to_capture, capture_to_world, layout = _frames(summary, prefix)
+    splat_digest, keys = _keys(summary, prefix)
     scene_scale = summary.get("scene_scale")
     if scene_scale is not None and not isinstance(scene_scale, dict):
         raise InputError(f"{prefix}{SUMMARY_KEY}: scene_scale must be an object")
@@ -166,10 +178,27 @@ def read_result(source: Store | str | Path, prefix: str | None = None) -> Result
         capture_to_world=capture_to_world,
         scene_scale=scene_scale,
         ranked_by=str(summary.get("ranked_by", "")),
+        splat_digest=splat_digest,
+        keys=keys,
         format_version=str(summary["format_version"]),
     )
     result.validate()
+    computed = result.content_keys()  # results older than 1.5 carry none: computed here
+    for objs in result.selections.values():
+        for obj in objs:
+            if obj.key is None:
+                obj.key = computed[obj.object_id]
     return result
+
+
+def _keys(summary: dict[str, Any], prefix: str) -> tuple[str, list[str] | None]:
+    """(splat digest, object keys or None) of a 1.5 result; ('', None) before 1.5."""
+    digest, keys = summary.get("splat_digest") or "", summary.get("object_keys")
+    if not isinstance(digest, str):
+        raise InputError(f"{prefix}{SUMMARY_KEY}: splat_digest must be a string")
+    if keys is not None and not (isinstance(keys, list) and all(isinstance(k, str) for k in keys)):
+        raise InputError(f"{prefix}{SUMMARY_KEY}: object_keys must be a list of strings")
+    return digest, keys
 
 
 def object_gaussians(result: Result, gaussians: Gaussians, object_id: int) -> Gaussians:

@@ -35,6 +35,7 @@ from bayesian_fields_core.results.format import (
     SelectedObject,
     encode_array,
     encode_ids,
+    normalise_prefix,
 )
 from bayesian_fields_core.results.previews import (
     CONTACT_SHEET_KEY,
@@ -44,11 +45,6 @@ from bayesian_fields_core.results.previews import (
 )
 from bayesian_fields_core.scene.similarity import Similarity
 from bayesian_fields_core.scene.types import Frame, Gaussians
-
-
-def normalise_prefix(prefix: str) -> str:
-    """'' or a key prefix ending in '/'."""
-    return prefix if not prefix or prefix.endswith("/") else prefix + "/"
 
 
 def object_export_key(object_id: int) -> str:
@@ -212,8 +208,14 @@ def _summary(
 ) -> dict[str, Any]:
     """summary.json: names every file with its checksum (written last; see the module doc)."""
 
+    keys = result.content_keys()
+
     def describe(obj: SelectedObject) -> dict[str, Any]:
-        return {**obj.to_dict(), "export": exports["objects"].get(str(obj.object_id))}
+        return {
+            **obj.to_dict(),
+            "export": exports["objects"].get(str(obj.object_id)),
+            "key": keys[obj.object_id],
+        }
 
     summary = {
         "format": FORMAT_NAME,
@@ -223,6 +225,8 @@ def _summary(
         "counts": result.counts(),
         "arrays": arrays,
         "selections": [_selection_entry(result, task, describe) for task in result.tasks],
+        "splat_digest": result.splat_digest,
+        "object_keys": keys,
         "exports": exports,
         "previews": previews,
         "scene": scene,

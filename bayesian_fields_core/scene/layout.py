@@ -26,6 +26,7 @@ import numpy as np
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.scene.files import resolve_inside
 from bayesian_fields_core.scene.formats.checkpoint import CKPT
+from bayesian_fields_core.scene.formats.common import CONVERTED_SPLAT
 from bayesian_fields_core.scene.formats.registry import accepted_names, is_splat_candidate
 from bayesian_fields_core.scene.inria_output import CFG_ARGS, is_inria_output, read_cfg_args
 from bayesian_fields_core.scene.scene_yaml import SCENE_YAML, SceneSpecFile, read_scene_yaml
@@ -38,7 +39,7 @@ from bayesian_fields_core.scene.trainer_transforms import (
     read_transform_file,
 )
 
-SPLAT_NAMES = ("point_cloud.ply", "splat.ply")
+SPLAT_NAMES = (CONVERTED_SPLAT, "splat.ply")
 CAMERA_SOURCES = ("transforms.json", "sparse/0", "sparse", "colmap/sparse/0", "cameras.json")
 """`colmap/sparse/0` is where nerfstudio's ns-process-data leaves the COLMAP model."""
 INRIA_SFM_POINTS = "input.ply"

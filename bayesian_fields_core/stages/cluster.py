@@ -242,6 +242,7 @@ def build_result(
         capture_to_world=None if to_world is None else to_world.matrix,
         scene_scale={**ctx.lengths().record(), "units": scene_units(scene)},
         ranked_by=ctx.params.selection_score,
+        splat_digest=ctx.splat_digest(),
     )
 
 

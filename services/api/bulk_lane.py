@@ -48,7 +48,7 @@ START_TIMEOUT_S = 60.0
 """How long a request waits for a (re)started child to listen (an import of the app takes 2-6 s
 on a loaded 2-core machine)."""
 
-NICENESS = 5
+NICENESS = 10
 """The child's CPU niceness: on a busy machine the kernel runs the API process (other tenants'
 requests) before a batch's parsing, which may take a little longer instead."""
 

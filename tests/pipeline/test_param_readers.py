@@ -8,14 +8,22 @@ table read it, and the length parameters are read only where `scene_lengths` res
 from __future__ import annotations
 
 import ast
+import typing
 from pathlib import Path
 
 import pytest
 
 import bayesian_fields_core.params as params_module
 from bayesian_fields_core.cli import params_table
-from bayesian_fields_core.job.stage_table import PERCEPTION_CACHE, STAGE_TABLE, STAGES
+from bayesian_fields_core.job.stage_table import (
+    ALIGNMENT_CACHE,
+    CACHES,
+    PERCEPTION_CACHE,
+    STAGES,
+    VISIBILITY_CACHE,
+)
 from bayesian_fields_core.params import (
+    CacheName,
     PipelineParams,
     keyed_parameters,
     length_parameters,
@@ -46,30 +54,36 @@ def test_a_field_without_a_marker_is_refused(monkeypatch: pytest.MonkeyPatch) ->
 
 
 def test_the_cache_specs_are_the_keyed_markers() -> None:
-    """A stage's cache key hashes exactly its keyed parameters; a keyed parameter of a stage with
-    no cache would key nothing, so it is refused."""
-    for spec in STAGE_TABLE:
-        keyed = keyed_parameters(spec.name)  # type: ignore[arg-type]
-        if spec.cache is None:
-            assert keyed == (), f"{spec.name} has no cache, yet {keyed} say they key it"
-        else:
-            assert spec.cache.params == keyed
-    assert keyed_parameters("job") == ()
-    # The perception key hashes no parameters (CacheKeys.perception_digest): marking one keyed
+    """A cache's key hashes exactly the parameters whose markers name it, and every name a marker
+    uses is a cache (a misspelt one would key nothing)."""
+    by_name = {spec.folder.rstrip("/"): spec for spec in CACHES}
+    assert set(by_name) == set(typing.get_args(CacheName))
+    for name, spec in by_name.items():
+        assert spec.params == keyed_parameters(name)  # type: ignore[arg-type]
+    # The perception key hashes no parameters (CacheKeys.perception_digest): naming it in a marker
     # needs that digest taught first, or the mark would promise a miss that never happens.
     assert PERCEPTION_CACHE.params == ()
-    assert keyed_parameters("fuse") == (
+    assert VISIBILITY_CACHE.params == (
         "depth_source",
         "scene_scale",
         "depth_tolerance",
         "depth_tolerance_scene",
         "depth_tolerance_relative",
     )
+    assert ALIGNMENT_CACHE.params == (
+        "alignment_min_frustum_share",
+        "alignment_max_extent_ratio",
+        "alignment_min_score",
+        "alignment_frames",
+        "alignment_max_side",
+        "scene_scale",
+    )
 
 
 def test_the_table_shows_each_reader() -> None:
     rows = {r.name: r for r in params_table.rows()}
-    assert rows["depth_tolerance_scene"].read_by == "fuse: visibility, cache key"
+    assert rows["depth_tolerance_scene"].read_by == "fuse: visibility; keys the visibility cache"
+    assert rows["scene_scale"].read_by == "fuse: visibility; keys the visibility and alignment cache"
     assert rows["top_k"].read_by == "cluster: objects"
     assert "| read by |" in params_table.markdown_table().splitlines()[0]
 

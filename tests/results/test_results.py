@@ -214,7 +214,7 @@ def test_relevance_round_trip_and_optional(setup):
     written = write_result(store, "r", res)
     back = read_result(store, "r")
     np.testing.assert_array_equal(back.relevance, res.relevance)
-    assert back.format_version == FORMAT_VERSION == "1.4"
+    assert back.format_version == FORMAT_VERSION == "1.5"
     assert result_sizes(store, "r")["total/object_map"] == sum(
         written[k] for k in ("summary.json", "object_ids.bin", "probabilities.bin", "relevance.bin")
     )
@@ -290,7 +290,7 @@ def test_format_1_4_fields_round_trip_and_name_the_frames(setup):
     res = _with_world_frame(res)
     write_result(store, "r", res, gaussians=g)
     summary = json.loads(store.get_bytes("r/summary.json"))
-    assert summary["format_version"] == FORMAT_VERSION == "1.4"
+    assert summary["format_version"] == FORMAT_VERSION == "1.5"
     assert set(summary["frames"]["names"]) == {"splat", "world"}  # no capture frame: one with the splat
     assert summary["scene_scale"]["value"] == 1.85 and summary["ranked_by"] == "evidence"
     back = read_result(store, "r")

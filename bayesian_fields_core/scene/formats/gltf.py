@@ -44,7 +44,7 @@ EXTENSION = "KHR_gaussian_splatting"
 GLTF_TO_PLY = np.diag([-1.0, -1.0, 1.0])
 _COMPONENTS = {"SCALAR": 1, "VEC3": 3, "VEC4": 4}
 _TYPES: dict[int, np.dtype] = {5126: np.dtype("<f4"), 5121: np.dtype("u1"), 5123: np.dtype("<u2")}
-_JSON_CHUNK, _BIN_CHUNK = 0x4E4F534A, 0x004E4942
+JSON_CHUNK, BIN_CHUNK = 0x4E4F534A, 0x004E4942
 
 
 @dataclass(frozen=True)
@@ -74,7 +74,7 @@ def _split_glb(f: BinaryIO, path: Path) -> tuple[bytes, _Region | None]:
     if len(head) < 20 or head[:4] != b"glTF":
         raise InputError("not a GLB file (bad magic)", source=str(path))
     json_len, json_type = struct.unpack_from("<II", head, 12)
-    if json_type != _JSON_CHUNK or 20 + json_len > size:
+    if json_type != JSON_CHUNK or 20 + json_len > size:
         raise InputError("GLB has no JSON chunk (or its length runs past the file)", source=str(path))
     if json_len > MAX_JSON_BYTES:
         raise InputError(f"GLB JSON chunk is larger than {MAX_JSON_BYTES >> 20} MiB", source=str(path))
@@ -83,7 +83,7 @@ def _split_glb(f: BinaryIO, path: Path) -> tuple[bytes, _Region | None]:
     if offset + 8 > size:
         return text, None
     bin_len, bin_type = struct.unpack_from("<II", read_exact(f, offset, 8, what="GLB chunk", source=path))
-    if bin_type != _BIN_CHUNK:
+    if bin_type != BIN_CHUNK:
         return text, None
     if offset + 8 + bin_len > size:
         raise InputError(f"GLB binary chunk of {bin_len} bytes runs past the file", source=str(path))

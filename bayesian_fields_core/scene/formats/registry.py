@@ -44,7 +44,8 @@ class SplatFormat:
         Neither `source` nor `reader`: a known format we refuse, naming the converter.
     self_checked: the reader refuses non-finite values and degenerate splats itself, with its own
         messages (the INRIA PLY's); every other reader's result is checked by `read_splat`.
-    writer: ``module:function`` of `(path, gaussians)` where the project writes the format.
+    writer: ``module:function`` of `(path, gaussians)` where the project writes the format
+        itself (`bfields export` writes compressed PLY and SPZ through gsply: `formats.write`).
     upload_refusal: why an upload may not carry a format we read, and what to do instead (a
         checkpoint is a pickle stream: CLI only); None: an upload may carry it.
     notes: what the reader does beyond decoding (axes, bands dropped), for the docs' table.
@@ -127,6 +128,7 @@ SPLAT_FORMATS: tuple[SplatFormat, ...] = (
         file_names=("meta.json",),
         folder=True,
         source=f"{FORMATS_MODULE}.sog:open_sog",
+        writer=f"{FORMATS_MODULE}.sog_write:write_sog",
         notes="SH bands above those it stores are dropped",
     ),
     SplatFormat(
@@ -142,6 +144,7 @@ SPLAT_FORMATS: tuple[SplatFormat, ...] = (
         "glTF with `KHR_gaussian_splatting` (`.glb`, `.gltf`)",
         suffixes=(".glb", ".gltf"),
         source=f"{FORMATS_MODULE}.gltf:open_gltf",
+        writer=f"{FORMATS_MODULE}.gltf_write:write_glb",
         notes="the JSON is validated field by field",
     ),
     SplatFormat(

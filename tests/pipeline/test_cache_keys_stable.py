@@ -1,8 +1,8 @@
 """The cache keys of existing parameters never change when the code that declares them moves.
 
 A changed key silently orphans every cache a user has built (each scene re-runs perception and
-visibility from scratch), so the keys of the bundled sample's first frames are pinned here for
-the default parameters and a few variations. The values were recorded on main before the
+visibility from scratch), so the keys of the bundled sample's second frame are pinned here for
+the default parameters and a few variations, and the parameter part of the alignment verdict's. The values were recorded on main before the
 parameters started to declare their stage in their own `Field` (issue 32, item 2); if one of
 them changes, the change is a cache-format break and needs saying in the changelog, not a new
 expected value.
@@ -14,7 +14,8 @@ from pathlib import Path
 
 import pytest
 
-from bayesian_fields_core.job.cache_keys import CacheKeys
+from bayesian_fields_core.job.cache_keys import CacheKeys, short_hash
+from bayesian_fields_core.job.stage_table import ALIGNMENT_CACHE, cache_parameters
 from bayesian_fields_core.params import PipelineParams
 from bayesian_fields_core.scene.loader import load_scene
 from bayesian_fields_core.scene.scale import scene_lengths
@@ -83,3 +84,28 @@ def keys(scene: Scene, params: PipelineParams) -> CacheKeys:
 def test_cache_keys_are_pinned(scene: Scene, name: str) -> None:
     k = keys(scene, PipelineParams(**VARIATIONS[name]))  # type: ignore[arg-type]
     assert (k.perception_key(1), k.visibility_key(1)) == EXPECTED[name]
+
+
+ALIGNMENT_VARIATIONS: dict[str, dict[str, object]] = {
+    "default": {},
+    "scene_scale": {"scene_scale": 3.0},
+    "alignment_min_score": {"alignment_min_score": 0.5},
+    "alignment_frames": {"alignment_frames": 6},
+    "cluster_only": {"top_k": 2, "prior": 0.2, "crop_batch_size": 7, "edge_padding_scene": 0.1},
+}
+ALIGNMENT_EXPECTED = {
+    "alignment_frames": "802ef9ab99aad9d8",
+    "alignment_min_score": "e943a4e55e48e8ee",
+    "cluster_only": "1345e7ff27472d1c",
+    "default": "1345e7ff27472d1c",
+    "scene_scale": "7bdb0f3c60238f99",
+}
+"""The parameter part of the alignment verdict's key (`CacheKeys.alignment_key`), recorded on main
+when the verdict became cached. Only that part is pinned: the whole key also hashes the check's
+own source (`checks.alignment.code_fingerprint`), so an edit of that code misses it on purpose."""
+
+
+@pytest.mark.parametrize("name", sorted(ALIGNMENT_VARIATIONS))
+def test_alignment_key_parameters_are_pinned(name: str) -> None:
+    params = PipelineParams(**ALIGNMENT_VARIATIONS[name])  # type: ignore[arg-type]
+    assert short_hash(cache_parameters(ALIGNMENT_CACHE, params)) == ALIGNMENT_EXPECTED[name]

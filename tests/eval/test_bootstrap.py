@@ -84,3 +84,17 @@ def test_a_task_without_a_scene_is_refused() -> None:
     del groups["t3"]
     with pytest.raises(InputError, match="no group"):
         paired_differences(a, a, groups=groups)
+
+
+def test_the_suite_prints_task_and_scene_intervals_side_by_side(capsys: pytest.CaptureFixture[str]) -> None:
+    from bayesian_fields_core.eval.suite import AVERAGING, FULL, print_intervals
+
+    full, groups = _scenes([[1] * 4, [0] * 4, [1] * 4, [1] * 4])
+    averaging, _ = _scenes([[0] * 4] * 4)
+    print_intervals({FULL: full, AVERAGING: averaging}, groups)
+    out = capsys.readouterr().out
+    assert "bootstrap over the 16 tasks" in out and "bootstrap over the 4 scenes" in out
+    line = next(x for x in out.splitlines() if x.strip().startswith(f"{FULL} - {AVERAGING.strip()}"))
+    by_task, by_scene = line.split("tasks:")[1].split("| scenes:")
+    assert by_task.strip().startswith("strict +0.750") and by_scene.strip().startswith("strict +0.750")
+    assert str(paired_differences(full, averaging, groups=groups)["strict_osr"]) in by_scene

@@ -37,7 +37,8 @@ def _suite_count(text: str) -> int:
 
 
 def _suite_seeds(text: str) -> list[int]:
-    """argparse type: comma-separated seeds that `suite_specs` accepts (1 to 10, distinct, >= 0)."""
+    """argparse type: comma-separated seeds that `suite_specs` accepts (1 to
+    `MAX_HELD_OUT_SCENES`, distinct, >= 0)."""
     from bayesian_fields_core.eval.synthetic.spec import suite_specs
 
     try:
@@ -49,6 +50,15 @@ def _suite_seeds(text: str) -> list[int]:
     except ValueError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
     return seeds
+
+
+def _regime_name(text: str) -> str:
+    """argparse type: one of the perception regimes (`eval.regime.REGIMES`), read when used."""
+    from bayesian_fields_core.eval.regime import REGIMES
+
+    if text not in REGIMES:
+        raise argparse.ArgumentTypeError(f"expected one of {', '.join(REGIMES)}, got {text!r}")
+    return text
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -84,8 +94,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--seeds",
         type=_suite_seeds,
         metavar="S1,S2,...",
-        help="held-out scenes: re-seed the suite's layouts in turn with these seeds (1 to 10; "
+        help="held-out scenes: re-seed the suite's layouts in turn with these seeds (1 to 40; "
         "replaces --scenes)",
+    )
+    ev.add_argument(
+        "--regime",
+        type=_regime_name,
+        help="perception regime of the suite: realistic (default: each view as weak as a real CLIP's, "
+        "the paper's mu0=0.20 mu1=0.27 s=0.035) or strong (the tiny CLIP's strong per-view evidence)",
     )
     ev.add_argument(
         "--not-found-curve",
@@ -126,6 +142,7 @@ def run(args: argparse.Namespace) -> int:
         return _clio_scene(args, base_params)
     if args.transform is not None or args.transform_key is not None:
         raise InputError("--transform and --transform-key go with --scene DIR --gt FILE", source="eval")
+    from bayesian_fields_core.eval.regime import DEFAULT_REGIME
     from bayesian_fields_core.eval.suite import run_suite
 
     run_suite(
@@ -140,6 +157,7 @@ def run(args: argparse.Namespace) -> int:
         not_found_curve=args.not_found_curve,
         suite=args.suite,
         breakdown=args.breakdown,
+        regime=args.regime or DEFAULT_REGIME,
     )
     return 0
 
@@ -152,6 +170,11 @@ def _clio_scene(args: argparse.Namespace, base_params: dict[str, object] | None)
         raise InputError("--scene DIR and --gt FILE go together", source="eval")
     if args.seeds is not None:
         raise InputError("--seeds selects suite scenes; it does not go with --scene", source="eval")
+    if args.regime is not None:
+        raise InputError(
+            "--regime changes the suite's tiny CLIP; a --scene is scored with its profile's own encoder",
+            source="eval",
+        )
     run_clio_scene(
         scene_dir=Path(args.scene),
         gt_file=Path(args.gt),

@@ -17,12 +17,13 @@ Protocol (Maggio et al., RA-L 2024, as used by the Bayesian Fields paper):
   the number of objects in the map.
 
 Containment here is the true oriented test. (Clio's code tests centroids against an axis-aligned
-box of twice the extent, which is looser; we follow the paper's definition instead.)
+box of twice the extent, which is looser; we follow the paper's definition instead. The
+"Clio-code" scoring of `clio_code.py` reproduces Clio's rules, to set a figure beside the paper's.)
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -37,6 +38,8 @@ from bayesian_fields_core.geometry.obb import OrientedBox
 
 Matching = Literal["greedy", "hungarian"]
 RelaxedRule = Literal["either", "estimate_contains_gt"]
+Containment = Callable[[OrientedBox, OrientedBox], bool]
+"""`contains(container, other)`: whether `container` holds the centre of `other`."""
 
 
 @dataclass
@@ -150,11 +153,13 @@ def clio_metrics(
     matching: Matching = "greedy",
     relaxed: RelaxedRule = "either",
     time_s: float | None = None,
+    contains: Containment = obb_contains_centroid,
 ) -> ClioScores:
     """Clio's metrics of a map (`estimates`) against task-labelled GT boxes.
 
     `num_objects` (the Objs column) defaults to `len(estimates)`; pass the map's object count when
-    only part of the map is given.
+    only part of the map is given. `contains` is the centroid test (the oriented one by default;
+    `clio_code.clio_code_contains` for Clio's code).
     """
     ests = [_coerce_estimate(e) for e in estimates]
     gts = [_coerce_gt(g) for g in ground_truth]
@@ -171,8 +176,8 @@ def clio_metrics(
         scores = TaskScores(num_gt=len(gt_boxes), strict=0, relaxed=0, iou_sum=0.0)
         for g, e in _match(iou, matching):
             scores.iou_sum += float(iou[g, e])
-            est_has_gt = obb_contains_centroid(chosen[e], gt_boxes[g])
-            gt_has_est = obb_contains_centroid(gt_boxes[g], chosen[e])
+            est_has_gt = contains(chosen[e], gt_boxes[g])
+            gt_has_est = contains(gt_boxes[g], chosen[e])
             scores.strict += int(est_has_gt and gt_has_est)
             scores.relaxed += int(est_has_gt or (relaxed == "either" and gt_has_est))
         per_task[task] = scores

@@ -6,6 +6,13 @@ table isolates fusion and clustering. Scores are pooled over the suite's (task, 
 Objs and time are per-scene means; time counts perception once per scene for every row.
 A second table scores the same maps by the LeRF protocol (`lerf_views.py`): per-scene mIoU /
 mAcc of rendered object masks and their unweighted mean, as in the paper's Table 3.
+
+Two scorings of the same boxes are printed (issue 33): "geometric", the project's (oriented
+containment, Relaxed = either centre, pooled over the suite's pairs), and "Clio-code", the rules of
+Clio's evaluation code that the paper's figures come from (`clio_code.py`). Intervals are given
+twice: resampling tasks, and resampling scenes (a scene's tasks kept together).
+The perception `regime` (`regime.py`) sets how much evidence one view carries: "realistic" (a real
+CLIP's d' = 2.0, the default) or "strong" (the tiny CLIP as it is).
 """
 
 from __future__ import annotations
@@ -34,6 +41,7 @@ from bayesian_fields_core.eval.clio import (
     clio_metrics,
     format_table,
 )
+from bayesian_fields_core.eval.clio_code import CLIO_CODE_LABEL, clio_code_metrics, scene_mean
 from bayesian_fields_core.eval.lerf import LerfScores, format_lerf_table
 from bayesian_fields_core.eval.lerf_views import DEFAULT_VIEWS, LerfViews, prepare_views, score_map
 from bayesian_fields_core.eval.not_found_tradeoff import (
@@ -44,6 +52,7 @@ from bayesian_fields_core.eval.not_found_tradeoff import (
     task_outcomes,
     tradeoff_curve,
 )
+from bayesian_fields_core.eval.regime import DEFAULT_REGIME, Regime, describe, regime_models
 from bayesian_fields_core.eval.tables import format_interval_table
 from bayesian_fields_core.fusion.likelihood import resolve_likelihood
 from bayesian_fields_core.job.artifacts import RESULT_PREFIX
@@ -82,6 +91,7 @@ class SceneEvaluation:
     lerf: dict[str, LerfScores]
     not_found: dict[str, list[TaskOutcome]] = field(default_factory=dict)
     breakdown: dict[str, list[TaskBreakdown]] = field(default_factory=dict)
+    clio_code: dict[str, ClioScores] = field(default_factory=dict)
 
 
 @dataclass
@@ -126,12 +136,22 @@ def _estimates_from_map(tasks: list[str], object_map: ObjectMap) -> list[Estimat
     return estimates_from_selection(tasks, selection)
 
 
+def _pooled_key(scene: int, task: str) -> str:
+    """A task's key in the pooled scores: scenes may share task names."""
+    return f"{scene}:{task}"
+
+
+def scene_groups(per_scene: list[ClioScores]) -> dict[str, str]:
+    """Pooled task key -> its scene (by index), for the scene-level bootstrap."""
+    return {_pooled_key(i, task): str(i) for i, scores in enumerate(per_scene) for task in scores.per_task}
+
+
 def pool_scores(per_scene: list[ClioScores]) -> ClioScores:
     """Micro-average over scenes: pooled (task, GT) pairs; mean Objs and time."""
     per_task: dict[str, TaskScores] = {}
     for i, scores in enumerate(per_scene):
         for task, ts in scores.per_task.items():
-            per_task[f"{i}:{task}"] = ts
+            per_task[_pooled_key(i, task)] = ts
     total = sum(ts.num_gt for ts in per_task.values())
     times = [s.time_s for s in per_scene if s.time_s is not None]
     return ClioScores(
@@ -196,6 +216,7 @@ def evaluate_scene(
     scene_store = LocalStore(out_dir / "cache")
     scene_prefix = f"scenes/{case.name}/"
     rows: dict[str, ClioScores] = {}
+    code_rows: dict[str, ClioScores] = {}
     lerf: dict[str, LerfScores] = {}
     not_found: dict[str, list[TaskOutcome]] = {}
     breakdown: dict[str, list[TaskBreakdown]] = {}
@@ -241,6 +262,9 @@ def evaluate_scene(
         }
         estimates = estimates_from_selection(case.tasks, selection)
         rows[row] = clio_metrics(estimates, case.ground_truth, num_objects=result.num_objects, time_s=seconds)
+        code_rows[row] = clio_code_metrics(
+            estimates, case.ground_truth, num_objects=result.num_objects, time_s=seconds
+        )
         breakdown[row] = task_breakdowns(case.name, case.tasks, estimates, case.ground_truth, case.instances)
         best = {task: objs[0].peak if objs else None for task, objs in result.selections.items()}
         not_found[row] = task_outcomes(case.tasks, rows[row], best)
@@ -259,17 +283,20 @@ def evaluate_scene(
         t = time.perf_counter()
         object_map = run()
         seconds = perceive_s + visibility_s + time.perf_counter() - t
+        baseline_estimates = _estimates_from_map(case.tasks, object_map)
         rows[row] = clio_metrics(
-            _estimates_from_map(case.tasks, object_map),
-            case.ground_truth,
-            num_objects=len(object_map.probabilities),
-            time_s=seconds,
+            baseline_estimates, case.ground_truth, num_objects=len(object_map.probabilities), time_s=seconds
+        )
+        code_rows[row] = clio_code_metrics(
+            baseline_estimates, case.ground_truth, num_objects=len(object_map.probabilities), time_s=seconds
         )
         if views is not None:
             lerf[row] = score_map(views, case.tasks, object_map.object_ids, object_map.task_scores)
         not_found[row] = []  # no per-view peak: the rule does not apply
         log(_row_line(case.name, row, rows[row], lerf.get(row)))
-    return SceneEvaluation(clio=rows, lerf=lerf, not_found=not_found, breakdown=breakdown)
+    return SceneEvaluation(
+        clio=rows, lerf=lerf, not_found=not_found, breakdown=breakdown, clio_code=code_rows
+    )
 
 
 def _row_line(scene: str, row: str, scores: ClioScores, lerf: LerfScores | None) -> str:
@@ -290,16 +317,19 @@ def run_suite(
     not_found_curve: bool = False,
     suite: str = "tabletop",
     breakdown: bool = False,
+    regime: Regime = DEFAULT_REGIME,
 ) -> dict[str, ClioScores]:
     """Generate the suite, evaluate every row on every scene, print the pooled Table 1, the
     "not found" columns and, unless `lerf_views=0`, the LeRF table. `seeds` evaluates on held-out
     re-seeded scenes; `not_found_curve` adds the rule's threshold trade-off curve; `suite` names
     the suite ("tabletop", or "capture": handheld-capture effects, `synthetic/capture.py`);
     `breakdown` adds why each method row missed GT objects (`breakdown.py`), per task for the full
-    method."""
-    models = load_models(profile)
+    method; `regime` is the perception regime (`regime.py`), the same for every row."""
+    models = regime_models(load_models(profile), regime)
+    print(describe(models, regime))
     cases = prepare_scenes(suite_dir, n_scenes, seeds, suite)
     per_row: dict[str, list[ClioScores]] = {}
+    code_per_row: dict[str, list[ClioScores]] = {}
     lerf_rows: dict[str, dict[str, LerfScores]] = {}
     outcomes: dict[str, list[TaskOutcome]] = {}
     causes: dict[str, list[TaskBreakdown]] = {}
@@ -308,6 +338,8 @@ def run_suite(
         scene_eval = evaluate_scene(case, models, out_dir, base_params=base_params, lerf_views=lerf_views)
         for row, scores in scene_eval.clio.items():
             per_row.setdefault(row, []).append(scores)
+        for row, scores in scene_eval.clio_code.items():
+            code_per_row.setdefault(row, []).append(scores)
         for row, lerf in scene_eval.lerf.items():
             lerf_rows.setdefault(row, {})[case.name] = lerf
         for row, task_list in scene_eval.not_found.items():
@@ -321,29 +353,18 @@ def run_suite(
         f"Synthetic suite {suite!r} ({kind} seeds): {len(cases)} scenes "
         f"({', '.join(c.name for c in cases)}), {pooled[FULL].num_gt} (task, GT object) pairs"
     )
+    print(f"Geometric scoring (the project's: oriented containment, pooled over the pairs), regime {regime}:")
     print(format_table(pooled, markdown=markdown))
     print()
-    n_tasks = len(pooled[FULL].per_task)
-    print(f"The same scores with 95% intervals (bootstrap over the {n_tasks} tasks):")
-    intervals = {row.strip(): score_intervals(scores) for row, scores in pooled.items()}
-    print(format_interval_table(intervals, markdown=markdown))
+    code = {row: scene_mean(scores) for row, scores in code_per_row.items()}
+    print(
+        f"{CLIO_CODE_LABEL} scoring (Clio's evaluation code, as the paper's figures: axis-aligned "
+        f"containment of twice the box, Relaxed = the estimate holds the GT centre, mean of the "
+        f"{len(cases)} scenes), regime {regime}:"
+    )
+    print(format_table(code, markdown=markdown))
     print()
-    print(f"Full method minus each row, paired bootstrap over the {n_tasks} tasks (95%):")
-    for row, scores in pooled.items():
-        if row == FULL:
-            continue
-        diff = paired_differences(pooled[FULL], scores)
-        marks = "".join("*" if d.significant else " " for d in diff.values())
-        print(f"  {row.strip():<56} strict {diff['strict_osr']}  IoU {diff['iou']}  {marks}")
-    print("  (* = the interval excludes 0)")
-    print()
-    print(f"Each Bayesian row minus averaging, paired bootstrap over the {n_tasks} tasks (95%):")
-    for row, scores in pooled.items():
-        if row in (AVERAGING, SEMANTIC_GAUSSIANS, CLIO):
-            continue
-        diff = paired_differences(scores, pooled[AVERAGING])
-        marks = "".join("*" if d.significant else " " for d in diff.values())
-        print(f"  {row.strip():<56} strict {diff['strict_osr']}  IoU {diff['iou']}  {marks}")
+    print_intervals(pooled, scene_groups(per_row[FULL]), markdown=markdown)
     print_not_found(outcomes, run_threshold(base_params, models), markdown=markdown, curve=not_found_curve)
     if breakdown:
         print_breakdown(causes, markdown=markdown)
@@ -357,6 +378,36 @@ def run_suite(
             )
         )
     return pooled
+
+
+def print_intervals(pooled: dict[str, ClioScores], groups: dict[str, str], *, markdown: bool = False) -> None:
+    """The geometric scores' 95% intervals and the paired differences (full method minus each row,
+    each Bayesian row minus averaging), by resampling tasks and, beside them, whole scenes."""
+    n_tasks = len(pooled[FULL].per_task)
+    n_scenes = len(set(groups.values()))
+    for unit, unit_groups, count in (("tasks", None, n_tasks), ("scenes", groups, n_scenes)):
+        print(f"The same scores with 95% intervals (bootstrap over the {count} {unit}):")
+        intervals = {
+            row.strip(): score_intervals(scores, groups=unit_groups) for row, scores in pooled.items()
+        }
+        print(format_interval_table(intervals, markdown=markdown))
+        print()
+    pairs = [(FULL, row) for row in pooled if row != FULL] + [
+        (row, AVERAGING) for row in pooled if row not in (AVERAGING, SEMANTIC_GAUSSIANS, CLIO)
+    ]
+    print(
+        f"Paired differences a - b (95%), bootstrap over the {n_tasks} tasks | over the {n_scenes} "
+        "scenes (* = the interval excludes 0):"
+    )
+    for a, b in pairs:
+        by_task = paired_differences(pooled[a], pooled[b])
+        by_scene = paired_differences(pooled[a], pooled[b], groups=groups)
+        cells = []
+        for diff in (by_task, by_scene):
+            marks = "".join("*" if d.significant else " " for d in diff.values())
+            cells.append(f"strict {diff['strict_osr']}  IoU {diff['iou']} {marks}")
+        name = f"{a.strip()} - {b.strip()}"
+        print(f"  {name:<72} tasks: {cells[0]} | scenes: {cells[1]}")
 
 
 def print_breakdown(causes: dict[str, list[TaskBreakdown]], *, markdown: bool = False) -> None:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from bayesian_fields_core.errors import InputError
-from bayesian_fields_core.eval.bootstrap import paired_differences
+from bayesian_fields_core.eval.bootstrap import paired_differences, score_intervals
 from bayesian_fields_core.eval.clio import ClioScores, TaskScores
 
 
@@ -45,3 +45,56 @@ def test_rows_on_different_tasks_are_refused() -> None:
     b = _scores([1], [0.5], [1])
     with pytest.raises(InputError, match="different tasks"):
         paired_differences(a, b)
+
+
+def _scenes(strict: list[list[int]]) -> tuple[ClioScores, dict[str, str]]:
+    """One GT object per task; `strict[s]` the strict counts of scene s's tasks."""
+    flat = [v for scene in strict for v in scene]
+    scores = _scores(flat, [0.5 * v for v in flat], [1] * len(flat))
+    names = [f"scene{s}" for s, scene in enumerate(strict) for _ in scene]
+    return scores, {f"t{i}": name for i, name in enumerate(names)}
+
+
+def test_scenes_whose_tasks_move_together_widen_the_interval() -> None:
+    # Each scene's five tasks all gain or all lose together (one shared clustering).
+    a, groups = _scenes([[1] * 5, [0] * 5, [1] * 5, [0] * 5, [1] * 5, [0] * 5])
+    b, _ = _scenes([[0] * 5] * 6)
+    by_task = paired_differences(a, b, seed=3)
+    by_scene = paired_differences(a, b, seed=3, groups=groups)
+    assert by_scene["strict_osr"].mean == by_task["strict_osr"].mean == pytest.approx(0.5)
+    width = {k: d["strict_osr"].high - d["strict_osr"].low for k, d in (("t", by_task), ("s", by_scene))}
+    assert width["s"] > 1.5 * width["t"]
+    assert paired_differences(a, b, seed=3, groups=groups) == by_scene  # seeded: deterministic
+
+
+def test_scenes_alike_in_composition_narrow_the_interval() -> None:
+    # Every scene has the same mix (two gains, three ties): resampling scenes changes nothing.
+    a, groups = _scenes([[1, 1, 0, 0, 0]] * 6)
+    b, _ = _scenes([[0] * 5] * 6)
+    by_task = paired_differences(a, b)["strict_osr"]
+    by_scene = paired_differences(a, b, groups=groups)["strict_osr"]
+    assert (by_scene.low, by_scene.high) == pytest.approx((0.4, 0.4))
+    assert by_task.high - by_task.low > 0.2
+    interval = score_intervals(a, groups=groups)["strict_osr"]
+    assert (interval.low, interval.value, interval.high) == pytest.approx((0.4, 0.4, 0.4))
+
+
+def test_a_task_without_a_scene_is_refused() -> None:
+    a, groups = _scenes([[1, 0], [0, 1]])
+    del groups["t3"]
+    with pytest.raises(InputError, match="no group"):
+        paired_differences(a, a, groups=groups)
+
+
+def test_the_suite_prints_task_and_scene_intervals_side_by_side(capsys: pytest.CaptureFixture[str]) -> None:
+    from bayesian_fields_core.eval.suite import AVERAGING, FULL, print_intervals
+
+    full, groups = _scenes([[1] * 4, [0] * 4, [1] * 4, [1] * 4])
+    averaging, _ = _scenes([[0] * 4] * 4)
+    print_intervals({FULL: full, AVERAGING: averaging}, groups)
+    out = capsys.readouterr().out
+    assert "bootstrap over the 16 tasks" in out and "bootstrap over the 4 scenes" in out
+    line = next(x for x in out.splitlines() if x.strip().startswith(f"{FULL} - {AVERAGING.strip()}"))
+    by_task, by_scene = line.split("tasks:")[1].split("| scenes:")
+    assert by_task.strip().startswith("strict +0.750") and by_scene.strip().startswith("strict +0.750")
+    assert str(paired_differences(full, averaging, groups=groups)["strict_osr"]) in by_scene

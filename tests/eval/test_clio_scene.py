@@ -233,3 +233,6 @@ def test_scene_options_go_together(tmp_path: Path, capsys: pytest.CaptureFixture
     assert "--scene DIR and --gt FILE go together" in capsys.readouterr().err
     assert main(["eval", "--transform", str(tmp_path / "t.yaml")]) == 2
     assert "--transform" in capsys.readouterr().err
+    scene_args = ["eval", "--scene", str(tmp_path), "--gt", str(tmp_path / "x.yaml")]
+    assert main([*scene_args, "--regime", "strong"]) == 2  # the regime transforms the suite's CLIP only
+    assert "--regime changes the suite's tiny CLIP" in capsys.readouterr().err

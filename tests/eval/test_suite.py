@@ -59,6 +59,11 @@ def test_every_row_is_scored_on_the_same_perception(small_case: SceneCase, tmp_p
     # (measured: strict 0.83, IoU 0.71 with the bundled tiny CLIP)
     assert rows[FULL].strict_osr >= 0.6
     assert rows[FULL].iou > 0.4
+    # The Clio-code scoring of the same boxes: the same IoU and pairing, other containment.
+    assert set(evaluation.clio_code) == set(rows)
+    for name, code in evaluation.clio_code.items():
+        assert code.iou == pytest.approx(rows[name].iou), name
+        assert 0.0 <= code.strict_osr <= code.relaxed_osr <= 1.0, name
     # Perception ran once (one cache) and every method row wrote its own result.
     assert len(list((tmp_path / "cache").rglob("*.npz"))) > 0
     assert len(lines) == len(rows)

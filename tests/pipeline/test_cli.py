@@ -262,7 +262,8 @@ def test_eval_rejects_a_bad_view_count(
     ("option", "value"),
     [
         ("--seeds", "7,7"),
-        ("--seeds", "1,2,3,4,5,6,7,8,9,10,11"),
+        ("--seeds", ",".join(str(seed) for seed in range(41))),
+        ("--regime", "weak"),
         ("--seeds", "a,b"),
         ("--seeds", "-1"),
         ("--scenes", "11"),

@@ -187,8 +187,9 @@ def test_reseeded_suite_keeps_layouts_and_changes_the_objects() -> None:
     assert len(variant_objects) == len(original_objects) and variant_objects != original_objects
     with pytest.raises(ValueError, match="distinct"):
         suite_specs([5, 5])
-    with pytest.raises(ValueError, match="1 to 10"):
-        suite_specs(list(range(11)))
+    with pytest.raises(ValueError, match="1 to 40"):
+        suite_specs(list(range(41)))
+    assert len(suite_specs(list(range(7000, 7040)))) == 40  # issue 33's held-out sets of 20+
     seven = suite_specs(list(range(40, 47)), suite="capture")  # past five seeds the layouts repeat
     layouts = suite_specs(suite="capture")
     assert [s.name for s in seven[5:]] == [f"{layouts[0].name}-s45", f"{layouts[1].name}-s46"]

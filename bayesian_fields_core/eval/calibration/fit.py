@@ -28,6 +28,7 @@ from bayesian_fields_core.calibration.model import (
 )
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.eval.calibration.ground_truth import Negatives
+from bayesian_fields_core.eval.regime import Regime
 
 
 class CalibrationRequest(BaseModel):
@@ -42,6 +43,13 @@ class CalibrationRequest(BaseModel):
     negatives: Negatives = Field("absent", description="With scenes: which pairs are negatives.")
     max_frames: int | None = Field(None, ge=1, description="With scenes: at most this many frames per scene.")
     model_id: str | None = Field(None, description="Model id recorded in the file (default: the encoder's).")
+    regime: Regime = Field(
+        "strong",
+        description=(
+            "With scenes: 'strong' scores the encoder as it is; 'realistic' the evaluation's "
+            "weak-evidence embeddings (eval/regime.py), to check them against the paper's likelihoods."
+        ),
+    )
     keep_likelihoods: Path | None = Field(
         None,
         description=(
@@ -110,7 +118,11 @@ def calibrate(request: CalibrationRequest) -> Calibration:
         from bayesian_fields_core.eval.calibration.not_found_fit import fit_answer_min_peak
 
         labels, encoder_id = collect_scores(
-            list(request.scenes), request.profile, max_frames=request.max_frames, negatives=request.negatives
+            list(request.scenes),
+            request.profile,
+            max_frames=request.max_frames,
+            negatives=request.negatives,
+            regime=request.regime,
         )
         model_id = request.model_id or encoder_id
         if request.keep_likelihoods is not None:

@@ -26,6 +26,7 @@ from typing import Any, Literal
 import numpy as np
 
 from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.eval.regime import Regime, regime_models
 from bayesian_fields_core.eval.synthetic import load_ground_truth
 from bayesian_fields_core.fusion.likelihood import resolve_likelihood
 from bayesian_fields_core.job.artifacts import RESULT_PREFIX
@@ -173,11 +174,13 @@ def collect_scores(
     positive_overlap: float = POSITIVE_OVERLAP,
     max_frames: int | None = None,
     negatives: Negatives = "absent",
+    regime: Regime = "strong",
 ) -> tuple[SceneLabels, str]:
-    """(the scenes' labels pooled, encoder model id) over scenes with ground truth."""
+    """(the scenes' labels pooled, encoder model id) over scenes with ground truth; `regime`
+    "realistic" scores the evaluation's weak-evidence embeddings (`eval/regime.py`)."""
     if not 0.0 < positive_overlap <= 1.0:
         raise InputError(f"positive_overlap must be in (0, 1], got {positive_overlap}")
-    models = load_models(profile)
+    models = regime_models(load_models(profile), regime)
     scenes = []
     with tempfile.TemporaryDirectory(prefix="bfields-calibrate-") as tmp:
         for n, scene_dir in enumerate(scene_dirs):

@@ -143,6 +143,10 @@ held-out checks use seeds outside this list and the layouts' own."""
 
 MAX_SUITE_SCENES = SUITE_SIZE + len(PUBLIC_RESEEDS)
 
+MAX_HELD_OUT_SCENES = 40
+"""Most held-out seeds one run takes. Issue 33 asks for at least 20 held-out scenes per suite,
+because its intervals resample scenes and ten scenes give intervals too wide to decide."""
+
 
 SUITES: tuple[str, ...] = ("tabletop", "capture")
 
@@ -169,8 +173,8 @@ def suite_specs(seeds: Sequence[int] | None = None, suite: str = "tabletop") -> 
     specs = _suite_layouts() if suite == "tabletop" else capture_layouts()
     if seeds is None:
         return specs + _reseeded(specs, PUBLIC_RESEEDS)
-    if not 1 <= len(seeds) <= MAX_SUITE_SCENES:
-        raise ValueError(f"give 1 to {MAX_SUITE_SCENES} seeds, got {len(seeds)}")
+    if not 1 <= len(seeds) <= MAX_HELD_OUT_SCENES:
+        raise ValueError(f"give 1 to {MAX_HELD_OUT_SCENES} seeds, got {len(seeds)}")
     if min(seeds) < 0 or len(set(seeds)) != len(seeds):
         raise ValueError(f"seeds must be distinct and >= 0, got {list(seeds)}")
     return _reseeded(specs, seeds)

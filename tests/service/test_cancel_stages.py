@@ -19,7 +19,7 @@ from bayesian_fields_service.records.database import engine
 from tests.integration.fixtures.services import ApiServer
 
 from .test_scene_races import arm, resume, wait_reached
-from .test_workers import PARAMS, TASKS, _upload, _wait, model_profile, worker_env, workers  # noqa: F401
+from .test_workers import PARAMS, TASKS, _upload, _wait
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 

@@ -24,7 +24,6 @@ from tests.integration.fixtures.services import ApiServer, WorkerPool
 
 from .conftest import SERVICE_ENV, scene_form
 from .scene_factory import make_scene
-from .test_workers import model_profile, worker_env  # noqa: F401 - fixtures found by name
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 
@@ -116,7 +115,7 @@ def fleet_api(
 @pytest.fixture(scope="module")
 def fleet_workers(
     celery_workers: WorkerPool,
-    worker_env: dict[str, str],  # noqa: F811 - the fixture imported above
+    worker_env: dict[str, str],
     encoder_log: Path,
     fleet_database: str,
 ) -> Iterator[WorkerPool]:

@@ -7,7 +7,6 @@ from __future__ import annotations
 import io
 import json
 import time
-from collections.abc import Iterator
 from contextlib import redirect_stdout
 from pathlib import Path
 
@@ -32,43 +31,6 @@ pytestmark = [pytest.mark.integration, pytest.mark.slow]
 
 TASKS = ["red blob", "green blob"]
 PARAMS = {"max_frames": 4}
-REPO = Path(__file__).resolve().parents[2]
-
-
-@pytest.fixture(scope="session")
-def model_profile(tmp_path_factory: pytest.TempPathFactory) -> str | None:
-    """None (the bundled default profile) when the repository's tiny CLIP exists, else a profile
-    around a random tiny CLIP made for this session."""
-    if (REPO / "bayesian_fields_core" / "models" / "tiny-clip" / "config.json").is_file():
-        return None
-    from tests.perception.conftest import make_tiny_clip
-
-    folder = tmp_path_factory.mktemp("profile")
-    clip = make_tiny_clip(folder / "tiny-clip")
-    profile = folder / "profile.yaml"
-    profile.write_text(
-        "name: service-test\n"
-        "segmenter: {kind: classical, params: {method: felzenszwalb, scale: 300, sigma: 0.8, min_size: 50, min_area: 16}}\n"
-        f"encoder: {{kind: hf_clip, path: {clip}, device: cpu}}\n"
-        "calibration: {mu0: -0.05, mu1: 0.05, s: 0.1}\n"  # random CLIP: cosines near 0
-    )
-    return str(profile)
-
-
-@pytest.fixture(scope="session")
-def worker_env(model_profile: str | None) -> dict[str, str]:
-    return {"BFIELDS_MODEL_PROFILE": model_profile} if model_profile else {}
-
-
-@pytest.fixture(scope="module")
-def workers(celery_workers: WorkerPool, worker_env: dict[str, str]) -> Iterator[WorkerPool]:
-    """One worker per queue (solo pool) with the service test settings."""
-    env = {**SERVICE_ENV, **worker_env}
-    started = [celery_workers.start("gpu", extra_env=env), celery_workers.start("cpu", extra_env=env)]
-    yield celery_workers
-    for worker in started:
-        if worker.alive:
-            worker.stop()
 
 
 def _upload(api: ApiServer, scene_dir: Path) -> str:

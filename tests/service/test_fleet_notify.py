@@ -25,7 +25,8 @@ from tests.integration.fixtures.services import ApiServer, WorkerPool
 from .conftest import SERVICE_ENV, scene_form
 from .scene_factory import make_scene
 
-pytestmark = [pytest.mark.integration, pytest.mark.slow]
+# Longer than the default timeout (pyproject.toml): a fleet on prefork workers; its callback wait alone may take 240 s.
+pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.timeout(600)]
 
 SECRET = "test-callback-secret"
 IDLE_TENANT = "tenant-idle"

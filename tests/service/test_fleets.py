@@ -32,7 +32,8 @@ from .conftest import SERVICE_ENV
 from .private_stack import PrivateStack, upload, wait_job
 from .test_workers import _wait_for
 
-pytestmark = pytest.mark.integration
+# Longer than the default timeout (pyproject.toml): a 1,000-job fleet and a 240 s wait for a job to start.
+pytestmark = [pytest.mark.integration, pytest.mark.timeout(600)]
 
 PARAMS = {"max_frames": 4}
 TERMINAL = ("succeeded", "failed", "cancelled")

@@ -27,7 +27,8 @@ from .callback_receivers import Receiver
 from .conftest import SERVICE_ENV
 from .test_workers import PARAMS, TASKS, _upload, _wait_for
 
-pytestmark = [pytest.mark.integration, pytest.mark.slow]
+# Longer than the default timeout (pyproject.toml): two fleet waits of up to 300 s each, after a stack start.
+pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.timeout(900)]
 
 FLEET = 200
 TERMINAL = {"succeeded", "failed", "cancelled"}

@@ -21,7 +21,8 @@ from .conftest import SERVICE_ENV
 from .private_stack import PrivateStack, pool_children, upload, wait_job
 from .scene_factory import make_scene
 
-pytestmark = [pytest.mark.integration, pytest.mark.slow]
+# Longer than the default timeout (pyproject.toml): a job waits out a 20 s foreign lock (its own deadline 260 s) on a 16-frame scene.
+pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.timeout(600)]
 
 TASKS = ["red blob", "green blob"]
 FOREIGN_LOCK_S = 20

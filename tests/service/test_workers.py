@@ -26,8 +26,10 @@ from tests.scene_transforms import copy_scene, move_splat
 
 from .callback_receivers import Receiver
 from .conftest import SERVICE_ENV
+from .private_stack import wait_job
 
-pytestmark = [pytest.mark.integration, pytest.mark.slow]
+# Longer than the default timeout (pyproject.toml): jobs wait up to 240 s each, after the in-process reference run.
+pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.timeout(600)]
 
 TASKS = ["red blob", "green blob"]
 PARAMS = {"max_frames": 4}
@@ -36,16 +38,6 @@ PARAMS = {"max_frames": 4}
 def _upload(api: ApiServer, scene_dir: Path) -> str:
     with BFieldsClient(api.base_url, api.keys["tenant-a"]) as client:
         return client.upload_scene(scene_dir)["id"]
-
-
-def _wait(client: httpx.Client, job_id: str, timeout_s: float = 240) -> dict:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        job = client.get(f"/v1/jobs/{job_id}").json()
-        if job["state"] in ("succeeded", "failed", "cancelled"):
-            return job
-        time.sleep(0.5)
-    raise AssertionError(f"job {job_id} did not finish: {job}")
 
 
 def _wait_for(predicate, timeout_s: float, what: str):  # noqa: ANN001, ANN202
@@ -96,7 +88,7 @@ def test_end_to_end_over_http_matches_in_process(
     scene_id = _upload(api, scene_dir)
     resp = client_a.post("/v1/jobs", json={"scene_id": scene_id, "tasks": TASKS, "parameters": PARAMS})
     assert resp.status_code == 202, resp.text
-    job = _wait(client_a, resp.json()["id"])
+    job = wait_job(client_a, resp.json()["id"])
     assert job["state"] == "succeeded", job
     assert job["stages_done"] == ["perceive", "fuse", "cluster"] and job["progress"] == 100.0
     assert set(job["timings"]) == {"perceive", "fuse", "cluster"}
@@ -111,7 +103,7 @@ def test_end_to_end_over_http_matches_in_process(
         assert other.get(f"/v1/jobs/{job['id']}/result").status_code == 404
     # a new task list on the same scene reuses the cached perception (every frame from the cache)
     again = client_a.post("/v1/jobs", json={"scene_id": scene_id, "tasks": TASKS[::-1], "parameters": PARAMS})
-    second = _wait(client_a, again.json()["id"])
+    second = wait_job(client_a, again.json()["id"])
     assert second["state"] == "succeeded", second
     assert second["stage_reports"]["perceive"]["frames_cached"] == 4
     metrics = httpx.get(f"{api.base_url}/metrics").text
@@ -129,7 +121,7 @@ def test_job_on_a_splat_that_renders_wrong_fails_with_the_reason(
     scene_id = _upload(api, moved)
     resp = client_a.post("/v1/jobs", json={"scene_id": scene_id, "tasks": TASKS, "parameters": PARAMS})
     assert resp.status_code == 202, resp.text
-    job = _wait(client_a, resp.json()["id"])
+    job = wait_job(client_a, resp.json()["id"])
     assert job["state"] == "failed", job
     error = job["error"]
     assert error.startswith("perceive: alignment: renders of the splat do not match the photos"), error
@@ -177,7 +169,7 @@ def test_cancel_running_job(
     ).json()["id"]
     _wait_for(lambda: client_a.get(f"/v1/jobs/{job_id}").json()["state"] != "queued", 60, "the job to start")
     assert client_a.delete(f"/v1/jobs/{job_id}").status_code == 202
-    final = _wait(client_a, job_id)
+    final = wait_job(client_a, job_id)
     # the cancel lands between frames; a job that finished its last frame first may still succeed
     assert final["state"] in ("cancelled", "succeeded"), final
     if final["state"] == "cancelled":
@@ -201,7 +193,7 @@ def test_worker_sigkilled_mid_job_is_completed_by_a_new_worker(
     victim.kill()
     assert client_a.get(f"/v1/jobs/{job_id}").json()["state"] == "running"
     celery_workers.start("gpu", name="rescuer", extra_env=env)
-    job = _wait(client_a, job_id)
+    job = wait_job(client_a, job_id)
     assert job["state"] == "succeeded", job
     assert job["attempts"] >= 2  # the killed execution and the rescuing one
     with BFieldsClient(api.base_url, api.keys["tenant-a"]) as client:
@@ -246,7 +238,7 @@ def test_redis_restart_loses_no_job(
                 assert client.get(f"/v1/jobs/{job_id}").json()["state"] == "queued"
             pool.start("gpu")
             pool.start("cpu")
-            finals = [_wait(client, job_id) for job_id in ids]
+            finals = [wait_job(client, job_id) for job_id in ids]
         assert [f["state"] for f in finals] == ["succeeded", "succeeded"], finals
         _wait_for(lambda: len(receiver.snapshot()) >= 1, 30, "the batch callback")
         time.sleep(2.0)  # and no second one

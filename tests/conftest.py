@@ -31,6 +31,20 @@ pytest_plugins = [
 ]
 
 
+#: The fixtures that start or claim a real server (Redis, the S3 server, PostgreSQL); every other
+#: live fixture (`service_env`, `api`, `celery_workers`, `private_stacks`, ...) stands on one of them.
+SERVER_FIXTURES = frozenset({"redis_url", "private_redis", "s3_server", "records_db", "fresh_database"})
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """A test that needs a real server is an integration test whether or not its module says so:
+    the mark follows the fixtures it requests (directly or through others), so the inner loop
+    (`-m "not slow and not integration"`) never waits on a server."""
+    for item in items:
+        if SERVER_FIXTURES.intersection(getattr(item, "fixturenames", ())):
+            item.add_marker(pytest.mark.integration)
+
+
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) -> Generator[None, None, None]:
     """A failed test's report carries the log tails of the service processes it ran against."""

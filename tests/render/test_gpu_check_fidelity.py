@@ -93,6 +93,7 @@ class FaultyRenderer:
         return rgb * 0.9, shift(depth), shift(median), alpha
 
 
+@pytest.mark.slow
 def test_known_faults_show_in_every_figure(scene) -> None:
     gaussians, frames, _ = scene
     ours = GaussianRenderer(gaussians, backend="torch")

@@ -68,6 +68,7 @@ def _compare(scene, candidate) -> fidelity.Fidelity:
     )
 
 
+@pytest.mark.slow
 def test_the_same_renderer_on_both_sides_agrees_exactly(scene) -> None:
     fid = _compare(scene, lambda ours: ours)
     d = fid.as_dict()

@@ -18,7 +18,6 @@ from tests.integration.fixtures.services import ApiServer, WorkerPool
 
 from .conftest import SERVICE_ENV, scene_form
 from .private_stack import PrivateStack
-from .scene_factory import make_scene
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -50,6 +49,10 @@ def client_b(api: ApiServer) -> Iterator[httpx.Client]:
 
 @pytest.fixture(scope="session")
 def scene_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    # Imported here: the scene factory renders with torch, and this module is loaded by every
+    # pytest run (root conftest), most of which never ask for this scene.
+    from .scene_factory import make_scene
+
     return make_scene(tmp_path_factory.mktemp("scene") / "blobs")
 
 

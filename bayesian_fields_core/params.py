@@ -7,6 +7,7 @@ can carry its exact parameters and a result can report them.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
@@ -23,6 +24,37 @@ FORMER_FUSION_BACKENDS = {"torch": "auto", "numpy": "cpu"}
 implementation where each ran ('torch' ran on the render device, 'numpy' on the host)."""
 
 
+Reader = Literal["job", "perceive", "fuse", "cluster"]
+CacheName = Literal["perception", "visibility", "alignment"]
+"""A content-keyed cache (`job.stage_table.CACHES`, by the name of its folder)."""
+"""Who reads a parameter: a stage of `job.stage_table.STAGE_TABLE`, or "job" for what every stage
+reads through the job itself (which frames, which device)."""
+
+
+@dataclass(frozen=True)
+class ReadBy:
+    """Which stage reads a parameter, written in the parameter's own annotation.
+
+    Why beside the field and not in a list elsewhere: a new parameter cannot be added without
+    saying who reads it, and everything that needs the answer derives it from here: the cache
+    keys (`stage_table`: a cache's parameters are the fields whose `keys` name it), `bfields
+    params` and the docs' parameter table (its "read by" column), and the rule that lengths are
+    read only through `scene.scale.SceneLengths` (`length`; tests/pipeline/test_param_readers.py).
+
+    stage: the stage that reads it (module docstring of `Reader`).
+    why: what the stage reads it for, in two or three words (shown in `bfields params`).
+    keys: the caches whose content key the value enters (it changes what they hold: a change
+        must miss them); a field that keys no cache must not change any cache entry.
+    length: a length (or the scale lengths are fractions of) that `scene_lengths` resolves once
+        per run; code reads the resolved `SceneLengths`, never the raw field.
+    """
+
+    stage: Reader
+    why: str
+    keys: tuple[CacheName, ...] = ()
+    length: bool = False
+
+
 class PipelineParams(BaseModel):
     """Parameters of the three stages. Unknown fields are rejected so typos fail loudly.
 
@@ -34,65 +66,73 @@ class PipelineParams(BaseModel):
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     # --- frames -----------------------------------------------------------------------------
-    frame_stride: int = Field(1, ge=1, le=10_000, description="Use every n-th frame of the capture.")
-    max_frames: int | None = Field(
+    frame_stride: Annotated[int, ReadBy("job", "selects frames")] = Field(
+        1, ge=1, le=10_000, description="Use every n-th frame of the capture."
+    )
+    max_frames: Annotated[int | None, ReadBy("job", "selects frames")] = Field(
         None, ge=1, le=1_000_000, description="Use at most this many frames (after stride)."
     )
 
     # --- alignment check before perception (checks/alignment.py explains the scores) -----------
-    alignment_check: bool = Field(
+    alignment_check: Annotated[bool, ReadBy("perceive", "alignment check")] = Field(
         True, description="Refuse a scene whose splat does not line up with its cameras and photos."
     )
-    alignment_min_frustum_share: float = Field(
+    alignment_min_frustum_share: Annotated[
+        float, ReadBy("perceive", "alignment check", keys=("alignment",))
+    ] = Field(
         0.5,
         ge=0,
         le=1,
         description="Least opacity-weighted share of the Gaussians inside at least one camera frustum.",
     )
-    alignment_max_extent_ratio: float = Field(
+    alignment_max_extent_ratio: Annotated[
+        float, ReadBy("perceive", "alignment check", keys=("alignment",))
+    ] = Field(
         200.0,
         gt=1,
         le=1e9,
         description="Splat extent / camera baseline must lie in [1/r, r] (a unit or scale mix-up otherwise).",
     )
-    alignment_min_score: float = Field(
+    alignment_min_score: Annotated[float, ReadBy("perceive", "alignment check", keys=("alignment",))] = Field(
         0.35,
         ge=-1,
         le=1,
         description="Least median render-vs-photo score (alpha-weighted ZNCC of band-passed grey).",
     )
-    alignment_frames: int = Field(
+    alignment_frames: Annotated[int, ReadBy("perceive", "alignment check", keys=("alignment",))] = Field(
         4, ge=1, le=1000, description="Frames rendered by the check, spread evenly over the capture."
     )
-    alignment_max_side: int = Field(
+    alignment_max_side: Annotated[int, ReadBy("perceive", "alignment check", keys=("alignment",))] = Field(
         160, ge=16, le=4096, description="Longest image side (pixels) the check renders and compares at."
     )
 
     # --- likelihood (METHOD step 3); None means: take it from the model's calibration ------------
-    mu0: float | None = Field(
+    mu0: Annotated[float | None, ReadBy("fuse", "fusion update")] = Field(
         None,
         ge=-1,
         le=1,
         description=f"Mean cosine score of irrelevant segments; None: the model's calibration, else the paper's {PAPER_MU0:.2f}.",
     )
-    mu1: float | None = Field(
+    mu1: Annotated[float | None, ReadBy("fuse", "fusion update")] = Field(
         None,
         ge=-1,
         le=1,
         description=f"Mean cosine score of relevant segments; None: the model's calibration, else the paper's {PAPER_MU1:.2f}.",
     )
-    s: float | None = Field(
+    s: Annotated[float | None, ReadBy("fuse", "fusion update")] = Field(
         None,
         gt=0,
         le=1,
         description=f"Std of both likelihoods; None: the model's calibration, else the paper's {PAPER_S}.",
     )
-    s_eps: float = Field(0.0, ge=0, le=1, description="Extra measurement noise std added in quadrature to s.")
-    prior: float = Field(
+    s_eps: Annotated[float, ReadBy("fuse", "fusion update")] = Field(
+        0.0, ge=0, le=1, description="Extra measurement noise std added in quadrature to s."
+    )
+    prior: Annotated[float, ReadBy("fuse", "fusion update")] = Field(
         0.05, gt=0, lt=1, description="Prior probability that a Gaussian is relevant to a task."
     )
 
-    crop_batch_size: int = Field(
+    crop_batch_size: Annotated[int, ReadBy("perceive", "runtime")] = Field(
         64,
         ge=1,
         le=4096,
@@ -101,7 +141,7 @@ class PipelineParams(BaseModel):
             "at most 4096: a batch of 4096 224-px crops is already ~2.5 GB of float32 input)."
         ),
     )
-    prefetch_frames: int = Field(
+    prefetch_frames: Annotated[int, ReadBy("perceive", "runtime")] = Field(
         2,
         ge=0,
         le=64,
@@ -112,13 +152,13 @@ class PipelineParams(BaseModel):
     )
 
     # --- fusion (steps 4-5) ----------------------------------------------------------------------
-    fusion: Literal["bayes", "average"] = Field(
+    fusion: Annotated[Literal["bayes", "average"], ReadBy("fuse", "fusion update")] = Field(
         "bayes", description="'bayes' = the method; 'average' = ablation averaging cosine scores then Eq. 3."
     )
-    outlier_rejection: bool = Field(
+    outlier_rejection: Annotated[bool, ReadBy("fuse", "fusion update")] = Field(
         True, description="OR-phi: skip masks that would lower every task's probability."
     )
-    view_correlation: float = Field(
+    view_correlation: Annotated[float, ReadBy("fuse", "fusion update")] = Field(
         0.0,
         ge=0.0,
         le=1.0,
@@ -129,11 +169,13 @@ class PipelineParams(BaseModel):
             "likelihood; 1 = all views one measurement). Docs: The capture suite, Correlated views."
         ),
     )
-    depth_source: Literal["median", "expected", "input"] = Field(
+    depth_source: Annotated[
+        Literal["median", "expected", "input"], ReadBy("fuse", "visibility", keys=("visibility",))
+    ] = Field(
         "median",
         description="Depth image for visibility: rendered median or expected depth, or the input depth maps.",
     )
-    fusion_backend: Literal["auto", "cpu"] = Field(
+    fusion_backend: Annotated[Literal["auto", "cpu"], ReadBy("fuse", "runtime")] = Field(
         "auto",
         description=(
             "Device of projection, depth test and the fusion state (one torch implementation): "
@@ -149,7 +191,9 @@ class PipelineParams(BaseModel):
         its two backends; both now run the same ops, on the render device or on the host."""
         return FORMER_FUSION_BACKENDS.get(value, value) if isinstance(value, str) else value
 
-    scene_scale: float | None = Field(
+    scene_scale: Annotated[
+        float | None, ReadBy("fuse", "visibility", keys=("visibility", "alignment"), length=True)
+    ] = Field(
         None,
         gt=0,
         le=1e9,
@@ -161,7 +205,9 @@ class PipelineParams(BaseModel):
             "to make the *_scene lengths absolute."
         ),
     )
-    depth_tolerance: float | None = Field(
+    depth_tolerance: Annotated[
+        float | None, ReadBy("fuse", "visibility", keys=("visibility",), length=True)
+    ] = Field(
         None,
         ge=0,
         le=1e6,
@@ -171,7 +217,9 @@ class PipelineParams(BaseModel):
             "nerfstudio/gsplat splat into the cameras' frame, so their internal scaling never applies."
         ),
     )
-    depth_tolerance_scene: float = Field(
+    depth_tolerance_scene: Annotated[
+        float, ReadBy("fuse", "visibility", keys=("visibility",), length=True)
+    ] = Field(
         0.02704166,
         ge=0,
         le=10,
@@ -182,7 +230,7 @@ class PipelineParams(BaseModel):
             "sample keeps its results exactly."
         ),
     )
-    depth_tolerance_relative: float = Field(
+    depth_tolerance_relative: Annotated[float, ReadBy("fuse", "visibility", keys=("visibility",))] = Field(
         0.03,
         ge=0,
         le=10,
@@ -190,7 +238,7 @@ class PipelineParams(BaseModel):
     )
 
     # --- objects (steps 7-12) --------------------------------------------------------------------
-    aib_conditionals: Literal["fused", "per_view"] = Field(
+    aib_conditionals: Annotated[Literal["fused", "per_view"], ReadBy("cluster", "objects")] = Field(
         "per_view",
         description=(
             "What the AIB clusters on. 'per_view' (default; departs from the paper): each "
@@ -203,10 +251,10 @@ class PipelineParams(BaseModel):
             "pruning use the fused values either way. Docs: Evaluation, merged neighbours."
         ),
     )
-    null_mode: Literal["product", "one_minus_max"] = Field(
+    null_mode: Annotated[Literal["product", "one_minus_max"], ReadBy("cluster", "objects")] = Field(
         "product", description="Null task: prod(1-p_y) (default) or 1-max p_y."
     )
-    edge_padding: float | None = Field(
+    edge_padding: Annotated[float | None, ReadBy("cluster", "objects", length=True)] = Field(
         None,
         ge=0,
         le=1e6,
@@ -215,30 +263,32 @@ class PipelineParams(BaseModel):
             "(default): edge_padding_scene x the scene scale."
         ),
     )
-    edge_padding_scene: float = Field(
+    edge_padding_scene: Annotated[float, ReadBy("cluster", "objects", length=True)] = Field(
         0.0,
         ge=0,
         le=10,
         description="Growth of primitive boxes before overlap tests, as a fraction of the scene scale.",
     )
-    identical_tolerance: float = Field(
+    identical_tolerance: Annotated[float, ReadBy("cluster", "objects")] = Field(
         1e-6, ge=0, le=1, description="Max abs difference for 'identical' p(y|x) vectors."
     )
-    aib_px: Literal["uniform", "size"] = Field(
+    aib_px: Annotated[Literal["uniform", "size"], ReadBy("cluster", "objects")] = Field(
         "uniform",
         description=(
             "p(x) of the primitives in the AIB: 'uniform' (Clio, METHOD step 9) or 'size' "
             "(proportional to Gaussian count, so a sliver of a few Gaussians weighs little)."
         ),
     )
-    aib_delta: float = Field(
+    aib_delta: Annotated[float, ReadBy("cluster", "objects")] = Field(
         1e-5, gt=0, le=1, description="AIB stops when the relative information loss exceeds this (Clio)."
     )
-    prune_threshold: float = Field(
+    prune_threshold: Annotated[float, ReadBy("cluster", "objects")] = Field(
         0.1, ge=0, le=1, description="Drop objects below this probability for every task."
     )
-    top_k: int = Field(5, ge=1, le=1000, description="Objects kept per task.")
-    min_object_gaussians: int = Field(
+    top_k: Annotated[int, ReadBy("cluster", "objects")] = Field(
+        5, ge=1, le=1000, description="Objects kept per task."
+    )
+    min_object_gaussians: Annotated[int, ReadBy("cluster", "objects")] = Field(
         50,
         ge=1,
         le=100_000_000,
@@ -247,7 +297,9 @@ class PipelineParams(BaseModel):
             "one relevant mask saturate their probability but are slivers, not objects (ours)."
         ),
     )
-    selection_score: Literal["evidence", "relevance", "conditional"] = Field(
+    selection_score: Annotated[
+        Literal["evidence", "relevance", "conditional"], ReadBy("cluster", "objects")
+    ] = Field(
         "evidence",
         description=(
             "Score that ranks a task's objects. 'relevance' = p(y=1|object), the mean fused "
@@ -258,7 +310,9 @@ class PipelineParams(BaseModel):
             "uses relevance, or the conditional with 'conditional'."
         ),
     )
-    answer_min_peak: Annotated[float, Field(ge=-10, le=10)] | Literal["calibrated"] | None = Field(
+    answer_min_peak: Annotated[
+        Annotated[float, Field(ge=-10, le=10)] | Literal["calibrated"] | None, ReadBy("cluster", "objects")
+    ] = Field(
         "calibrated",
         description=(
             "A task whose best object's best single view scores below this margin gets no object "
@@ -270,21 +324,27 @@ class PipelineParams(BaseModel):
             "answers."
         ),
     )
-    knn_filter: bool = Field(True, description="Statistical outlier removal on each selected object.")
-    knn_k: int = Field(20, ge=1, le=1000, description="Neighbours for the kNN filter (Open3D default 20).")
-    knn_std_ratio: float = Field(
+    knn_filter: Annotated[bool, ReadBy("cluster", "objects")] = Field(
+        True, description="Statistical outlier removal on each selected object."
+    )
+    knn_k: Annotated[int, ReadBy("cluster", "objects")] = Field(
+        20, ge=1, le=1000, description="Neighbours for the kNN filter (Open3D default 20)."
+    )
+    knn_std_ratio: Annotated[float, ReadBy("cluster", "objects")] = Field(
         2.0, gt=0, le=100, description="Keep points with mean kNN distance <= mean + r*std."
     )
 
     # --- outputs --------------------------------------------------------------------------------
-    export_ply: bool = Field(
+    export_ply: Annotated[bool, ReadBy("cluster", "result files")] = Field(
         True, description="Write one .ply per selected object and a recoloured scene .ply."
     )
-    store_primitive_ids: bool = Field(True, description="Store per-Gaussian primitive ids in the result.")
-    previews: bool = Field(
+    store_primitive_ids: Annotated[bool, ReadBy("cluster", "result files")] = Field(
+        True, description="Store per-Gaussian primitive ids in the result."
+    )
+    previews: Annotated[bool, ReadBy("cluster", "result files")] = Field(
         True, description="Render one preview PNG per task and a contact sheet into the result."
     )
-    preview_max_side: int = Field(
+    preview_max_side: Annotated[int, ReadBy("cluster", "result files")] = Field(
         480,
         ge=32,
         le=4096,
@@ -292,7 +352,7 @@ class PipelineParams(BaseModel):
     )
 
     # --- execution ------------------------------------------------------------------------------
-    device: str | None = Field(
+    device: Annotated[str | None, ReadBy("job", "runtime")] = Field(
         None,
         pattern=r"^(cpu|cuda(:[0-9]{1,2})?|mps)$",
         description=(
@@ -313,3 +373,30 @@ def default(name: str) -> Any:
         return PipelineParams.model_fields[name].default
     except KeyError:
         raise KeyError(f"PipelineParams has no field {name!r}") from None
+
+
+def read_by(name: str) -> ReadBy:
+    """The `ReadBy` marker of field `name` (every field has exactly one; a test checks it)."""
+    try:
+        field = PipelineParams.model_fields[name]
+    except KeyError:
+        raise KeyError(f"PipelineParams has no field {name!r}") from None
+    markers = [m for m in field.metadata if isinstance(m, ReadBy)]
+    if len(markers) != 1:
+        raise TypeError(f"PipelineParams.{name} must carry exactly one ReadBy marker, has {len(markers)}")
+    return markers[0]
+
+
+def readers() -> dict[str, ReadBy]:
+    """Every field's `ReadBy`, in declaration order."""
+    return {name: read_by(name) for name in PipelineParams.model_fields}
+
+
+def keyed_parameters(cache: CacheName) -> tuple[str, ...]:
+    """The fields whose values enter `cache`'s content key, in declaration order."""
+    return tuple(name for name, r in readers().items() if cache in r.keys)
+
+
+def length_parameters() -> tuple[str, ...]:
+    """The fields `scene.scale.scene_lengths` resolves; nothing else reads them."""
+    return tuple(name for name, r in readers().items() if r.length)

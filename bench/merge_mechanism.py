@@ -59,7 +59,7 @@ from bayesian_fields_core.objects.clustering import MergeLog, objects_from_primi
 from bayesian_fields_core.objects.probabilities import conditionals, primitive_means
 from bayesian_fields_core.params import PipelineParams
 from bayesian_fields_core.results.reader import read_result
-from bayesian_fields_core.stages.cluster import _view_counts, load_primitives
+from bayesian_fields_core.stages.cluster import load_primitives, view_counts
 
 SATURATED = 0.999
 """p above which a Gaussian (or a primitive's mean) counts as saturated (issue 23's definition)."""
@@ -136,7 +136,7 @@ def run_scene(case: SceneCase, models: Models, out_dir: Path, fusion: str) -> Sc
     fused = get_arrays(ctx.store, ctx.job_key(FUSION_KEY))
     primitive_ids = load_primitives(ctx)
     scores = primitive_scores(
-        primitive_ids, fused["probabilities"], fused["logodds"], params, _view_counts(ctx, fused)
+        primitive_ids, fused["probabilities"], fused["logodds"], params, view_counts(ctx, fused)
     )
     object_map = objects_from_primitives(
         ctx.scene().gaussians.means,

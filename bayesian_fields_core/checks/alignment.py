@@ -24,7 +24,10 @@ here so every caller (CLI, API, worker) refuses with the same words.
 
 from __future__ import annotations
 
+import hashlib
 import time
+from functools import cache
+from pathlib import Path
 
 import numpy as np
 
@@ -46,7 +49,29 @@ GEOMETRY_MAX_FRAMES = 200
 """Frames used by the geometric part, spread over the capture (union shares saturate quickly)."""
 EXTENT_PERCENTILES = (2.0, 98.0)
 """The splat's extent ignores the few far floaters a trainer leaves behind."""
+_PACKAGE = Path(__file__).resolve().parents[1]
+CODE_FILES = (
+    "checks/alignment.py",
+    "checks/alignment_render.py",
+    "checks/alignment_reports.py",
+    "scene/images.py",
+    "scene/scale.py",
+    "render/",
+)
+"""The source a report follows from (the check, the renderer, the image loader, the scene scale):
+a cached verdict is reused only with the code that made it (`job/alignment_cache.py`)."""
 OVERRIDE = "set alignment_check=false to skip the check (CLI: --param alignment_check=false)"
+
+
+@cache
+def code_fingerprint() -> str:
+    """SHA-256 (32 hex digits) of the bytes of `CODE_FILES` (a folder: its .py files, sorted)."""
+    h = hashlib.sha256()
+    for name in CODE_FILES:
+        path = _PACKAGE / name
+        for file in sorted(path.rglob("*.py")) if path.is_dir() else [path]:
+            h.update(file.relative_to(_PACKAGE).as_posix().encode() + b"\0" + file.read_bytes())
+    return h.hexdigest()[:32]
 
 
 def _sample(scene: Scene) -> tuple[np.ndarray, np.ndarray]:

@@ -123,8 +123,7 @@ def _near_plane(scene: Scene, params: PipelineParams) -> float | None:
     the pipeline will; None (the renderer's own) when no camera sees the splat: the scale is
     undefined then and the check's scores say why better than the scale's error would."""
     try:
-        derived = None if params.scene_scale is not None else scene.scale()
-        return scene_lengths(params, derived).render_near
+        return scene_lengths(params, scene.scale).render_near
     except InputError:
         return None
 

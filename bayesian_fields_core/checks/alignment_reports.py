@@ -57,7 +57,8 @@ class AlignmentReport(BaseModel):
     cause: str | None
     geometry: GeometryReport
     rendered: RenderReport | None
-    seconds: float
+    seconds: float  # what the check took when it ran
+    cached: bool = False  # read back from the job cache (`job/alignment_cache.py`), not run now
 
     def summary(self) -> str:
         """One line for a console: the score and the shares."""
@@ -68,7 +69,8 @@ class AlignmentReport(BaseModel):
             r = self.rendered
             parts.insert(0, f"render-vs-photo score {r.score:.2f} over {len(r.frames)} frames")
         verdict = "ok" if self.passed else "FAILED"
-        return f"alignment {verdict}: {', '.join(parts)} ({self.seconds:.2f} s)"
+        took = "cached" if self.cached else f"{self.seconds:.2f} s"
+        return f"alignment {verdict}: {', '.join(parts)} ({took})"
 
     def raise_if_failed(self) -> AlignmentReport:
         if not self.passed:

@@ -1,7 +1,8 @@
-"""The pipeline parameters as rows of a table: name, type, default, description.
+"""The pipeline parameters as rows of a table: name, type, default, who reads it, description.
 
-Generated from `PipelineParams` alone, so the README's parameter table, `bfields params` and
-`bfields run --help` can never disagree with the model (a test compares the README with
+Generated from `PipelineParams` alone (the "read by" column from each field's `ReadBy` marker,
+the same one the cache keys derive from), so the docs' parameter table, `bfields params` and
+`bfields run --help` can never disagree with the model (a test compares the docs' page with
 `markdown_table()`).
 """
 
@@ -13,7 +14,7 @@ import typing
 from dataclasses import dataclass
 from typing import Any, Literal
 
-from bayesian_fields_core.params import PipelineParams
+from bayesian_fields_core.params import PipelineParams, ReadBy, read_by
 
 
 @dataclass(frozen=True)
@@ -23,6 +24,7 @@ class ParamRow:
     name: str
     type: str
     default: str
+    read_by: str
     description: str
 
 
@@ -48,30 +50,42 @@ def default_text(value: Any) -> str:
     return json.dumps(value)
 
 
+def reader_text(reader: ReadBy) -> str:
+    """`fuse: visibility; keys the visibility cache`: the stage, what for, and the caches it keys."""
+    keys = f"; keys the {' and '.join(reader.keys)} cache" if reader.keys else ""
+    return f"{reader.stage}: {reader.why}{keys}"
+
+
 def rows() -> list[ParamRow]:
     """Every field of `PipelineParams`, in declaration order."""
     return [
-        ParamRow(name, type_name(f.annotation), default_text(f.default), f.description or "")
+        ParamRow(
+            name,
+            type_name(f.annotation),
+            default_text(f.default),
+            reader_text(read_by(name)),
+            f.description or "",
+        )
         for name, f in PipelineParams.model_fields.items()
     ]
 
 
 def markdown_table() -> str:
-    """The README's table of section 4, one row per field (`bfields params --markdown`)."""
-    lines = ["| parameter | type | default | meaning |", "|---|---|---|---|"]
+    """The docs' parameter table (docs/guide/parameters.md, `bfields params --markdown`)."""
+    lines = ["| parameter | type | default | read by | meaning |", "|---|---|---|---|---|"]
     for r in rows():
-        cells = (f"`{r.name}`", f"`{r.type}`", f"`{r.default}`", r.description)
+        cells = (f"`{r.name}`", f"`{r.type}`", f"`{r.default}`", r.read_by, r.description)
         lines.append("| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |")
     return "\n".join(lines) + "\n"
 
 
 def text_table(width: int = 100) -> str:
-    """The same rows for a terminal (`bfields params`): name, type, default, then the wrapped
-    description indented under them."""
+    """The same rows for a terminal (`bfields params`): name, type, default, reader, then the
+    wrapped description indented under them."""
     import textwrap
 
     out = []
     for r in rows():
-        out.append(f"{r.name}  ({r.type}, default {r.default})")
+        out.append(f"{r.name}  ({r.type}, default {r.default}; read by {r.read_by})")
         out.extend(textwrap.wrap(r.description, width=width, initial_indent="    ", subsequent_indent="    "))
     return "\n".join(out) + "\n"

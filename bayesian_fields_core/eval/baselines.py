@@ -119,7 +119,7 @@ def clio_style(ctx: JobContext, text: np.ndarray, params: BaselineParams, mu0: f
     pyx = rows / rows.sum(axis=1, keepdims=True)
     # Clio has no floater filter: the baseline keeps every Gaussian of its objects.
     return objects_from_primitives(
-        means, primitive_ids, pyx, ctx.params.model_copy(update={"knn_filter": False})
+        means, primitive_ids, pyx, ctx.params.model_copy(update={"knn_filter": False}), lengths=ctx.lengths()
     )
 
 

@@ -29,3 +29,7 @@ PERCEPTION_CACHE_DIR = "perception/"
 
 VISIBILITY_CACHE_DIR = "visibility/"
 """Per-frame mask-to-Gaussian associations, `visibility/<models>/<digest>.npz`."""
+
+ALIGNMENT_CACHE_DIR = "alignment/"
+"""Verdicts of the alignment check (`checks/alignment.py`), `alignment/<digest>.json`: the check
+renders and reads photos, so a warm re-run of the same scene reuses its report."""

@@ -1,4 +1,5 @@
-"""The cache's index: which scene and profile use which cached frames, and when they were last used.
+"""The cache's index: which scene and profile use which cached frames (and alignment verdicts), and
+when they were last used.
 
 Cached frames are keyed on content, so a frame file does not say which scene it came from, and
 two scenes sharing images share entries. Each stage therefore records, before it computes, one
@@ -16,11 +17,16 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
-from bayesian_fields_core.job.artifacts import PERCEPTION_CACHE_DIR, VISIBILITY_CACHE_DIR
+from bayesian_fields_core.job.artifacts import ALIGNMENT_CACHE_DIR, PERCEPTION_CACHE_DIR, VISIBILITY_CACHE_DIR
 from bayesian_fields_core.job.store import ArtifactNotFound, Store, get_json, put_json
 
 INDEX_DIR = "index/"
-DATA_DIRS = (PERCEPTION_CACHE_DIR, VISIBILITY_CACHE_DIR, "scenes/")  # scenes/: the pre-content-key layout
+DATA_DIRS = (
+    PERCEPTION_CACHE_DIR,
+    VISIBILITY_CACHE_DIR,
+    ALIGNMENT_CACHE_DIR,
+    "scenes/",
+)  # scenes/: the pre-content-key layout
 
 
 @dataclass

@@ -1,9 +1,10 @@
-"""The content keys of a job's per-frame caches, computed in one place from the stage table.
+"""The content keys of a job's caches, computed in one place from the stage table.
 
-A key hashes exactly what its stage's `CacheSpec` declares (`stage_table`): the perception key
-the frame's image and the models; the visibility key that key, the splat, the camera and the
-parameters the spec lists. Digests are memoised per frame, since a stage asks for every frame's
-key more than once (recording cache use, then reading).
+A key hashes exactly what its `CacheSpec` declares (`stage_table`): the perception key the
+frame's image and the models; the visibility key that key, the splat, the camera and the
+parameters the spec lists; the alignment key the splat with its colours, every camera, the
+photos the check renders against, its parameters and its code. Digests are memoised per frame,
+since a stage asks for every frame's key more than once (recording cache use, then reading).
 """
 
 from __future__ import annotations
@@ -13,12 +14,21 @@ import json
 from collections.abc import Callable
 from typing import Any
 
+from bayesian_fields_core.checks.alignment import code_fingerprint
+from bayesian_fields_core.checks.alignment_reports import spread_indices
 from bayesian_fields_core.job.content_keys import (
+    alignment_input_digest,
+    arrays_digest,
     perception_input_digest,
     splat_digest,
     visibility_input_digest,
 )
-from bayesian_fields_core.job.stage_table import PERCEPTION_CACHE, VISIBILITY_CACHE, cache_parameters
+from bayesian_fields_core.job.stage_table import (
+    ALIGNMENT_CACHE,
+    PERCEPTION_CACHE,
+    VISIBILITY_CACHE,
+    cache_parameters,
+)
 from bayesian_fields_core.params import PipelineParams
 from bayesian_fields_core.scene.scale import SceneLengths
 from bayesian_fields_core.scene.types import Scene
@@ -89,6 +99,25 @@ class CacheKeys:
         if self._lengths is not None:
             values["resolved_scene_scale"] = repr(float(self._lengths().scale))
         return values
+
+    @property
+    def alignment_prefix(self) -> str:
+        return f"{self.cache_root}{ALIGNMENT_CACHE.folder}"
+
+    def alignment_key(self) -> str:
+        """The alignment check's report: what `ALIGNMENT_CACHE` declares. The image digests are
+        the perception keys' (memoised), so a warm run hashes no photo twice."""
+        scene = self._scene()
+        rendered = spread_indices(len(scene.frames), self._params.alignment_frames)
+        digest = alignment_input_digest(
+            self.splat_digest(),
+            arrays_digest(scene.gaussians.sh),
+            scene.frames,
+            [self.perception_digest(i) for i in rendered],
+            cache_parameters(ALIGNMENT_CACHE, self._params),
+            code_fingerprint(),
+        )
+        return f"{self.alignment_prefix}{digest}.json"
 
     def splat_digest(self) -> str:
         """Content digest of the Gaussians as loaded (computed once)."""

@@ -1,17 +1,20 @@
 """Content keys for the task-independent caches: what a cached artifact was computed from.
 
-A cached perception frame depends on the pixels the models see (the image file's bytes, plus the
-camera's K and distortion coefficients when the loader undistorts) and on the models; a cached
-visibility frame adds the Gaussians the renderer draws, the camera pose and intrinsics, and the depth
-settings. Paths, folder names, modification times and task files are deliberately absent: moving
-or copying a scene, editing its `tasks.yaml` or writing outputs into it must not invalidate
-anything (ARCHITECTURE, "Caches are keyed on content").
+A cached alignment verdict depends on the whole splat as drawn (colours too), every camera, the
+photos of the frames it renders, its parameters and its own code. A cached perception frame depends
+on the pixels the models see (the image file's bytes, plus the camera's K and distortion
+coefficients when the loader undistorts) and on the models; a cached visibility frame adds the
+Gaussians the renderer draws, the camera pose and intrinsics, and the depth settings. Paths, folder
+names, modification times and task files are deliberately absent: moving or copying a scene,
+editing its `tasks.yaml` or writing outputs into it must not invalidate anything (ARCHITECTURE,
+"Caches are keyed on content").
 
 Hashing: SHA-256 (hardware-accelerated on current x86 and ARM CPUs: about 3x BLAKE2b here) over
 the whole file for images and depth maps (a few MB each), and over the
 in-memory Gaussian arrays that visibility uses (positions, scales, rotations, opacities) rather
 than the .ply bytes: that is the geometry after any frame transform a loader applied, and it
-skips the SH colours, which are most of a splat's bytes and do not change depth.
+skips the SH colours, which are most of a splat's bytes and do not change depth (the alignment
+key hashes them too: its check compares renders with photos).
 """
 
 from __future__ import annotations
@@ -96,3 +99,42 @@ def visibility_input_digest(perception_key: str, splat: str, frame: Frame, depth
         desc["depth_file"] = file_digest(frame.depth_path)
         desc["depth_scale"] = float(frame.depth_scale)
     return object_digest(desc)
+
+
+def alignment_input_digest(
+    splat: str,
+    colours: str,
+    frames: list[Frame],
+    images: list[str],
+    parameters: dict[str, Any],
+    code: str,
+) -> str:
+    """Digest of what the alignment check's report depends on.
+
+    splat: `splat_digest`; colours: digest of the SH coefficients (the rendered part compares
+    colours). frames: every camera (the geometric part samples up to 200 and the camera baseline
+    spans all; the report names frames). images: `perception_input_digest` of each frame the
+    rendered part compares, in its order. parameters: `stage_table.ALIGNMENT_CACHE.params` by field
+    (a scale derived from the scene follows from the splat and cameras above). code: fingerprint
+    of the check's source (`checks.alignment.code_fingerprint`).
+    """
+    cameras = [
+        {
+            "name": f.name,
+            "K": np.asarray(f.K, dtype=np.float64).round(9).tolist(),
+            "world_to_camera": np.asarray(f.world_to_camera, dtype=np.float64).round(9).tolist(),
+            "size": [int(f.width), int(f.height)],
+            "distortion": f.distortion,
+        }
+        for f in frames
+    ]
+    return object_digest(
+        {
+            "splat": splat,
+            "colours": colours,
+            "cameras": cameras,
+            "images": images,
+            "parameters": parameters,
+            "code": code,
+        }
+    )

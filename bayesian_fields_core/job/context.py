@@ -269,20 +269,29 @@ class JobContext:
         """Every length of this job in scene units: the parameters' fractions of the scene scale
         (measured once per scene), or their absolute overrides (`scene/scale.py`)."""
         if self._lengths is None:
-            derived = None if self.params.scene_scale is not None else self.scene().scale()
-            self._lengths = scene_lengths(self.params, derived)
+            self._lengths = scene_lengths(self.params, lambda: self.scene().scale())
         return self._lengths
 
     def alignment(self) -> AlignmentReport | None:
         """The scene's alignment check (geometric + rendered, `checks/alignment.py`), run once per
-        context: the CLI calls it to print the score before perception, the perceive stage calls
-        it again for free. Raises InputError (one line) when the splat does not line up; returns
-        the `AlignmentReport`, or None when `params.alignment_check` is off."""
+        context and cached across jobs on its inputs' content (`alignment_cache`): the CLI calls
+        it to print the score before perception, the perceive stage calls it again for free.
+        Raises InputError (one line) when the splat does not line up; returns the
+        `AlignmentReport`, or None when `params.alignment_check` is off."""
         if not self._alignment_done:
-            from bayesian_fields_core.checks.alignment import check_alignment
+            if self.params.alignment_check:
+                from bayesian_fields_core.checks.alignment import assess_alignment
+                from bayesian_fields_core.job.alignment_cache import cached_alignment
 
-            device = self.params.device or self.models.render_device
-            self._alignment = check_alignment(self.scene(), self.params, device=device)
+                key = self.keys.alignment_key()
+                self.record_cache_use("alignment", [key])  # before computing: a prune keeps it
+                device = self.params.device or self.models.render_device
+                store = self.scene_store
+                assert store is not None
+                report = cached_alignment(
+                    store, key, lambda: assess_alignment(self.scene(), self.params, device=device)
+                )
+                self._alignment = report.raise_if_failed()
             self._alignment_done = True
         return self._alignment
 

@@ -2,7 +2,8 @@
 
 The pipeline runs the stages in table order; the worker makes one Celery task per row, named
 and routed from it; job progress and the CLI's bars weigh and label stages from it; and the
-content keys of the per-frame caches (`cache_keys`) take their parameters from it. Adding a
+content keys of the per-frame caches (`cache_keys`) take their parameters from it (which
+parameters: the `ReadBy` marker each field of `PipelineParams` carries). Adding a
 stage is adding a row here and its module under `stages/`.
 
 A row names its function by import path (``module:function``) and the runtime imports it on
@@ -18,8 +19,8 @@ from dataclasses import dataclass
 from typing import Any, Literal
 
 from bayesian_fields_core.errors import InputError
-from bayesian_fields_core.job.artifacts import PERCEPTION_CACHE_DIR, VISIBILITY_CACHE_DIR
-from bayesian_fields_core.params import PipelineParams
+from bayesian_fields_core.job.artifacts import ALIGNMENT_CACHE_DIR, PERCEPTION_CACHE_DIR, VISIBILITY_CACHE_DIR
+from bayesian_fields_core.params import PipelineParams, keyed_parameters
 
 StageFunction = Callable[..., dict[str, Any]]
 """`run(ctx: JobContext) -> report`; the context is not named here, since it imports the table."""
@@ -33,6 +34,8 @@ class CacheSpec:
     folder: where under the cache root its entries live (``perception/``, ``visibility/``).
     params: the `PipelineParams` fields whose values enter the key: a change to any of them
         must miss the cache, and a field that is not here must not change what is cached.
+        Never written here: it is `params.keyed_parameters(<cache>)`, the fields whose `ReadBy`
+        marker names this cache in its `keys`, so a parameter declares it beside its default.
     inputs: the other contents the key hashes, in words (images, cameras, splat, models).
     """
 
@@ -66,18 +69,12 @@ class StageSpec:
 
 PERCEPTION_CACHE = CacheSpec(
     folder=PERCEPTION_CACHE_DIR,
-    params=(),
+    params=keyed_parameters("perception"),
     inputs=("image bytes", "image size", "K and distortion when the loader undistorts", "model fingerprint"),
 )
 VISIBILITY_CACHE = CacheSpec(
     folder=VISIBILITY_CACHE_DIR,
-    params=(
-        "depth_source",
-        "scene_scale",
-        "depth_tolerance",
-        "depth_tolerance_scene",
-        "depth_tolerance_relative",
-    ),
+    params=keyed_parameters("visibility"),
     inputs=(
         "perception key of the frame",
         "the scene scale the lengths are fractions of (it depends on every frame, not only this one)",
@@ -86,6 +83,20 @@ VISIBILITY_CACHE = CacheSpec(
         "input depth file and scale when depth_source is 'input'",
     ),
 )
+
+ALIGNMENT_CACHE = CacheSpec(
+    folder=ALIGNMENT_CACHE_DIR,
+    params=keyed_parameters("alignment"),
+    inputs=(
+        "splat digest and SH colours (the rendered part draws them)",
+        "every camera's name, K, distortion, pose and size",
+        "image content of the frames the rendered part compares",
+        "the source of the check and of what it calls (renderer, image loader, scene scale)",
+    ),
+)
+"""The alignment check's verdict: not a stage's own cache, but run before `perceive` on every job
+(`job/alignment_cache.py`). `scene_scale` is here because the check renders with the run's near
+plane, a fraction of the scene scale (`alignment_render._near_plane`)."""
 
 STAGE_TABLE: tuple[StageSpec, ...] = (
     StageSpec("perceive", "bayesian_fields_core.stages.perceive:run", "gpu", 0.6, PERCEPTION_CACHE),
@@ -96,55 +107,11 @@ STAGE_TABLE: tuple[StageSpec, ...] = (
 STAGES: tuple[str, ...] = tuple(spec.name for spec in STAGE_TABLE)
 """Stage names in the order they run."""
 
-NOT_IN_ANY_CACHE_KEY: dict[str, str] = {
-    # Which frames are read: they choose cache entries, they never change one.
-    "frame_stride": "selects frames",
-    "max_frames": "selects frames",
-    # Checks that refuse a scene before any stage computes: they change no output.
-    "alignment_check": "check before perception",
-    "alignment_min_frustum_share": "check before perception",
-    "alignment_max_extent_ratio": "check before perception",
-    "alignment_min_score": "check before perception",
-    "alignment_frames": "check before perception",
-    "alignment_max_side": "check before perception",
-    # How fast, not what: batching, prefetching, the backend and device.
-    "crop_batch_size": "runtime",
-    "prefetch_frames": "runtime",
-    "fusion_backend": "runtime",
-    "device": "runtime",
-    # Read after the caches, by the fusion update (its output is per job, never cached).
-    "mu0": "fusion update",
-    "mu1": "fusion update",
-    "s": "fusion update",
-    "s_eps": "fusion update",
-    "prior": "fusion update",
-    "fusion": "fusion update",
-    "outlier_rejection": "fusion update",
-    "view_correlation": "fusion update",
-    # The cluster stage and the result: per job.
-    "null_mode": "cluster",
-    "aib_conditionals": "cluster",
-    "edge_padding": "cluster",
-    "edge_padding_scene": "cluster",
-    "identical_tolerance": "cluster",
-    "aib_px": "cluster",
-    "aib_delta": "cluster",
-    "prune_threshold": "cluster",
-    "top_k": "cluster",
-    "min_object_gaussians": "cluster",
-    "selection_score": "cluster",
-    "answer_min_peak": "cluster",
-    "knn_filter": "cluster",
-    "knn_k": "cluster",
-    "knn_std_ratio": "cluster",
-    "export_ply": "result files",
-    "store_primitive_ids": "result files",
-    "previews": "result files",
-    "preview_max_side": "result files",
-}
-"""Every `PipelineParams` field that enters no cache key, with why. A field is either here or in
-a `CacheSpec.params`; `tests/pipeline/test_stage_table.py` fails on a field in neither, so a new
-parameter that changes what a cache holds cannot silently reuse stale entries."""
+CACHES: tuple[CacheSpec, ...] = (
+    *(spec.cache for spec in STAGE_TABLE if spec.cache is not None),
+    ALIGNMENT_CACHE,
+)
+"""Every content-keyed cache: the stages' and the alignment check's."""
 
 
 def stage(name: str) -> StageSpec:

@@ -151,16 +151,15 @@ def primitive_graph(
     pyx: np.ndarray,
     gaussian_counts: np.ndarray,
     params: PipelineParams,
-    lengths: SceneLengths | None = None,
+    lengths: SceneLengths,
     premerge: np.ndarray | None = None,
 ) -> tuple[np.ndarray, MergedGraph]:
     """Step 8: overlap edges (E, 2) between primitives, then identical neighbours merged.
 
-    Boxes grow by `lengths.edge_padding` (scene units); without `lengths`, by the absolute
-    `params.edge_padding` if set, else not at all. `premerge` (P,) bool: the primitives the
-    pre-merge may join (None: all)."""
-    padding = params.edge_padding if lengths is None else lengths.edge_padding
-    edges = overlap_edges(means, primitive_ids, padding=padding)
+    Boxes grow by `lengths.edge_padding` (scene units: the run's resolved lengths, never the raw
+    parameters, so every caller pads alike). `premerge` (P,) bool: the primitives the pre-merge
+    may join (None: all)."""
+    edges = overlap_edges(means, primitive_ids, padding=lengths.edge_padding)
     weights = gaussian_counts if params.aib_px == "size" else None
     return edges, merge_identical(
         pyx, edges, atol=params.identical_tolerance, weights=weights, eligible=premerge
@@ -294,13 +293,14 @@ def objects_from_primitives(
     params: PipelineParams,
     relevance: np.ndarray | None = None,
     evidence: np.ndarray | None = None,
-    lengths: SceneLengths | None = None,
+    *,
+    lengths: SceneLengths,
     checkpoint: Callable[[], None] | None = None,
     premerge: np.ndarray | None = None,
 ) -> ObjectMap:
     """Steps 8-12 from primitives (N,) and their conditionals `pyx` (P, T+1) (shared by the
     method and the baselines); `relevance` / `evidence` as in `prune_and_select`; `lengths`: the
-    run's lengths in scene units (edge padding, thinnest box side), None for the absolute ones.
+    run's lengths in scene units (edge padding, thinnest box side; `scene.scale.scene_lengths`).
 
     `checkpoint` is called between the steps (edges, AIB, select, kNN, boxes): the cluster stage
     passes its cancel check there, so a cancelled job stops within one step. `premerge` (P,)
@@ -334,7 +334,7 @@ def objects_from_primitives(
     check()
     with timer("boxes"):
         sizes, centroids, boxes = object_geometry(
-            means, object_ids, selected, num_objects, None if lengths is None else lengths.box_min_side
+            means, object_ids, selected, num_objects, lengths.box_min_side
         )
     return ObjectMap(
         object_ids=object_ids,

@@ -25,8 +25,9 @@ import numpy as np
 
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.scene.files import resolve_inside
-from bayesian_fields_core.scene.formats import REFUSED_SUFFIXES, SOG_META, SPLAT_SUFFIXES
 from bayesian_fields_core.scene.formats.checkpoint import CKPT
+from bayesian_fields_core.scene.formats.common import CONVERTED_SPLAT
+from bayesian_fields_core.scene.formats.registry import accepted_names, is_splat_candidate
 from bayesian_fields_core.scene.inria_output import CFG_ARGS, is_inria_output, read_cfg_args
 from bayesian_fields_core.scene.scene_yaml import SCENE_YAML, SceneSpecFile, read_scene_yaml
 from bayesian_fields_core.scene.similarity import Similarity
@@ -38,7 +39,7 @@ from bayesian_fields_core.scene.trainer_transforms import (
     read_transform_file,
 )
 
-SPLAT_NAMES = ("point_cloud.ply", "splat.ply")
+SPLAT_NAMES = (CONVERTED_SPLAT, "splat.ply")
 CAMERA_SOURCES = ("transforms.json", "sparse/0", "sparse", "colmap/sparse/0", "cameras.json")
 """`colmap/sparse/0` is where nerfstudio's ns-process-data leaves the COLMAP model."""
 INRIA_SFM_POINTS = "input.ply"
@@ -113,11 +114,6 @@ def _gsplat_ckpt(folder: Path) -> tuple[int, Path] | None:
     return max(found) if found else None
 
 
-def _is_splat_name(path: Path) -> bool:
-    name = path.name.lower()
-    return (path.is_file() and name.endswith(SPLAT_SUFFIXES + REFUSED_SUFFIXES)) or name == SOG_META
-
-
 def find_splat_file(folder: Path) -> tuple[Path, str]:
     """(splat, trainer guess) by the loader's preference order; InputError when none or ambiguous."""
     if not folder.is_dir():
@@ -136,7 +132,7 @@ def find_splat_file(folder: Path) -> tuple[Path, str]:
         return ckpt[1], "gsplat"
     inria = is_inria_output(folder)
     plys = sorted(
-        p for p in folder.iterdir() if _is_splat_name(p) and not (inria and p.name == INRIA_SFM_POINTS)
+        p for p in folder.iterdir() if is_splat_candidate(p) and not (inria and p.name == INRIA_SFM_POINTS)
     )
     if len(plys) == 1:
         return plys[0], "plain"
@@ -153,8 +149,8 @@ def find_splat_file(folder: Path) -> tuple[Path, str]:
     )
     raise InputError(
         "no splat found (point_cloud.ply, splat.ply, point_cloud/iteration_<N>/point_cloud.ply, "
-        "ply/point_cloud_<step>.ply, ckpts/ckpt_<step>.pt, a single .ply / .compressed.ply / .spz / "
-        f".sog / SOG meta.json / .splat / .glb, or scene.yaml){extra}",
+        f"ply/point_cloud_<step>.ply, ckpts/ckpt_<step>.pt, a single splat file ({accepted_names()}), "
+        f"or scene.yaml){extra}",
         source=str(folder),
     )
 
@@ -299,7 +295,7 @@ def _nerfstudio_export(run: Path) -> Path:
     except InputError:
         pass
     found = (
-        sorted(p for p in (run / "exports").rglob("*") if _is_splat_name(p))
+        sorted(p for p in (run / "exports").rglob("*") if is_splat_candidate(p))
         if (run / "exports").is_dir()
         else []
     )

@@ -12,7 +12,8 @@ Splat:
   3. `point_cloud/iteration_<N>/point_cloud.ply` with the largest N (an INRIA 3DGS output folder),
   4. `ply/point_cloud_<step>.ply` with the largest step (a gsplat `simple_trainer` result folder),
      or `ckpts/ckpt_<step>_rank0.pt` when its step is later,
-  5. the only splat file at the top (.ply, .spz, .sog, SOG meta.json, .splat, .glb, .gltf, .pt) (several -> error listing them). In a 3DGS output folder
+  5. the only splat file at the top (any name a row of `scene/formats/registry.py` matches)
+     (several -> error listing them). In a 3DGS output folder
      (cameras.json with cfg_args or point_cloud/), `input.ply` (the SfM points) never counts.
 Cameras:
   1. `transforms.json` (nerfstudio / Instant-NGP / Blender),

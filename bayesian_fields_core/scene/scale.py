@@ -24,7 +24,7 @@ A user may set the scale (`PipelineParams.scene_scale`), or any single length in
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -130,17 +130,18 @@ def scene_units(scene: Any) -> str:
     return "m" if getattr(scene, "metric", False) else "scene units"
 
 
-def scene_lengths(params: PipelineParams, derived_scale: float | None) -> SceneLengths:
+def scene_lengths(params: PipelineParams, measure: Callable[[], float]) -> SceneLengths:
     """The lengths of a run: each relative default times the scale, unless overridden.
 
-    `derived_scale` is the scene's measured scale (`derive_scene_scale`); it is not read when
-    `params.scene_scale` is set (pass None then to skip measuring it)."""
+    The one place the length parameters (`params.length_parameters()`) are read: everything
+    else reads the `SceneLengths` this returns (a test refuses `params.<length>` elsewhere), so a
+    length can never be taken raw on one path and resolved on another. `measure` returns the
+    scene's measured scale (`Scene.scale`, `derive_scene_scale`); it is called only when
+    `params.scene_scale` is not set, so a run with a given scale never measures one."""
     if params.scene_scale is not None:
         scale, source = float(params.scene_scale), "parameter"
-    elif derived_scale is None:
-        raise InputError("the scene scale was not measured and scene_scale is not set", source="scene scale")
     else:
-        scale, source = float(derived_scale), "derived"
+        scale, source = float(measure()), "derived"
     return SceneLengths(
         scale=scale,
         scale_source=source,  # type: ignore[arg-type]

@@ -48,7 +48,7 @@ def build_primitives(ctx: JobContext) -> np.ndarray:
     return builder.primitive_ids
 
 
-def _view_counts(ctx: JobContext, fused: dict[str, np.ndarray]) -> np.ndarray | None:
+def view_counts(ctx: JobContext, fused: dict[str, np.ndarray]) -> np.ndarray | None:
     """(N,) accepted views per Gaussian when the per-view conditionals need them: as `fuse`
     stored them, or counted again from the accepted masks for a job fused before it stored
     them (the same count, so the map does not depend on when the job was fused)."""
@@ -90,7 +90,7 @@ def run(ctx: JobContext) -> dict[str, Any]:
     ctx.progress("cluster", 0.3)
     with timer("probabilities"):
         scores = primitive_scores(
-            primitive_ids, fused["probabilities"], fused["logodds"], ctx.params, _view_counts(ctx, fused)
+            primitive_ids, fused["probabilities"], fused["logodds"], ctx.params, view_counts(ctx, fused)
         )
     ctx.check_cancel()
     with timer("kernels"):  # seconds once per machine (numba compiles), said when it happens

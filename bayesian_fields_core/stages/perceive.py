@@ -43,6 +43,7 @@ def alignment_summary(report: Any) -> dict[str, Any]:
         "frustum_share": round(report.geometry.frustum_share, 4),
         "extent_ratio": report.geometry.extent_ratio,
         "seconds": round(report.seconds, 3),
+        "cached": report.cached,
     }
 
 

@@ -18,6 +18,7 @@ import numpy as np
 from bayesian_fields_core.geometry.transforms import quat_to_rotmat, rotmat_to_quat
 from bayesian_fields_core.results.colours import object_palette, rank_colour
 from bayesian_fields_core.viewer.data import ViewData
+from bayesian_fields_core.viewer.placement import StartView, box_top, label_anchors, label_text, start_view
 
 COLOURINGS = ("task highlight", "relevance heat map", "all objects", "original colours")
 
@@ -62,6 +63,8 @@ class ResultViewer:
         self._lock = threading.Lock()
         self._boxes: list[Any] = []
         self._frustums: list[Any] = []
+        self.labels: list[Any] = []
+        self.start: StartView | None = None
         self.task = data.tasks[0]
         self.colouring = COLOURINGS[0]
         means = np.asarray(data.gaussians.means, dtype=np.float32)
@@ -91,16 +94,20 @@ class ResultViewer:
 
     # ---- scene -------------------------------------------------------------------------------
     def _set_up_direction(self) -> None:
-        """Up = the cameras' mean -y axis (OpenCV), so the scene opens the right way up."""
+        """Up = the cameras' mean -y axis (OpenCV), so the scene opens the right way up; the view
+        starts at the first training camera (`placement.start_view`)."""
         if not self.data.frames:
             return
         ups = [-np.linalg.inv(f.world_to_camera)[:3, 1] for f in self.data.frames]
         up = np.mean(ups, axis=0)
         if np.linalg.norm(up) > 1e-6:
             self.server.scene.set_up_direction(_xyz(up / np.linalg.norm(up)))
-            first = self.data.frames[0]
-            self.server.initial_camera.position = _xyz(first.camera_centre)
-            self.server.initial_camera.look_at = _xyz(self.centre)
+        self.start = start_view(self.data.frames[0], np.asarray(self.data.gaussians.means))
+        camera = self.server.initial_camera
+        camera.position, camera.look_at = self.start.position, self.start.look_at
+        camera.up, camera.fov = self.start.up, self.start.fov
+        # viser's clipping planes (0.01 .. 1000) are absolute: follow the scene's units instead
+        camera.near, camera.far = 0.01 * self.data.unit, 1000.0 * self.data.unit
 
     def _add_cameras(self) -> None:
         for i, frame in enumerate(self.data.frames):
@@ -122,29 +129,35 @@ class ResultViewer:
         for handle in self._boxes:
             handle.remove()
         self._boxes = []
-        if not self.gui_boxes.value:
+        self.labels = []  # children of the boxes: removed with them
+        objects = self.data.result.selections.get(self.task, [])
+        if not self.gui_boxes.value or not objects:
             return
-        for rank, obj in enumerate(self.data.result.selections.get(self.task, [])):
+        texts = [label_text(rank, obj.probability) for rank, obj in enumerate(objects)]
+        up = np.asarray(self.start.up) if self.start is not None else np.array([0.0, 0.0, 1.0])
+        tops = np.stack([box_top(o.box.center, o.box.rotation, o.box.extents, up) for o in objects])
+        anchors = label_anchors(tops, texts, self.data.frames[0]) if self.data.frames else tops
+        for rank, (obj, text, anchor) in enumerate(zip(objects, texts, anchors, strict=True)):
             r, g, b = (int(c * 255) for c in rank_colour(rank))
-            colour = (r, g, b)
-            wxyz = tuple(rotmat_to_quat(obj.box.rotation))
+            rotation = np.asarray(obj.box.rotation, dtype=np.float64)
             self._boxes.append(
                 self.server.scene.add_box(
                     f"/boxes/{rank}",
-                    color=colour,
+                    color=(r, g, b),
                     dimensions=tuple(obj.box.extents),
                     wireframe=True,
-                    wxyz=wxyz,
+                    wxyz=tuple(rotmat_to_quat(rotation)),
                     position=tuple(obj.box.center),
                 )  # fmt: skip
             )
-            # a child of the box: it moves with it and is removed with it
-            self.server.scene.add_label(
+            # a child of the box (removed with it), so its anchor goes in the box's own frame
+            label = self.server.scene.add_label(
                 f"/boxes/{rank}/label",
-                f"#{rank + 1} object {obj.object_id} {_score_text(self.data, obj)} p={obj.probability:.3f}",
-                position=tuple(np.asarray(obj.box.extents) * 0.5),
+                text,
+                position=_xyz(rotation.T @ (anchor - np.asarray(obj.box.center, dtype=np.float64))),
                 anchor="bottom-left",
             )
+            self.labels.append(label)
 
     # ---- GUI ---------------------------------------------------------------------------------
     def _build_gui(self) -> None:

@@ -5,7 +5,8 @@
 
 `<!-- bfields params --markdown -->` on a line of its own is replaced by what that command prints:
 the table of every pipeline parameter, generated from `PipelineParams`, so the page cannot drift
-from the model. The command is found through the `bfields` console script declared in
+from the model. `<!-- splat formats -->` is replaced by the splat format table, generated from
+`scene/formats/registry.py` (`markdown_table`), the table the loader and the upload check read. The command is found through the `bfields` console script declared in
 `pyproject.toml` and run in this process, with this checkout first on the import path, so the
 build needs no reinstall after modules move.
 """
@@ -27,6 +28,10 @@ ROOT = Path(__file__).resolve().parents[2]
 COMMANDS = {
     "<!-- bfields params --markdown -->": ["params", "--markdown"],
 }
+# Marker -> the `module:function` (no arguments, returns Markdown) whose result replaces it.
+FUNCTIONS = {
+    "<!-- splat formats -->": "bayesian_fields_core.scene.formats.registry:markdown_table",
+}
 
 
 def bfields(args: list[str], root: Path = ROOT) -> str:
@@ -44,6 +49,14 @@ def bfields(args: list[str], root: Path = ROOT) -> str:
     return out.getvalue()
 
 
+def call(target: str, root: Path = ROOT) -> str:
+    """The Markdown a library function returns, imported from this checkout."""
+    if str(root) not in sys.path:
+        sys.path.insert(0, str(root))
+    module_name, _, func_name = target.partition(":")
+    return getattr(importlib.import_module(module_name), func_name)()
+
+
 def code_pipes(table: str) -> str:
     r"""GitHub's tables need `\|` for a pipe even inside a code span (`bayes\|average`);
     Python-Markdown splits no cell inside a code span and would show the backslash: drop it there."""
@@ -51,11 +64,15 @@ def code_pipes(table: str) -> str:
 
 
 def render(markdown: str, root: Path = ROOT) -> str:
-    """The page with every marker line replaced by its command's output."""
+    """The page with every marker line replaced by its command's or function's output."""
     lines = []
     for line in markdown.splitlines(keepends=True):
-        args = COMMANDS.get(line.strip())
-        lines.append(code_pipes(bfields(args, root)) if args else line)
+        args, target = COMMANDS.get(line.strip()), FUNCTIONS.get(line.strip())
+        if args:
+            line = code_pipes(bfields(args, root))
+        elif target:
+            line = code_pipes(call(target, root))
+        lines.append(line)
     return "".join(lines)
 
 

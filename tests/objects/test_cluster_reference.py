@@ -21,10 +21,14 @@ import pytest
 from bayesian_fields_core.objects.clustering import objects_from_primitives, primitive_scores
 from bayesian_fields_core.objects.primitives import PrimitiveBuilder
 from bayesian_fields_core.params import PipelineParams
+from bayesian_fields_core.scene.scale import BOX_MIN_SIDE_FRACTION, scene_lengths
 
 from .cluster_scene import cluster_scene
 
 REFERENCE = Path(__file__).parent / "fixtures" / "cluster_reference.npz"
+REFERENCE_BOX_FLOOR = 1e-3
+"""The thinnest box side the reference was computed with (the box code's floor then), so its
+boxes compare exactly: the run's lengths at the scale that makes the box floor this value."""
 
 
 @pytest.fixture(scope="module")
@@ -37,8 +41,9 @@ def clustered():
     logodds = np.log(probabilities / (1 - probabilities)).astype(np.float32)
     params = PipelineParams()
     scores = primitive_scores(primitive_ids, probabilities, logodds, params)
+    lengths = scene_lengths(params, lambda: REFERENCE_BOX_FLOOR / BOX_MIN_SIDE_FRACTION)
     object_map = objects_from_primitives(
-        means, primitive_ids, scores.pyx, params, scores.relevance, scores.evidence
+        means, primitive_ids, scores.pyx, params, scores.relevance, scores.evidence, lengths=lengths
     )
     return primitive_ids, object_map
 

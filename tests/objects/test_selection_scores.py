@@ -7,12 +7,15 @@ import numpy as np
 from bayesian_fields_core.objects.clustering import _cluster_mean_operator, objects_from_primitives
 from bayesian_fields_core.objects.probabilities import primitive_probabilities, primitive_relevance
 from bayesian_fields_core.params import PipelineParams
+from bayesian_fields_core.scene.scale import scene_lengths
 
 # Three far-apart primitives (no box overlaps, so the AIB merges nothing):
 #  A: 100 Gaussians relevant to both tasks (p = 0.99, 0.99)
 #  B:  60 Gaussians relevant to task 0 only (p = 0.90, 0.01)
 #  C:  10 Gaussians, a sliver that saturated on task 0 (p = 1.0 - 1e-6, 0.01)
 SIZES = (100, 60, 10)
+LENGTHS = scene_lengths(PipelineParams(), lambda: 1.0)
+"""The run's lengths at scale 1 (no edge padding by default): selection never reads them."""
 PROBS = ((0.99, 0.99), (0.90, 0.01), (1.0 - 1e-6, 0.01))
 
 
@@ -27,7 +30,7 @@ def _scene() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def _select(params: PipelineParams, **scores: np.ndarray) -> list[int]:
     means, ids, probs = _scene()
     pyx = primitive_probabilities(ids, probs)
-    object_map = objects_from_primitives(means, ids, pyx, params, **scores)
+    object_map = objects_from_primitives(means, ids, pyx, params, **scores, lengths=LENGTHS)
     assert object_map.counts["objects"] == 3
     # Objects keep the primitives' order here (nothing merged or pruned), so ids compare directly.
     return [int(o) for o in object_map.selection[0] if o >= 0]
@@ -61,7 +64,9 @@ def test_evidence_orders_saturated_objects_by_their_log_odds() -> None:
     evidence, _ = primitive_relevance(ids, logodds)
     params = PipelineParams(knn_filter=False, top_k=3, min_object_gaussians=50)
     pyx = primitive_probabilities(ids, probs)
-    selected = objects_from_primitives(means, ids, pyx, params, relevance, evidence).selection[0]
+    selected = objects_from_primitives(
+        means, ids, pyx, params, relevance, evidence, lengths=LENGTHS
+    ).selection[0]
     assert selected.tolist()[:2] == [0, 1]
 
 
@@ -80,7 +85,7 @@ def test_an_object_below_the_threshold_for_a_task_is_not_its_answer() -> None:
     relevance, _ = primitive_relevance(ids, probs)
     params = PipelineParams(knn_filter=False, top_k=3, min_object_gaussians=1, selection_score="relevance")
     pyx = primitive_probabilities(ids, probs)
-    object_map = objects_from_primitives(means, ids, pyx, params, relevance)
+    object_map = objects_from_primitives(means, ids, pyx, params, relevance, lengths=LENGTHS)
     assert object_map.counts["objects"] == 3  # nothing pruned: each object is relevant to some task
     assert [int(o) for o in object_map.selection[1] if o >= 0] == [0]
     assert sorted(int(o) for o in object_map.selection[0] if o >= 0) == [0, 1, 2]
@@ -96,7 +101,7 @@ def test_the_ranking_score_is_recorded_and_orders_the_ranks() -> None:
     evidence, _ = primitive_relevance(ids, logodds)
     params = PipelineParams(knn_filter=False, top_k=3, min_object_gaussians=1)
     object_map = objects_from_primitives(
-        means, ids, primitive_probabilities(ids, probs), params, relevance, evidence
+        means, ids, primitive_probabilities(ids, probs), params, relevance, evidence, lengths=LENGTHS
     )
     chosen = [int(o) for o in object_map.selection[0] if o >= 0]
     assert chosen == [1, 2, 0]
@@ -113,7 +118,7 @@ def test_merge_log_records_the_pre_merge_and_the_aib_without_changing_the_map() 
     probs = rows[ids]
     pyx = primitive_probabilities(ids, probs)
     params = PipelineParams(knn_filter=False, top_k=2, min_object_gaussians=1)
-    object_map = objects_from_primitives(means, ids, pyx, params)
+    object_map = objects_from_primitives(means, ids, pyx, params, lengths=LENGTHS)
     log = object_map.merges
     assert log is not None
     assert log.identical.tolist() == [[0, 1]]

@@ -13,6 +13,7 @@ import pytest
 from bayesian_fields_core.cli.cache_command import parse_duration, parse_size
 from bayesian_fields_core.cli.main import main
 from bayesian_fields_core.cli.run_command import local_context
+from bayesian_fields_core.job.artifacts import ALIGNMENT_CACHE_DIR
 from bayesian_fields_core.job.pipeline import run_job
 from bayesian_fields_core.params import PipelineParams
 
@@ -76,9 +77,11 @@ def test_ls_lists_each_scene_and_profile_with_size(
     for e in entries:
         assert e["scene"] == str(scene_dir.resolve())
         assert e["frames"] == N_FRAMES
-        assert e["files"] == 2 * N_FRAMES  # perception + visibility per frame
+        assert e["files"] == 2 * N_FRAMES + 1  # perception + visibility per frame, the alignment verdict
         assert e["bytes"] > 0 and 0 <= e["last_used_s_ago"] < 600
-    on_disk = sum(p.stat().st_size for p in cache.rglob("*.npz"))
+    # the verdict does not depend on the models: both profiles' entries reference the one file
+    [verdict] = (cache / ALIGNMENT_CACHE_DIR).iterdir()
+    on_disk = sum(p.stat().st_size for p in cache.rglob("*.npz")) + 2 * verdict.stat().st_size
     assert sum(e["bytes"] for e in entries) == on_disk
 
     assert main(["cache", "ls", "--cache-dir", str(cache)]) == 0

@@ -30,7 +30,7 @@ def _help(argv: list[str], capsys: pytest.CaptureFixture[str]) -> str:
 def test_run_help_lists_every_parameter_with_type_and_default(capsys: pytest.CaptureFixture[str]) -> None:
     text = _help(["run", "--help"], capsys)
     for row in params_table.rows():
-        assert f"{row.name}  ({row.type}, default {row.default})" in text
+        assert f"{row.name}  ({row.type}, default {row.default}; read by {row.read_by})" in text
     assert "Absolute visibility tolerance" in text  # the descriptions come along
 
 

@@ -14,7 +14,7 @@ from bayesian_fields_core.job.artifacts import ACCEPTED_KEY, FUSION_KEY, PRIMITI
 from bayesian_fields_core.job.pipeline import run_stage
 from bayesian_fields_core.job.store import get_arrays
 from bayesian_fields_core.params import PipelineParams
-from bayesian_fields_core.stages.cluster import _view_counts, build_primitives, load_primitives
+from bayesian_fields_core.stages.cluster import build_primitives, load_primitives, view_counts
 
 from .conftest import counting_models, make_ctx
 
@@ -58,9 +58,9 @@ def test_fuse_stores_the_view_counts_that_replaying_the_frames_gives(
     stored = fused["view_counts"]
     assert stored.shape == (len(ctx.scene().gaussians),) and stored.max() > 1
     older = {k: v for k, v in fused.items() if k != "view_counts"}
-    np.testing.assert_array_equal(_view_counts(ctx, older), stored)
+    np.testing.assert_array_equal(view_counts(ctx, older), stored)
     # an unseen Gaussian has no accepted view; a seen one at most one per fused frame
     frames = len(get_arrays(ctx.store, ctx.job_key(ACCEPTED_KEY))["frame_indices"])
     assert stored.min() == 0 and stored.max() <= frames
     fused_ctx = _job(scene_dir, profile, tmp_path, PipelineParams(aib_conditionals="fused"))
-    assert _view_counts(fused_ctx, fused) is None  # the paper's conditionals read no counts
+    assert view_counts(fused_ctx, fused) is None  # the paper's conditionals read no counts

@@ -10,14 +10,20 @@ task ("pick up the red lamp") is right when it is answered "not found".
 
 from __future__ import annotations
 
+import json
+import os
+import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
+from PIL import Image
 
 from bayesian_fields_core.cli.main import main
 from bayesian_fields_core.eval.box_iou import obb_contains_centroid
 from bayesian_fields_core.eval.synthetic import load_ground_truth
 from bayesian_fields_core.geometry.obb import OrientedBox
+from bayesian_fields_core.results.colours import rank_colour
 from bayesian_fields_core.results.reader import read_result
 
 SAMPLE = Path(__file__).resolve().parents[2] / "samples" / "tabletop"
@@ -60,11 +66,59 @@ def first_answers_right(out: Path) -> dict[str, bool]:
     return right
 
 
-@pytest.mark.slow
-def test_demo_first_answers_against_the_sample_ground_truth(tmp_path: Path) -> None:
-    out = tmp_path / "out"
-    args = ["run", str(SAMPLE), "--out", str(out), "--cache-dir", str(tmp_path / "cache"), "-q"]
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """`bfields run samples/tabletop` at the defaults, as the README runs it (once per module)."""
+    tmp = tmp_path_factory.mktemp("demo")
+    out = tmp / "out"
+    args = ["run", str(SAMPLE), "--out", str(out), "--cache-dir", str(tmp / "cache"), "-q"]
     assert main(args) == 0
-    right = first_answers_right(out)
+    return out
+
+
+@pytest.mark.slow
+def test_demo_first_answers_against_the_sample_ground_truth(demo: Path) -> None:
+    right = first_answers_right(demo)
     assert len(right) == 8
     assert {task for task, ok in right.items() if ok} == RIGHT_TODAY, right
+
+
+DOCS = SAMPLE.parents[1] / "docs"
+SHEET = DOCS / "previews-contact-sheet.png"
+SHEET_FINGERPRINT = DOCS / "previews-contact-sheet.json"
+UPDATE_DOCS = "BFIELDS_UPDATE_DOCS_IMAGES"
+"""Set to 1 to rewrite the README's contact sheet and its fingerprint from the demo run."""
+MOVED_PIXELS = 0.005
+"""Share of the sheet's pixels allowed to differ by more than PIXEL_TOLERANCE levels from the
+committed picture: a re-render on another CPU moves a few edge pixels; a stale sheet (other views,
+colours, selections) moves about 5 % (measured against the sheet of issue 31's time)."""
+PIXEL_TOLERANCE = 40
+
+
+def sheet_fingerprint(out: Path) -> dict[str, object]:
+    """What the contact sheet shows, as data: per task its ranked object ids (or not found),
+    and the rank colours of the legend. A pixel tolerance cannot tell object 26 from 28; this can."""
+    result = read_result(out)
+    tasks = [
+        {"task": task, "objects": [o.object_id for o in result.selections.get(task, [])]}
+        for task in result.tasks
+    ]
+    colours = ["#" + "".join(f"{round(float(c) * 255):02x}" for c in rank_colour(r)) for r in range(5)]
+    return {"tasks": tasks, "rank_colours": colours}
+
+
+@pytest.mark.slow
+def test_the_readme_contact_sheet_is_the_current_demo(demo: Path) -> None:
+    """The README's picture is this run's `previews/contact_sheet.png`. When the method, the
+    previews or the sample change, regenerate it: BFIELDS_UPDATE_DOCS_IMAGES=1 pytest <this test>."""
+    made = demo / "result" / "previews" / "contact_sheet.png"
+    fingerprint = sheet_fingerprint(demo)
+    if os.environ.get(UPDATE_DOCS) == "1":
+        shutil.copyfile(made, SHEET)
+        SHEET_FINGERPRINT.write_text(json.dumps(fingerprint, indent=1) + "\n")
+    assert json.loads(SHEET_FINGERPRINT.read_text()) == fingerprint, f"stale: run with {UPDATE_DOCS}=1"
+    committed = np.asarray(Image.open(SHEET).convert("RGB"), dtype=np.int16)
+    current = np.asarray(Image.open(made).convert("RGB"), dtype=np.int16)
+    assert committed.shape == current.shape, f"stale: run with {UPDATE_DOCS}=1"
+    moved = float((np.abs(committed - current).max(axis=-1) > PIXEL_TOLERANCE).mean())
+    assert moved < MOVED_PIXELS, f"{100 * moved:.1f}% of the pixels changed: run with {UPDATE_DOCS}=1"

@@ -10,7 +10,6 @@ import pytest
 from bayesian_fields_core.job.context import JobContext
 from bayesian_fields_core.job.pipeline import load_models
 from bayesian_fields_core.job.stage_table import (
-    NOT_IN_ANY_CACHE_KEY,
     STAGE_TABLE,
     STAGES,
     VISIBILITY_CACHE,
@@ -21,18 +20,6 @@ from bayesian_fields_core.params import PipelineParams
 
 ROOT = Path(__file__).resolve().parents[2]
 SAMPLE = ROOT / "samples" / "tabletop"
-
-
-def cached_params() -> set[str]:
-    return {name for spec in STAGE_TABLE if spec.cache for name in spec.cache.params}
-
-
-def test_every_parameter_is_declared_for_the_caches_exactly_once() -> None:
-    fields = set(PipelineParams.model_fields)
-    declared = cached_params() | set(NOT_IN_ANY_CACHE_KEY)
-    assert fields - declared == set(), "declare these in a CacheSpec.params or NOT_IN_ANY_CACHE_KEY"
-    assert declared - fields == set(), "these are not PipelineParams fields"
-    assert cached_params() & set(NOT_IN_ANY_CACHE_KEY) == set()
 
 
 def test_table_rows_are_complete() -> None:
@@ -79,6 +66,7 @@ def test_an_undeclared_parameter_keeps_every_cache_key(tmp_path: Path, name: str
     "pattern",
     [
         "_STAGE_FUNCTIONS",
+        "NOT_IN_ANY_CACHE_KEY",
         "STAGE_QUEUE_ROLE",
         '_make_stage_task("',
         "zip(STAGES",

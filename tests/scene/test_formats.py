@@ -145,7 +145,8 @@ def refusal(path: Path) -> str:
 
 def test_bad_files_are_refused_in_one_line(tmp_path: Path, ply: Gaussians) -> None:
     (tmp_path / "x.ksplat").write_bytes(b"\0" * 4096)
-    assert "npx @playcanvas/splat-transform x.ksplat x.ply" in refusal(tmp_path / "x.ksplat")
+    hint = f"npx @playcanvas/splat-transform {tmp_path / 'x.ksplat'} {tmp_path / 'point_cloud.ply'}"
+    assert hint in refusal(tmp_path / "x.ksplat")
     (tmp_path / "x.lcc").write_bytes(b"{}")
     assert "convert it first" in refusal(tmp_path / "x.lcc")
     data = (FIXTURES / "tabletop.v3.spz").read_bytes()
@@ -185,12 +186,26 @@ def test_the_same_sanity_checks_as_a_ply(tmp_path: Path, ply: Gaussians) -> None
     assert "degenerate splat" not in refusal(tmp_path / "ckpt_2.pt")
 
 
+def test_the_hinted_conversion_is_what_the_next_run_loads(tmp_path: Path) -> None:
+    """The refusal's command writes point_cloud.ply beside the .ksplat; with both in the folder
+    the loader takes the converted file (a `<stem>.ply` beside it was refused as "several splat
+    files"). The conversion itself is splat-transform's (not installed here): a copy of a PLY
+    stands in for its output, which is an ordinary INRIA PLY."""
+    source = tmp_path / "scene.ksplat"
+    source.write_bytes(b"\0" * 4096)
+    command = refusal(source).split("convert it first: ")[1].split()
+    assert command[:3] == ["npx", "@playcanvas/splat-transform", str(source)]
+    shutil.copy(PLY, command[3])
+    assert find_splat(tmp_path) == tmp_path / "point_cloud.ply"
+    assert len(read_splat(find_splat(tmp_path), max_gaussians=LIMIT)) == len(read_ply(PLY))
+
+
 def test_upload_names() -> None:
     for ok in ("a.ply", "a.compressed.ply", "a.spz", "a.sog", "a.splat", "a.glb"):
         check_upload_name(ok)
     with pytest.raises(InputError, match=r"does not accept checkpoints \(\.pt\).*bfields submit"):
         check_upload_name("ckpt_29999_rank0.pt")
-    with pytest.raises(InputError, match=r"npx @playcanvas/splat-transform scene.ksplat scene.ply"):
+    with pytest.raises(InputError, match=r"npx @playcanvas/splat-transform scene.ksplat point_cloud.ply"):
         check_upload_name("scene.ksplat")
     with pytest.raises(InputError, match=r"'scene.obj' is not a splat file we read"):
         check_upload_name("scene.obj")

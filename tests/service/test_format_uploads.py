@@ -66,7 +66,7 @@ def test_checkpoint_and_unread_formats_are_refused_by_name(
 ) -> None:
     for name, expected in (
         ("ckpt_29999_rank0.pt", "does not accept checkpoints (.pt)"),
-        ("scene.ksplat", "npx @playcanvas/splat-transform scene.ksplat scene.ply"),
+        ("scene.ksplat", "npx @playcanvas/splat-transform scene.ksplat point_cloud.ply"),
     ):
         (tmp_path / name).write_bytes(b"\0" * 64)
         resp = client_a.post("/v1/scenes", files=form(tmp_path / name, images_zip))

@@ -40,6 +40,7 @@ def test_auth_required_everywhere(api: ApiServer, stored_scene: dict, queued_job
         ("GET", "/v1/jobs"),
         ("GET", f"/v1/jobs/{queued_job}"),
         ("GET", f"/v1/jobs/{queued_job}/result"),
+        ("GET", f"/v1/jobs/{queued_job}/result.zip"),
         ("DELETE", f"/v1/jobs/{queued_job}"),
         ("POST", "/v1/batches"),
         ("GET", "/v1/batches/b_0000000000000000000000"),
@@ -56,6 +57,9 @@ def test_auth_required_everywhere(api: ApiServer, stored_scene: dict, queued_job
 
 
 def test_job_lifecycle_without_worker(client_a: httpx.Client, queued_job: str, stored_scene: dict) -> None:
+    for route in ("result", "result.zip"):  # nothing to download before the job has succeeded
+        resp = client_a.get(f"/v1/jobs/{queued_job}/{route}")
+        assert resp.status_code == 409 and "is queued, not succeeded" in resp.json()["detail"], route
     job = client_a.get(f"/v1/jobs/{queued_job}").json()
     assert job["state"] == "queued" and job["scene_id"] == stored_scene["id"] and job["tasks"] == TASKS
     assert client_a.get(f"/v1/jobs/{queued_job}/result").status_code == 409
@@ -131,6 +135,7 @@ def test_tenant_isolation_on_every_route(
             ("GET", f"/v1/jobs/{queued_job}"),
             ("GET", f"/v1/jobs/{queued_job}/result"),
             ("GET", f"/v1/jobs/{queued_job}/artifacts/result/summary.json"),
+            ("GET", f"/v1/jobs/{queued_job}/result.zip"),
             ("DELETE", f"/v1/jobs/{queued_job}"),
             ("GET", f"/v1/batches/{batch['id']}"),
         ]:

@@ -7,6 +7,7 @@ from __future__ import annotations
 import io
 import json
 import time
+import zipfile
 from contextlib import redirect_stdout
 from pathlib import Path
 
@@ -98,9 +99,17 @@ def test_end_to_end_over_http_matches_in_process(
     with BFieldsClient(api.base_url, api.keys["tenant-a"]) as client:
         client.download_artifacts(job["id"], tmp_path / "fetched")
     _assert_same_result(tmp_path / "fetched", reference)
-    # tenant-b cannot read the result
+    # "download all": every artifact in one zip, byte for byte what the single downloads give
+    archive = client_a.get(f"/v1/jobs/{job['id']}/result.zip")
+    assert archive.status_code == 200 and archive.headers["content-type"] == "application/zip"
+    with zipfile.ZipFile(io.BytesIO(archive.content)) as zf:
+        assert sorted(zf.namelist()) == sorted(a["path"] for a in result["artifacts"])
+        for name in zf.namelist():
+            assert zf.read(name) == (tmp_path / "fetched" / name).read_bytes(), name
+    # tenant-b cannot read the result, one file at a time or all at once
     with api.client("tenant-b") as other:
         assert other.get(f"/v1/jobs/{job['id']}/result").status_code == 404
+        assert other.get(f"/v1/jobs/{job['id']}/result.zip").status_code == 404
     # a new task list on the same scene reuses the cached perception (every frame from the cache)
     again = client_a.post("/v1/jobs", json={"scene_id": scene_id, "tasks": TASKS[::-1], "parameters": PARAMS})
     second = wait_job(client_a, again.json()["id"])

@@ -87,18 +87,39 @@ def test_ui_flow(api_server: ApiServer, ui_workers, browser, images_zip: Path, t
     red = (shot[..., 0] > 180) & (shot[..., 1] < 120) & (shot[..., 2] < 110)
     assert red.sum() > 30, red.sum()
     assert (shot[-20:].mean(axis=(0, 1)) < 60).all()
-    links = page.eval_on_selector_all("#downloads a", "as => as.map(a => a.dataset.path)")
-    for expected in (
-        "result/summary.json",
-        "result/previews/contact_sheet.png",
-        "result/exports/tasks/task_00.ply",
-    ):
-        assert expected in links
-    with page.expect_download() as download:
-        page.click("#downloads a[data-path='result/summary.json']")
-    assert b'"previews"' in Path(download.value.path()).read_bytes()
+    # one table per task: rank, object, p, Gaussians and box of each selected object, as the result says
+    result = httpx.get(f"{api.base_url}/v1/jobs/{job_id}/result", headers=api.headers("tenant-a")).json()
+    selections = {sel["task"]: sel["objects"] for sel in result["summary"]["selections"]}
+    assert page.eval_on_selector_all("table.objects", "ts => ts.map(t => t.dataset.task)") == TASKS
+    for task in TASKS:
+        shown = page.eval_on_selector_all(
+            f"table.objects[data-task='{task}'] tbody tr",
+            "rows => rows.map(r => [...r.cells].map(c => c.textContent))",
+        )
+        assert len(shown) == len(selections[task]) > 0
+        for rank, (cells, obj) in enumerate(zip(shown, selections[task], strict=True)):
+            assert cells[:4] == [f"#{rank + 1}", str(obj["object_id"]), f"{obj['probability']:.3f}",
+                                 str(obj["num_gaussians"])]  # fmt: skip
+            assert cells[4] == "(" + ", ".join(f"{c:.3f}" for c in obj["box"]["center"]) + ")"
+            assert cells[6] == Path(obj["export"]).name
+    # every file stays one click away, folded under the tables
+    assert page.is_hidden("#downloads")
     if _shots():
         page.screenshot(path=str(Path(__file__).resolve().parents[2] / "docs" / "ui-job.png"), full_page=True)
+    page.click("#files summary")
+    links = page.eval_on_selector_all("#downloads a", "as => as.map(a => a.dataset.path)")
+    assert sorted(links) == sorted(a["path"] for a in result["artifacts"])
+    with page.expect_download() as download:
+        page.click("#downloads a[data-path='result/summary.json']")
+    single = Path(download.value.path()).read_bytes()
+    assert b'"previews"' in single
+    # "download all": one zip of every file, byte for byte
+    with page.expect_download() as download:
+        page.click("#download-all")
+    assert download.value.suggested_filename == f"{job_id}.zip"
+    with zipfile.ZipFile(download.value.path()) as archive:
+        assert sorted(archive.namelist()) == sorted(links)
+        assert archive.read("result/summary.json") == single
 
     # a batch of the same scene: one row per scene, finished, with a thumbnail
     page.goto(f"{api.base_url}/ui/")
@@ -136,8 +157,9 @@ def test_ui_flow(api_server: ApiServer, ui_workers, browser, images_zip: Path, t
     page_b.wait_for_function("document.getElementById('job-error').textContent.length > 0")
     assert "not found" in page_b.text_content("#job-error")
     assert page_b.locator("#previews img").count() == 0
-    resp = httpx.get(f"{api.base_url}/v1/jobs/{job_id}/result", headers=api.headers("tenant-b"))
-    assert resp.status_code == 404
+    for route in ("result", "result.zip"):
+        resp = httpx.get(f"{api.base_url}/v1/jobs/{job_id}/{route}", headers=api.headers("tenant-b"))
+        assert resp.status_code == 404, route
     ctx_a.close()
     ctx_b.close()
     _view_job(api, job_id, tmp_path)

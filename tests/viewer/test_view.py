@@ -13,6 +13,7 @@ import pytest
 
 from bayesian_fields_core.cli.main import main
 from bayesian_fields_core.results.colours import DIM, TINT, rank_colour
+from bayesian_fields_core.viewer.placement import label_text, start_view
 from tests.ui.browser import pixels
 
 # Slow (the inner loop leaves it out): its fixtures took 60 s to set up here (--durations).
@@ -94,6 +95,21 @@ def test_viewer_in_chromium(viewer, browser) -> None:  # noqa: ANN001
         while not viewer.server.get_clients() and time.monotonic() < deadline:
             time.sleep(0.2)
         assert len(viewer.server.get_clients()) == 1
+        # the browser's camera starts at the first training camera, with its lens's field of view
+        start = start_view(data.frames[0], data.gaussians.means)
+        camera = next(iter(viewer.server.get_clients().values())).camera
+        deadline = time.monotonic() + 30
+        while True:  # viser asserts until the client has reported its camera once
+            try:
+                position = camera.position
+                break
+            except AssertionError:
+                if time.monotonic() > deadline:
+                    raise
+                time.sleep(0.2)
+        np.testing.assert_allclose(position, start.position, atol=1e-3 * data.unit)
+        np.testing.assert_allclose(camera.look_at, start.look_at, atol=1e-3 * data.unit)
+        assert camera.fov == pytest.approx(start.fov, rel=1e-3)
         last: list[np.ndarray] = []
 
         def drawn_and_settled(shot: np.ndarray) -> bool:  # the splat is there and has stopped fading in
@@ -115,6 +131,8 @@ def test_viewer_in_chromium(viewer, browser) -> None:  # noqa: ANN001
         if first[0].object_id not in {o.object_id for o in second}:
             np.testing.assert_allclose(viewer.shown_colours[top], data.base[top] * DIM, atol=1e-6)
         assert [b.name for b in viewer._boxes] == [f"/boxes/{r}" for r in range(len(second))]
+        assert [h.name for h in viewer.labels] == [f"/boxes/{r}/label" for r in range(len(second))]
+        assert [h.text for h in viewer.labels] == [label_text(r, o.probability) for r, o in enumerate(second)]
         _wait_for_pixels(
             page,
             lambda shot: np.abs(shot.astype(int) - before.astype(int)).mean() > 1.0,

@@ -5,8 +5,8 @@ log), quats (N, 4, w x y z, unnormalised), opacities (N, logit), sh0 (N, 1, 3) a
 in its normalised world frame. Read with `torch.load(weights_only=True)` only: PyTorch's
 restricted unpickler, which builds tensors and plain containers and refuses any other object.
 Nothing else in the project unpickles. The CLI reads checkpoints (a user's own file on their own
-machine); the service does not accept them (see `scene.formats.SERVICE_REFUSED`): a `.pt` is still
-a pickle stream, and the upload edge takes only formats that are plain data.
+machine); the service does not accept them (their row in `scene.formats.registry` says
+`upload=False`): a `.pt` is still a pickle stream, and the upload edge takes only plain data.
 """
 
 from __future__ import annotations

@@ -8,6 +8,7 @@ function keeps every reader's numbers comparable to the PLY it was made from.
 
 from __future__ import annotations
 
+import shlex
 from pathlib import Path
 
 import numpy as np
@@ -21,15 +22,21 @@ SH_C0 = 0.28209479177387814
 _OPACITY_EPS = 1e-6
 """Opacities are clipped to [eps, 1 - eps] before the logit, so a stored 0 or 255 stays finite."""
 
-CONVERT_HINT = "npx @playcanvas/splat-transform {name} {stem}.ply"
+CONVERT_HINT = "npx @playcanvas/splat-transform {source} {target}"
 """The ecosystem's converter, named in refusals (it reads every web format we know of)."""
+CONVERTED_SPLAT = "point_cloud.ply"
+"""The name a conversion writes: the loader's first splat name (`layout.SPLAT_NAMES`)."""
 
 
 def convert_command(path: Path) -> str:
-    """The command that turns `path` into an INRIA PLY, for error messages."""
-    name = path.name
-    stem = name.split(".")[0] or "splat"
-    return CONVERT_HINT.format(name=name, stem=stem)
+    """The command that turns `path` into an INRIA PLY that the next run loads, for error messages.
+
+    The output is `CONVERTED_SPLAT` beside the input: a scene folder's loader takes that name
+    before any other file, so the unread original may stay where it is (a `<stem>.ply` beside it
+    made the next run refuse "several splat files"). Paths are as given (a bare upload name stays
+    bare), quoted for a shell."""
+    target = path.with_name(CONVERTED_SPLAT)
+    return CONVERT_HINT.format(source=shlex.quote(str(path)), target=shlex.quote(str(target)))
 
 
 def logit(opacity: np.ndarray) -> np.ndarray:

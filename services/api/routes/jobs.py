@@ -14,11 +14,12 @@ from typing import Annotated, Any
 
 from fastapi import APIRouter, Header, HTTPException, Query, Request, Response, status
 from fastapi.concurrency import run_in_threadpool
-from fastapi.responses import FileResponse
+from fastapi.responses import FileResponse, StreamingResponse
 
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.job.store import ArtifactNotFound, LocalStore, get_json, validate_key
 from bayesian_fields_service.api.json_body import openapi_body, parse_body
+from bayesian_fields_service.api.result_zip import zip_stream
 from bayesian_fields_service.api.schemas import (
     Artifact,
     BatchJob,
@@ -111,11 +112,7 @@ def list_jobs(
     responses={**ERRORS, 409: {"model": Problem}},
 )
 def get_result(job_id: str, tenant: Tenant, state: State) -> JobResult:
-    record = state.service.job(tenant, job_id)
-    if record.state != JobState.succeeded:
-        raise HTTPException(
-            status.HTTP_409_CONFLICT, f"job {job_id!r} is {record.state.value}, not succeeded"
-        )
+    record = _succeeded(state, tenant, job_id)
     ts = state.tenant(tenant)
     prefix = f"{record.job_prefix}result/"
     try:
@@ -133,6 +130,33 @@ def get_result(job_id: str, tenant: Tenant, state: State) -> JobResult:
         artifacts.append(Artifact(path=rel, size=ts.size(key), url=url))
     return JobResult(id=job_id, state=record.state, summary=summary, artifacts=artifacts,
                      expires_in_s=state.settings.presign_expiry_s)  # fmt: skip
+
+
+def _succeeded(state: AppState, tenant: str, job_id: str) -> JobRecord:
+    """The tenant's job (404 otherwise), once it has succeeded (409 naming its state otherwise)."""
+    record = state.service.job(tenant, job_id)
+    if record.state != JobState.succeeded:
+        raise HTTPException(
+            status.HTTP_409_CONFLICT, f"job {job_id!r} is {record.state.value}, not succeeded"
+        )
+    return record
+
+
+@router.get(
+    "/jobs/{job_id}/result.zip",
+    response_class=StreamingResponse,
+    summary="Every file of a finished job's result as one zip, streamed (the /ui 'download all')",
+    responses={**ERRORS, 409: {"model": Problem}, 200: {"content": {"application/zip": {}}}},
+)
+def get_result_zip(job_id: str, tenant: Tenant, state: State) -> StreamingResponse:
+    record = _succeeded(state, tenant, job_id)
+    ts = state.tenant(tenant)
+    members = [(key, key[len(record.job_prefix) :]) for key in ts.list(f"{record.job_prefix}result/")]
+    return StreamingResponse(
+        zip_stream(ts, members),
+        media_type="application/zip",
+        headers={"Content-Disposition": f'attachment; filename="{job_id}.zip"'},
+    )
 
 
 @router.get(

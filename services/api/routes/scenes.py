@@ -11,6 +11,7 @@ from fastapi.concurrency import run_in_threadpool
 
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.job.store import ArtifactNotFound, PrefixedStore
+from bayesian_fields_core.scene.formats.registry import upload_description
 from bayesian_fields_service.api.archives import ArchiveLimits
 from bayesian_fields_service.api.multipart import clean_filename, receive_multipart
 from bayesian_fields_service.api.scene_intake import (
@@ -66,8 +67,7 @@ _MULTIPART_SCHEMA = {
                         "splat": {
                             "type": "string",
                             "format": "binary",
-                            "description": "The splat: .ply (INRIA, RGB-coloured or "
-                            "compressed), .spz, .sog, .splat, .glb or .gltf; not .pt checkpoints.",
+                            "description": upload_description(),
                         },
                         "cameras": {
                             "type": "array",

@@ -149,6 +149,44 @@ async function initJob() {
   tick();
 }
 
+// A file of the job saved under `name`: fetched with the key, handed to the browser as a download.
+async function saveAs(url, name) {
+  const tmp = el("a", { href: await artifactUrl(url), download: name });
+  document.body.append(tmp); tmp.click(); tmp.remove();
+}
+
+function fileLink(a, text) {
+  const link = el("a", { href: "#", "data-path": a.path, text });
+  link.addEventListener("click", (ev) => { ev.preventDefault(); saveAs(a.url, a.path.split("/").pop()); });
+  return link;
+}
+
+const xyz = (v, digits) => (v ? `(${v.map((c) => Number(c).toFixed(digits)).join(", ")})` : "");
+
+// One table per task from summary.json's selections: rank, object, p, Gaussians, box, its file.
+function objectTables(summary, byPath) {
+  const cols = ["rank", "object", "p(relevant)", "Gaussians", "box centre", "box extents", "file"];
+  return (summary.selections || []).map((sel) => {
+    const table = el("table", { class: "objects", "data-task": sel.task },
+      el("caption", { text: sel.task }), el("thead", {}, el("tr", {}, ...cols.map((c) => el("th", { text: c })))));
+    const body = el("tbody");
+    sel.objects.forEach((o, rank) => {
+      const art = byPath[`result/${o.export}`];
+      body.append(el("tr", { "data-object": o.object_id },
+        el("td", { text: `#${rank + 1}` }), el("td", { text: `${o.object_id}` }),
+        el("td", { text: Number(o.probability).toFixed(3) }), el("td", { text: `${o.num_gaussians}` }),
+        el("td", { text: xyz(o.box && o.box.center, 3) }), el("td", { text: xyz(o.box && o.box.extents, 3) }),
+        el("td", {}, art ? fileLink(art, o.export.split("/").pop()) : "")));
+    });
+    if (!sel.objects.length) {
+      const why = sel.not_found ? `not found: ${sel.not_found.reason}` : "no object selected";
+      body.append(el("tr", {}, el("td", { colspan: cols.length, class: "muted", text: why })));
+    }
+    table.append(body);
+    return table;
+  });
+}
+
 async function showResult(id) {
   const res = await api(`/v1/jobs/${encodeURIComponent(id)}/result`);
   const byPath = Object.fromEntries(res.artifacts.map((a) => [a.path, a]));
@@ -162,17 +200,13 @@ async function showResult(id) {
     gallery.append(el("figure", {}, img, el("figcaption", { text: p.task })));
     img.src = await artifactUrl(art.url);
   }
+  $("objects").append(...objectTables(res.summary, byPath));
+  $("download-all").addEventListener("click", () => saveAs(`/v1/jobs/${encodeURIComponent(id)}/result.zip`, `${id}.zip`));
   const rows = $("downloads").tBodies[0];
   for (const a of res.artifacts) {
-    const link = el("a", { href: "#", "data-path": a.path, text: a.path });
-    link.addEventListener("click", async (ev) => {
-      ev.preventDefault();
-      const href = await artifactUrl(a.url);
-      const tmp = el("a", { href, download: a.path.split("/").pop() });
-      document.body.append(tmp); tmp.click(); tmp.remove();
-    });
-    rows.append(el("tr", {}, el("td", {}, link), el("td", { text: `${a.size} bytes` })));
+    rows.append(el("tr", {}, el("td", {}, fileLink(a, a.path)), el("td", { text: `${a.size} bytes` })));
   }
+  $("file-count").textContent = `${res.artifacts.length}`;
   if (sheet) document.body.dataset.contactSheet = sheet;
   $("result").classList.remove("hidden");
 }

@@ -14,6 +14,8 @@ import ast
 from collections import defaultdict
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 LIBRARY = "bayesian_fields_core"
 SERVICE = "bayesian_fields_service"
@@ -172,14 +174,17 @@ def test_every_package_has_a_floor() -> None:
         assert floor(module)[1] >= 0  # `floor` fails naming a package on no floor
 
 
+@pytest.mark.slow
 def test_no_import_circles() -> None:
     assert circles(module_graph()) == []
 
 
+@pytest.mark.slow
 def test_no_arrow_climbs_a_floor() -> None:
     assert climbing_arrows(module_graph()) == {}
 
 
+@pytest.mark.slow
 def test_the_library_never_imports_the_service() -> None:
     offenders = {
         source: sorted(t for t in targets if t.split(".")[0] in {SERVICE, "services"})
@@ -189,12 +194,14 @@ def test_the_library_never_imports_the_service() -> None:
     assert {k: v for k, v in offenders.items() if v} == {}
 
 
+@pytest.mark.slow
 def test_no_generic_services_package_is_imported() -> None:
     for source, path in all_modules().items():
         names = imported_modules(source.split(".")[0], path)
         assert not any(m == "services" or m.startswith("services.") for m in names), source
 
 
+@pytest.mark.slow
 def test_the_checks_can_fail() -> None:
     """A late import inside a function is an arrow; a loop is a circle; an upward import climbs."""
     graph = module_graph()

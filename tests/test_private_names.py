@@ -27,6 +27,8 @@ import ast
 from dataclasses import dataclass
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES: dict[str, str] = {
     "bayesian_fields_core": "bayesian_fields_core",
@@ -121,6 +123,7 @@ def violations(user: Module, known: dict[str, Module]) -> list[str]:
     return found
 
 
+@pytest.mark.slow
 def test_no_module_uses_another_packages_private_names() -> None:
     everything = modules()
     known = {m.name: m for m in everything}

@@ -61,6 +61,7 @@ def test_rotated_square_prism_octagon():
     assert obb_iou(a, b) == pytest.approx(inter / (16 - inter), rel=1e-9)
 
 
+@pytest.mark.slow
 def test_rotated_box_matches_monte_carlo():
     rng = np.random.default_rng(0)
     a = OrientedBox([0, 0, 0], Rotation.from_euler("xyz", [20, 40, 10], degrees=True).as_matrix(), [2, 1, 1])

@@ -29,6 +29,9 @@ from bayesian_fields_core.params import PipelineParams
 from bayesian_fields_core.results import read_result
 from bayesian_fields_core.scene.similarity import Similarity
 
+# Slow (the inner loop leaves it out): its fixtures took 34 s to set up here (--durations).
+pytestmark = pytest.mark.slow
+
 # A scene -> GT transform like Clio's (rigid T, separate scale): rotated, shifted, scaled by 2.5.
 ROTATION = Rotation.from_euler("xyz", [80, -25, 140], degrees=True).as_matrix()
 TRANSLATION = [1.5, -4.0, 0.7]

@@ -33,6 +33,7 @@ def test_label_masks_by_hand() -> None:
     assert pos_half[1].tolist() == [True, True]
 
 
+@pytest.mark.slow
 def test_calibrate_from_the_sample_scene_separates_the_classes(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -55,6 +56,7 @@ def test_calibrate_rejects_a_scene_without_ground_truth(
     assert not (tmp_path / "c.json").exists()
 
 
+@pytest.mark.slow
 def test_negative_sources_differ_as_documented(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """The paper's recipe (tasks with no object in the scene) against every unrelated pair."""
     counts = {}
@@ -138,6 +140,7 @@ def test_the_run_applies_the_fitted_threshold_else_the_distribution_one() -> Non
     assert resolve_answer_min_peak("calibrated", None, likelihood) == pytest.approx(fallback)
 
 
+@pytest.mark.slow
 def test_calibrate_fits_the_threshold_on_the_sample_keeping_the_likelihoods(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

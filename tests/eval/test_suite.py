@@ -24,6 +24,9 @@ from bayesian_fields_core.job.pipeline import load_models
 from bayesian_fields_core.job.task_list import load_tasks
 from bayesian_fields_core.scene.loader import load_scene
 
+# Slow (the inner loop leaves it out): its fixtures took 5.5 s to set up here (--durations).
+pytestmark = pytest.mark.slow
+
 
 @pytest.fixture(scope="module")
 def small_case(tmp_path_factory: pytest.TempPathFactory) -> SceneCase:

@@ -123,6 +123,7 @@ def _accepted(llr: np.ndarray) -> np.ndarray:
 
 
 @pytest.mark.parametrize("device", DEVICES)
+@pytest.mark.slow
 def test_update_peak_and_view_counts_equal_dense_references(device: str) -> None:
     n, t = 20_000, 5
     state = init_logodds(n, t, device=device)

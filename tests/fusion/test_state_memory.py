@@ -101,6 +101,7 @@ def _peak_bytes(fn) -> int:
         tracemalloc.stop()
 
 
+@pytest.mark.slow
 def test_state_write_holds_one_block_not_the_probabilities(tmp_path: Path) -> None:
     """The fuse stage's write: peak extra memory is a block, not the (N, T) probabilities (the old
     write's peak was the probabilities plus the compressed archive twice: ~2.5x the state)."""
@@ -126,6 +127,7 @@ def test_state_write_holds_one_block_not_the_probabilities(tmp_path: Path) -> No
     np.testing.assert_array_equal(get_arrays(store, "fusion/gaussian_probabilities.npz")["logodds"], logodds)
 
 
+@pytest.mark.slow
 def test_local_read_holds_the_arrays_not_also_the_archive(tmp_path: Path) -> None:
     store = LocalStore(tmp_path)
     state = np.random.default_rng(2).random((200_000, 26), dtype=np.float32)  # barely compressible

@@ -3,7 +3,8 @@
 `BFIELDS_FUZZ_SCALE` scales every test's CI budget (`budget(n)` examples): unset, a normal
 `pytest -q` run takes a 1 % sample (at least 5 cases a test) so the suite stays quick; `.ci/fuzz.sh`
 sets it to 1 for the full >= 10,000-case run. Every executed case is counted and the totals are
-printed at the end of the session, per test and overall.
+printed at the end of the session, per test and overall. The API fuzz tests' real-stack fixtures
+(`api`, `scene_dir`, `stored_scene`) come from `tests/service/stack_fixtures.py` through the root conftest.
 """
 
 from __future__ import annotations
@@ -12,8 +13,6 @@ import os
 from collections import Counter
 
 from hypothesis import HealthCheck, settings
-
-from tests.service.conftest import *  # noqa: F403 - the real-stack fixtures for the API fuzz tests
 
 CASES: Counter[str] = Counter()
 

@@ -143,6 +143,7 @@ def _camera_case(scene: Path, host: Path, reader: Callable[[], list]) -> None:
 
 @budget(1500)
 @given(doc=fz.transforms_docs())
+@pytest.mark.slow
 def test_fuzz_transforms_json(doc: bytes) -> None:
     count("library: transforms.json -> read_transforms, validate_scene_folder")
     with workspace() as (scene, host):

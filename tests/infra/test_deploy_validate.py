@@ -193,6 +193,7 @@ def kubernetes_validate(paths: list[Path]) -> subprocess.CompletedProcess[str]:
     )
 
 
+@pytest.mark.slow
 def test_core_manifests_validate_strictly() -> None:
     core = [p for p in manifest_files() if all(d["apiVersion"] != KEDA_API for d in documents(p))]
     assert {p.name for p in core} >= {"namespace.yaml", "configmap.yaml", "api.yaml", "gpu-worker.yaml"}

@@ -277,6 +277,7 @@ def test_tenant_isolation(s3_store: S3Store, prefix: str) -> None:
     assert b.delete_prefix(prefix) == 0 and a.exists(prefix + "scene/input.ply")
 
 
+@pytest.mark.slow
 def test_retries_until_server_comes_up(tmp_path: Path) -> None:
     """A dropped connection is retried with backoff: the server starts while the client waits."""
     server = S3Server(tmp_path / "late", port=free_port())

@@ -5,6 +5,7 @@ refused loss compared with never compacting."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from bayesian_fields_core.objects.aib import adjacency_lists, mutual_information
 from bayesian_fields_core.objects.aib_kernel import _compact, greedy_merges
@@ -30,6 +31,7 @@ def test_compact_keeps_the_current_entries_in_heap_order() -> None:
         assert (heap[parent, 0], heap[parent, 1]) <= (heap[pos, 0], heap[pos, 1])
 
 
+@pytest.mark.slow
 def test_compacting_often_gives_the_same_merges() -> None:
     rng = np.random.default_rng(7)
     num, tasks = 400, 6

@@ -79,12 +79,8 @@ def tiny_clip_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 @pytest.fixture(autouse=True)
-def _tmp_home(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """Keep HOME-writing tools (onnxruntime, ultralytics settings, HF caches) inside tmp."""
-    monkeypatch.setenv("HOME", str(tmp_path / "home"))
-    monkeypatch.setenv("YOLO_CONFIG_DIR", str(tmp_path / "yolo"))
-    monkeypatch.setenv("HF_HOME", str(tmp_path / "hf"))
-    monkeypatch.setenv("HF_HUB_OFFLINE", "1")
+def _home_in_tmp(tmp_home: Path) -> None:
+    """Every perception test: HOME-writing tools (onnxruntime, ultralytics, HF) write inside tmp."""
 
 
 @pytest.fixture

@@ -61,6 +61,7 @@ def test_crop_windows_square_contains_box() -> None:
     assert (win[:, :2] <= boxes[:, :2]).all() and (win[:, 2:] >= boxes[:, 2:]).all()
 
 
+@pytest.mark.slow
 def test_embed_masks_one_batch(tiny_clip_dir: Path, scene_image: np.ndarray) -> None:
     enc = HFClipEncoder(tiny_clip_dir)
     labels = _labels(scene_image)

@@ -43,6 +43,7 @@ def test_square_mode_keeps_whole_image(tiny_clip_dir: Path) -> None:
     assert sq[:, :, 0].mean() > 1.0 and crop[:, :, 0].mean() < -1.0
 
 
+@pytest.mark.slow
 def test_embeddings_match_model_and_are_normalised(tiny_clip_dir: Path) -> None:
     enc = HFClipEncoder(tiny_clip_dir)
     assert isinstance(enc, Encoder) and enc.dim == 16

@@ -12,6 +12,9 @@ from bayesian_fields_core.perception.hf_clip import HFClipEncoder
 from bayesian_fields_core.perception.onnx_clip import OnnxClipEncoder
 from bayesian_fields_core.perception.onnx_export import export_clip_onnx
 
+# Slow (the inner loop leaves it out): its fixtures took 2.1 s to set up here (--durations).
+pytestmark = pytest.mark.slow
+
 
 @pytest.fixture(scope="module")
 def onnx_clip_dir(tiny_clip_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:

@@ -49,6 +49,7 @@ def _export(tmp_path: Path, logits: bool) -> Path:
 
 
 @pytest.mark.parametrize("logits", [False, True])
+@pytest.mark.slow
 def test_segments_colour_regions_smallest_wins(tmp_path: Path, scene_image: np.ndarray, logits: bool) -> None:
     seg = OnnxSegmenter(
         _export(tmp_path, logits), mask_output="logits" if logits else "probabilities", min_area=20

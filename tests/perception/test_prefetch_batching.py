@@ -66,6 +66,7 @@ def _frames(image: np.ndarray, n: int) -> list[tuple[int, np.ndarray]]:
 
 
 @pytest.mark.parametrize("batch_size", [1, 4, 7, 1000])
+@pytest.mark.slow
 def test_crop_batcher_matches_per_frame_encoding(
     batch_size: int, tiny_clip_dir: Path, scene_image: np.ndarray
 ) -> None:

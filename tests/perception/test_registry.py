@@ -57,6 +57,7 @@ def test_yaml_profile_builds_real_components(
         registry.load_profile_calibration(prof, model_id="other@123")
 
 
+@pytest.mark.slow
 def test_onnx_encoder_profile(tmp_path: Path, tiny_clip_dir: Path) -> None:
     export_clip_onnx(tiny_clip_dir, tmp_path / "clip-onnx")
     prof = registry.load_profile(

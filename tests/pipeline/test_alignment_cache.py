@@ -61,6 +61,7 @@ def write_transform(path: Path, shift: float) -> Path:
     return path
 
 
+@pytest.mark.slow
 def test_a_second_run_reads_the_verdict_and_a_prune_drops_it(tmp_path: Path) -> None:
     cache = tmp_path / "cache"
     first = context(SAMPLE, cache, tmp_path / "a").alignment()
@@ -81,6 +82,7 @@ def test_a_second_run_reads_the_verdict_and_a_prune_drops_it(tmp_path: Path) -> 
     assert third is not None and not third.cached
 
 
+@pytest.mark.slow
 def test_the_perceive_report_says_the_verdict_was_cached(tmp_path: Path) -> None:
     from bayesian_fields_core.stages.perceive import alignment_summary
 
@@ -90,6 +92,7 @@ def test_the_perceive_report_says_the_verdict_was_cached(tmp_path: Path) -> None
     assert alignment_summary(report)["cached"] is True
 
 
+@pytest.mark.slow
 def test_a_failed_verdict_is_cached_and_still_refuses(
     tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
@@ -147,6 +150,7 @@ def test_one_camera_changes_the_key(tmp_path: Path) -> None:
     assert _key(scene, tmp_path) != base
 
 
+@pytest.mark.slow
 def test_one_compared_photo_changes_the_key_and_the_verdict_is_recomputed(tmp_path: Path) -> None:
     cache = tmp_path / "cache"
     scene = copy_scene(SAMPLE, tmp_path / "photo")

@@ -19,6 +19,9 @@ from bayesian_fields_core.params import PipelineParams
 
 from .conftest import N_FRAMES, TASKS, counting_models
 
+# Slow (the inner loop leaves it out): its fixtures took 21 s to set up here (--durations).
+pytestmark = pytest.mark.slow
+
 
 def _other(profile: dict[str, Any]) -> dict[str, Any]:
     params = {**profile["segmenter"]["params"], "min_size": 30}

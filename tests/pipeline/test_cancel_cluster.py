@@ -20,6 +20,9 @@ from bayesian_fields_core.job.store import LocalStore
 
 from .conftest import counting_models, make_ctx
 
+# Slow (the inner loop leaves it out): its fixtures took 5.0 s to set up here (--durations).
+pytestmark = pytest.mark.slow
+
 
 class _Counter:
     """should_cancel that answers True from its (n+1)-th call on (never, with n=None)."""

@@ -37,6 +37,7 @@ def _one_line_error(capsys: pytest.CaptureFixture[str]) -> str:
     return err
 
 
+@pytest.mark.slow
 def test_run_prints_objects_per_task(
     scene_dir: Path, profile_yaml: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -64,6 +65,7 @@ def test_run_prints_objects_per_task(
     assert f"{N_FRAMES} from cache" in text
 
 
+@pytest.mark.slow
 def test_run_reads_a_tasks_file(
     scene_dir: Path, profile_yaml: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -151,6 +153,7 @@ def test_run_rejects_a_missing_scene(
 SAMPLE = Path(__file__).resolve().parents[2] / "samples" / "tabletop"
 
 
+@pytest.mark.slow
 def test_run_prints_the_alignment_score(
     scene_dir: Path, profile_yaml: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -168,6 +171,7 @@ def test_run_prints_the_alignment_score(
     ],
     ids=["scaled-0.5-shifted-0.4m", "opengl-flipped-cameras"],
 )
+@pytest.mark.slow
 def test_run_refuses_a_splat_that_does_not_line_up(
     change, cause: str, profile_yaml: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -178,6 +182,7 @@ def test_run_refuses_a_splat_that_does_not_line_up(
     assert not (tmp_path / "out" / "result").exists()  # refused before any stage ran
 
 
+@pytest.mark.slow
 def test_run_with_the_check_off_runs_a_misaligned_scene(
     profile_yaml: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -107,6 +107,7 @@ def test_input_depth_without_depth_maps_is_refused_before_perception(
     assert not (tmp_path / "out" / "stages").exists()  # no stage ran
 
 
+@pytest.mark.slow
 def test_a_failed_rerun_leaves_no_marker_of_the_run_before(
     scene_dir: Path, profile: dict, tmp_path: Path
 ) -> None:

@@ -27,6 +27,9 @@ from bayesian_fields_core.params import PipelineParams
 
 from .conftest import N_FRAMES
 
+# Slow (the inner loop leaves it out): its fixtures took 60 s to set up here (--durations).
+pytestmark = pytest.mark.slow
+
 HF_BAR = "Loading weights"  # transformers' tqdm bar, printed on every CLIPModel load
 # Small and quick: the alignment check renders frames, the result writer renders previews.
 CHEAP = ["--param", "alignment_check=false", "--param", "previews=false", "--param", "export_ply=false"]

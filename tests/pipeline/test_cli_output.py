@@ -24,6 +24,9 @@ from bayesian_fields_core.cli.run_config import CONFIG_FILE, read_run_config
 from bayesian_fields_core.results.format import FORMAT_VERSION
 from bayesian_fields_core.results.summary_schema import summary_schema
 
+# Slow (the inner loop leaves it out): its fixtures took 60 s to set up here (--durations).
+pytestmark = pytest.mark.slow
+
 TASKS = ["red chair", "blue cup"]
 CHEAP = ["--param", "alignment_check=false", "--param", "previews=false", "--param", "export_ply=false"]
 CENTROID = re.compile(r"\([+-]\d+\.\d\d, [+-]\d+\.\d\d, [+-]\d+\.\d\d\)")

@@ -53,6 +53,7 @@ def _median_cpu_s(code: str, *argv: str) -> float:
 @pytest.mark.parametrize(
     "argv", [["--help"], ["run", "--help"], ["run", "--no-such-flag"], ["submit", "--help"]]
 )
+@pytest.mark.slow
 def test_help_and_argument_errors_are_quick(argv: list[str]) -> None:
     """`bfields ... --help` and an argument error cost under half a second, interpreter start
     included (importing torch for them cost seconds)."""
@@ -71,6 +72,7 @@ def test_every_verb_module_has_register_and_run() -> None:
         assert callable(verb.register) and callable(verb.run), verb.__name__
 
 
+@pytest.mark.slow
 def test_no_module_imports_a_private_name_of_another_package() -> None:
     """`from a.b import _name` across packages couples to what a package keeps to itself."""
     offenders = []

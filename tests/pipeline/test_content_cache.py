@@ -24,6 +24,9 @@ from bayesian_fields_core.params import PipelineParams
 
 from .conftest import N_FRAMES, OTHER_TASKS, TASKS, counting_models
 
+# Slow (the inner loop leaves it out): its fixtures took 3.4 s to set up here (--durations).
+pytestmark = pytest.mark.slow
+
 
 def _run(
     scene: Path,

@@ -32,6 +32,7 @@ def _fused_job(scene_dir: Path, profile: dict[str, Any], tmp_path: Path, params:
 
 
 @pytest.mark.parametrize("fusion", ["bayes", "average"])
+@pytest.mark.slow
 def test_fuse_stores_the_primitives_that_replaying_the_frames_gives(
     fusion: str, scene_dir: Path, profile: dict[str, Any], tmp_path: Path
 ) -> None:
@@ -45,6 +46,7 @@ def test_fuse_stores_the_primitives_that_replaying_the_frames_gives(
     np.testing.assert_array_equal(load_primitives(ctx), replayed)
 
 
+@pytest.mark.slow
 def test_fuse_stores_the_view_counts_that_replaying_the_frames_gives(
     scene_dir: Path, profile: dict[str, Any], tmp_path: Path
 ) -> None:

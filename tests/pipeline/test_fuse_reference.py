@@ -30,6 +30,9 @@ from tests.fusion.reference import reference_associations
 
 from .conftest import counting_models, make_ctx
 
+# Slow (the inner loop leaves it out): its fixtures took 4.5 s to set up here (--durations).
+pytestmark = pytest.mark.slow
+
 
 def _replay(ctx: Any) -> dict[str, np.ndarray]:
     """The fused state recomputed from the stage's inputs, frame by frame, in dense numpy."""

@@ -113,6 +113,7 @@ def _source_findings() -> list[str]:
     return found
 
 
+@pytest.mark.slow
 def test_no_library_source_restates_a_default() -> None:
     assert _source_findings() == []
 

@@ -6,6 +6,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pytest
 
 from bayesian_fields_core.job.pipeline import run_stage
 from bayesian_fields_core.params import PipelineParams
@@ -13,6 +14,7 @@ from bayesian_fields_core.params import PipelineParams
 from .conftest import N_FRAMES, counting_models, make_ctx
 
 
+@pytest.mark.slow
 def test_batched_prefetched_perception_equals_sequential(
     scene_dir: Path, profile: dict[str, Any], tmp_path: Path
 ) -> None:

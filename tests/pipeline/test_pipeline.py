@@ -25,6 +25,9 @@ from bayesian_fields_core.scene.loader import load_scene
 
 from .conftest import N_FRAMES, OTHER_TASKS, TASKS, counting_models, make_ctx
 
+# Slow (the inner loop leaves it out): its fixtures took 5.4 s to set up here (--durations).
+pytestmark = pytest.mark.slow
+
 
 def _result(job_root: Path):
     return read_result(LocalStore(job_root), "job/result/")

@@ -17,6 +17,7 @@ from bayesian_fields_core.results.reader import read_result
 from .conftest import counting_models, make_ctx
 
 
+@pytest.mark.slow
 def test_read_result_takes_a_plain_path_and_reports_carry_iso_times(
     scene_dir: Path, profile: dict, tmp_path: Path
 ) -> None:
@@ -62,6 +63,7 @@ def _documented_layout() -> set[str]:
     return paths
 
 
+@pytest.mark.slow
 def test_docs_list_every_file_a_run_writes(scene_dir: Path, profile: dict, tmp_path: Path) -> None:
     import re
 

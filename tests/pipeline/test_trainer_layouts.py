@@ -31,6 +31,9 @@ from tests.scene.trainer_layouts import (
 
 from .conftest import counting_models, make_ctx
 
+# Slow (the inner loop leaves it out): its fixtures took 5.6 s to set up here (--durations).
+pytestmark = pytest.mark.slow
+
 
 def _run(scene: Path, root: Path, profile: dict[str, Any], **kwargs: Any):
     ctx = make_ctx(scene, root / "job", root / "cache", counting_models(profile), **kwargs)

@@ -65,6 +65,7 @@ CHANGE = st.one_of(
 
 @settings(max_examples=40, deadline=None, suppress_health_check=list(HealthCheck), database=None)
 @given(changes=st.lists(CHANGE, min_size=1, max_size=12), seed=st.integers(0, 10**9))
+@pytest.mark.slow
 def test_counts_equal_a_recount_after_any_changes(db: Engine, changes: list, seed: int) -> None:
     ids = [f"j_{seed}_{i}" for i in range(12)]
     b0, b1 = f"b_{seed}_0", f"b_{seed}_1"

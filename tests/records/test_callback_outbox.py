@@ -15,7 +15,6 @@ from bayesian_fields_core.job.store import LocalStore
 from bayesian_fields_service.common.batch_records import BatchRecord
 from bayesian_fields_service.common.jobs import JobRecord, JobState, JobStore, new_id
 from bayesian_fields_service.records.tables import callback_outbox
-from tests.integration.fixtures.pytest_fixtures import private_redis  # noqa: F401 - a fixture, found by name
 from tests.integration.fixtures.redis_server import RedisServer
 
 
@@ -30,7 +29,7 @@ def _events(db: Engine) -> list[dict]:
 
 
 def test_a_batch_event_survives_a_redis_loss_between_its_jobs(
-    db: Engine, private_redis: RedisServer, tmp_path: Path  # noqa: F811
+    db: Engine, private_redis: RedisServer, tmp_path: Path
 ) -> None:
     client = redis.Redis.from_url(private_redis.url())
     jobs = JobStore(LocalStore(tmp_path / "bucket"), client, db)

@@ -62,6 +62,7 @@ def test_a_leader_whose_session_the_server_ended_steps_down(database: Engine) ->
     standby.resign()
 
 
+@pytest.mark.slow
 def test_a_loop_works_only_while_its_replica_leads(database: Engine) -> None:
     leadership = Leadership(database)
     stop = threading.Event()

@@ -10,6 +10,7 @@ import sys
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
+import pytest
 from alembic.autogenerate import compare_metadata
 from alembic.runtime.migration import MigrationContext
 from sqlalchemy import inspect
@@ -70,6 +71,7 @@ def test_the_migrate_command_applies_and_reports(fresh_database: str) -> None:
     assert out.stdout.split()[0] == head_revision()
 
 
+@pytest.mark.slow
 def test_the_migrate_command_names_an_unreachable_database_in_one_line() -> None:
     bin_dir = Path(sys.executable).parent
     env = {**os.environ, "BFIELDS_DATABASE_URL": "postgresql+psycopg://nobody:secret@127.0.0.1:1/none"}

@@ -22,12 +22,11 @@ from bayesian_fields_service.common.s3_store import S3Store
 from bayesian_fields_service.common.scene_import import import_scenes
 from bayesian_fields_service.common.scenes import SceneState, SceneStore
 from bayesian_fields_service.control.bucket_sweep import sweep_bucket
-from tests.integration.fixtures.pytest_fixtures import s3_server  # noqa: F401 - the fixture, by name
 from tests.integration.fixtures.s3_server import S3Server
 
 
 @pytest.fixture
-def own_bucket(s3_server: S3Server) -> Iterator[S3Server]:  # noqa: F811 - the fixture above
+def own_bucket(s3_server: S3Server) -> Iterator[S3Server]:
     """A bucket of this test's own on the session's S3 server: the import walks a whole bucket."""
     view = dataclasses.replace(s3_server, bucket=f"import-{secrets.token_hex(4)}")
     view.store().ensure_bucket()

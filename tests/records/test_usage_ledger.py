@@ -17,7 +17,6 @@ from bayesian_fields_service.common import usage
 from bayesian_fields_service.common.batch_records import BatchRecord
 from bayesian_fields_service.common.jobs import JobRecord, JobState, JobStore, new_id
 from bayesian_fields_service.common.usage import JobUsage
-from tests.integration.fixtures.pytest_fixtures import private_redis  # noqa: F401 - a fixture, found by name
 from tests.integration.fixtures.redis_server import RedisServer
 
 
@@ -31,7 +30,7 @@ def _job(tenant: str, batch_id: str | None = None) -> JobRecord:
 
 
 def test_every_end_counts_once_whoever_ends_the_job(
-    db: Engine, private_redis: RedisServer, tmp_path: Path  # noqa: F811
+    db: Engine, private_redis: RedisServer, tmp_path: Path
 ) -> None:
     client = redis.Redis.from_url(private_redis.url())
     jobs = JobStore(LocalStore(tmp_path / "bucket"), client, db)

@@ -38,9 +38,5 @@ def reference_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 @pytest.fixture(autouse=True)
-def _tmp_home(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """HOME-writing tools (ultralytics settings, HF caches) write inside tmp."""
-    monkeypatch.setenv("HOME", str(tmp_path / "home"))
-    monkeypatch.setenv("YOLO_CONFIG_DIR", str(tmp_path / "yolo"))
-    monkeypatch.setenv("HF_HOME", str(tmp_path / "hf"))
-    monkeypatch.setenv("HF_HUB_OFFLINE", "1")
+def _home_in_tmp(tmp_home: Path) -> None:
+    """Every reference-model test: ultralytics settings and HF caches write inside tmp."""

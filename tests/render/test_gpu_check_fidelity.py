@@ -68,6 +68,7 @@ def _compare(scene, candidate) -> fidelity.Fidelity:
     )
 
 
+@pytest.mark.slow
 def test_the_same_renderer_on_both_sides_agrees_exactly(scene) -> None:
     fid = _compare(scene, lambda ours: ours)
     d = fid.as_dict()
@@ -93,6 +94,7 @@ class FaultyRenderer:
         return rgb * 0.9, shift(depth), shift(median), alpha
 
 
+@pytest.mark.slow
 def test_known_faults_show_in_every_figure(scene) -> None:
     gaussians, frames, _ = scene
     ours = GaussianRenderer(gaussians, backend="torch")

@@ -13,6 +13,8 @@ import statistics
 import subprocess
 import sys
 
+import pytest
+
 ALLOWED_THIRD_PARTY = {"numpy"}
 """Top-level packages besides the standard library the import may load."""
 
@@ -75,6 +77,7 @@ def test_reader_import_loads_only_stdlib_numpy_and_light_project_modules() -> No
         assert heavy not in report["modules"]
 
 
+@pytest.mark.slow
 def test_reader_import_is_fast() -> None:
     probes = [_probe() for _ in range(5)]
     total, numpy_s, own = (statistics.median(p[k] for p in probes) for k in ("seconds", "numpy", "own"))

@@ -57,6 +57,7 @@ def _project(frame, points: np.ndarray, scale: float) -> np.ndarray:
     return uv[:, :2] / uv[:, 2:] * scale
 
 
+@pytest.mark.slow
 def test_previews_and_task_exports(tmp_path: Path, scene, gt_result: Result) -> None:
     store = LocalStore(tmp_path)
     sizes = write_result(
@@ -120,6 +121,7 @@ def test_no_previews_without_frames(tmp_path: Path, scene, gt_result: Result) ->
     assert not (tmp_path / "r" / "previews").exists()
 
 
+@pytest.mark.slow
 def test_preview_settings_match_the_renderer_defaults_and_restore_threads(scene, gt_result: Result) -> None:
     """The previews' own rasterisation (8-px tiles, faint-tile cull, one thread) gives the images
     of the renderer's defaults up to a rare grey level, picks the same views, and leaves torch's

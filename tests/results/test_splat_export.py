@@ -124,6 +124,7 @@ PlayCanvas compressed PLY 8 bits over [-4, 4]; SPZ 8 bits, (q - 128) / 128."""
 
 
 @pytest.mark.parametrize("fmt", list(SH_REST_STEP))
+@pytest.mark.slow
 def test_sh_bands_survive_the_export_in_their_frame(fmt: str, tmp_path: Path) -> None:
     """Degree-3 bands (turned with the axes for SPZ and glTF) read back by splat-transform and the
     project's readers as written, within the format's step."""

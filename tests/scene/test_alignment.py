@@ -43,6 +43,7 @@ def _refusal(scene: Scene, **kwargs: object) -> str:
     return message
 
 
+@pytest.mark.slow
 def test_the_sample_passes_with_a_high_score() -> None:
     report = check_alignment(load_scene(SAMPLE), PARAMS)
     assert report is not None and report.passed and report.cause is None
@@ -53,6 +54,7 @@ def test_the_sample_passes_with_a_high_score() -> None:
     assert "score 0.9" in report.summary() or "score 1.0" in report.summary()
 
 
+@pytest.mark.slow
 def test_scaled_and_shifted_splat_passes_geometry_but_is_refused_by_the_renders(variant) -> None:
     scene = variant("scaled-shifted", lambda f: move_splat(f, scale=0.5, shift=(0.4, 0.0, 0.0)))
     assert check_alignment(scene, PARAMS, rendered=False) is not None  # still in front of the cameras
@@ -71,6 +73,7 @@ def test_opengl_flipped_cameras_are_refused_without_rendering(variant) -> None:
     assert geo.frustum_share < 0.2 and geo.flipped_frustum_share > 0.8
 
 
+@pytest.mark.slow
 def test_photos_of_other_cameras_are_refused(variant) -> None:
     message = _refusal(variant("shuffled", shuffle_images))
     assert "images folder" in message or "image order" in message
@@ -82,6 +85,7 @@ def test_a_dropped_scale_is_refused_by_the_extent_ratio(variant) -> None:
     assert "camera baseline" in message and "alignment_max_extent_ratio" in message
 
 
+@pytest.mark.slow
 def test_the_switch_and_the_thresholds_come_from_the_parameters(variant) -> None:
     scene = variant("scaled-shifted", lambda f: move_splat(f, scale=0.5, shift=(0.4, 0.0, 0.0)))
     assert check_alignment(scene, PipelineParams(alignment_check=False)) is None

@@ -77,6 +77,7 @@ def test_inria_input_ply_is_never_the_splat(tmp_path: Path, source: SourceScene)
         find_splat(out)
 
 
+@pytest.mark.slow
 def test_inria_cameras_json_rescaled_to_the_images(tmp_path: Path, source: SourceScene) -> None:
     """Images twice the camera size (3DGS -r 2 against the full-size images, or images_2 vs the
     COLMAP size) get K doubled; a size 3DGS cannot produce is refused naming both sizes."""

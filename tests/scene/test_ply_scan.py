@@ -98,6 +98,7 @@ def test_the_warnings_match_on_a_splat_that_warns(tmp_path: Path) -> None:
     assert scan.warnings == splat_warnings(read_ply(path)) and len(scan.warnings) == 2
 
 
+@pytest.mark.slow
 def test_peak_memory_is_bounded_by_the_chunk_not_the_file(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -67,6 +67,7 @@ def run_family(mutants: Iterator[sm.Mutant], tmp: Path) -> tuple[int, int, list[
 
 
 @pytest.mark.parametrize("family", list(FAMILIES))
+@pytest.mark.slow
 def test_mutants_load_or_are_refused_in_bounded_memory(family: str, tmp_path: Path) -> None:
     total, loaded, failures = run_family(FAMILIES[family](tmp_path), tmp_path)
     print(f"{family}: {total} mutants, {loaded} loaded, {total - loaded} refused")
@@ -126,6 +127,7 @@ REGRESSIONS: list[tuple[str, Callable[[], sm.Mutant], str]] = [
 
 
 @pytest.mark.parametrize(("label", "build", "expected"), REGRESSIONS, ids=[r[0] for r in REGRESSIONS])
+@pytest.mark.slow
 def test_reader_bugs_the_corpus_found_are_refused_naming_the_problem(
     label: str, build: Callable[[], sm.Mutant], expected: str, tmp_path: Path
 ) -> None:

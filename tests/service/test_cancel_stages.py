@@ -18,10 +18,12 @@ from bayesian_fields_service.common.job_queue import JobQueue
 from bayesian_fields_service.records.database import engine
 from tests.integration.fixtures.services import ApiServer
 
+from .private_stack import wait_job
 from .test_scene_races import arm, resume, wait_reached
-from .test_workers import PARAMS, TASKS, _upload, _wait, model_profile, worker_env, workers  # noqa: F401
+from .test_workers import PARAMS, TASKS, _upload
 
-pytestmark = [pytest.mark.integration, pytest.mark.slow]
+# Longer than the default timeout (pyproject.toml): its own waits: 240 s for the pause point, then 120 s for the job.
+pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.timeout(600)]
 
 
 @pytest.fixture(scope="module")
@@ -44,7 +46,7 @@ def test_a_cancel_accepted_in_the_cluster_stage_is_honoured(
         accepted = client.delete(f"/v1/jobs/{job_id}")
         assert accepted.status_code == 202 and accepted.json()["cancel_requested"] is True, accepted.text
         resume(rdb, point, job_id)
-        job = _wait(client, job_id, timeout_s=120)
+        job = wait_job(client, job_id, timeout_s=120)
         assert job["state"] == "cancelled", job
         assert client.get(f"/v1/jobs/{job_id}/result").status_code == 409
     bucket = s3_server.store()
@@ -67,7 +69,7 @@ def test_a_cancel_after_success_is_not_accepted(api: ApiServer, scene_dir: Path)
         job_id = client.post(
             "/v1/jobs", json={"scene_id": scene_id, "tasks": TASKS, "parameters": PARAMS}
         ).json()["id"]
-        assert _wait(client, job_id)["state"] == "succeeded"
+        assert wait_job(client, job_id)["state"] == "succeeded"
         late = client.delete(f"/v1/jobs/{job_id}")
         assert late.json()["state"] == "succeeded" and late.json()["cancel_requested"] is False
         assert client.get(f"/v1/jobs/{job_id}/result").status_code == 200

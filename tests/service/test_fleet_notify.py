@@ -24,9 +24,9 @@ from tests.integration.fixtures.services import ApiServer, WorkerPool
 
 from .conftest import SERVICE_ENV, scene_form
 from .scene_factory import make_scene
-from .test_workers import model_profile, worker_env  # noqa: F401 - fixtures found by name
 
-pytestmark = [pytest.mark.integration, pytest.mark.slow]
+# Longer than the default timeout (pyproject.toml): a fleet on prefork workers; its callback wait alone may take 240 s.
+pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.timeout(600)]
 
 SECRET = "test-callback-secret"
 IDLE_TENANT = "tenant-idle"
@@ -116,7 +116,7 @@ def fleet_api(
 @pytest.fixture(scope="module")
 def fleet_workers(
     celery_workers: WorkerPool,
-    worker_env: dict[str, str],  # noqa: F811 - the fixture imported above
+    worker_env: dict[str, str],
     encoder_log: Path,
     fleet_database: str,
 ) -> Iterator[WorkerPool]:

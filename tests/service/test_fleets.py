@@ -10,7 +10,7 @@ from __future__ import annotations
 import json
 import secrets
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator, Mapping
 from datetime import datetime
 from pathlib import Path
 
@@ -30,9 +30,10 @@ from tests.integration.fixtures.services import ApiServer
 
 from .conftest import SERVICE_ENV
 from .private_stack import PrivateStack, upload, wait_job
-from .test_workers import _wait_for, model_profile, worker_env  # noqa: F401 - fixtures
+from .test_workers import _wait_for
 
-pytestmark = pytest.mark.integration
+# Longer than the default timeout (pyproject.toml): a 1,000-job fleet and a 240 s wait for a job to start.
+pytestmark = [pytest.mark.integration, pytest.mark.timeout(600)]
 
 PARAMS = {"max_frames": 4}
 TERMINAL = ("succeeded", "failed", "cancelled")
@@ -269,25 +270,19 @@ def test_a_1000_item_manifest_goes_in_through_the_client_once(
 
 @pytest.fixture(scope="module")
 def busy(
-    tmp_path_factory: pytest.TempPathFactory,
-    s3_server: S3Server,
-    test_api_keys: dict[str, str],
-    worker_env: dict[str, str],  # noqa: F811
+    private_stacks: Callable[[str, Mapping[str, str]], PrivateStack], test_api_keys: dict[str, str]
 ) -> Iterator[PrivateStack]:
     """Two API processes, each with a control process beside it (two control replicas, so the
     leader can be killed), one solo worker per queue and a GPU queue depth of 1 (the order of the
     workers is the dispatcher's)."""
-    extra = {**_defaults_env(), **worker_env, "BFIELDS_DISPATCH_QUEUE_DEPTH": "1",
-             "BFIELDS_DISPATCH_INTERVAL_S": "0.2"}  # fmt: skip
-    stack = PrivateStack(tmp_path_factory.mktemp("fleet-busy"), s3_server.env(), dict(test_api_keys), extra)
-    stack.start()
+    extra = {**_defaults_env(), "BFIELDS_DISPATCH_QUEUE_DEPTH": "1", "BFIELDS_DISPATCH_INTERVAL_S": "0.2"}
+    stack = private_stacks("fleet-busy", extra).start()
     assert stack.pool is not None
     stack.pool.start("gpu")
     stack.pool.start("cpu")
     stack.second_api = ApiServer(env=stack.env, log_dir=stack.tmp / "api2", keys=dict(test_api_keys)).start()  # type: ignore[attr-defined]
     yield stack
     stack.second_api.stop()  # type: ignore[attr-defined]
-    stack.stop()
 
 
 def _started(client: httpx.Client, job_id: str) -> datetime | None:
@@ -432,4 +427,3 @@ def test_a_worker_killed_after_taking_a_message_before_the_stage_lock_loses_no_j
     assert final["state"] == "succeeded", final
     assert final["stage_runs"] == 3, final  # the killed delivery never started the stage
     print(f"\njob rescued and finished {time.monotonic() - t0:.1f} s after the worker was killed")
-

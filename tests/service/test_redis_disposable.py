@@ -25,9 +25,10 @@ from tests.integration.fixtures.services import ApiServer, WorkerPool, build_ser
 
 from .callback_receivers import Receiver
 from .conftest import SERVICE_ENV
-from .test_workers import PARAMS, TASKS, _upload, _wait_for, model_profile, worker_env  # noqa: F401
+from .test_workers import PARAMS, TASKS, _upload, _wait_for
 
-pytestmark = [pytest.mark.integration, pytest.mark.slow]
+# Longer than the default timeout (pyproject.toml): two fleet waits of up to 300 s each, after a stack start.
+pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.timeout(900)]
 
 FLEET = 200
 TERMINAL = {"succeeded", "failed", "cancelled"}
@@ -51,7 +52,7 @@ def _states(client: httpx.Client, batch_id: str) -> dict[str, dict]:
 
 
 def test_a_fleet_survives_losing_redis_with_callbacks_and_usage_exact(
-    tmp_path: Path, s3_server: S3Server, test_api_keys: dict[str, str], worker_env: dict[str, str],  # noqa: F811
+    tmp_path: Path, s3_server: S3Server, test_api_keys: dict[str, str], worker_env: dict[str, str],
     scene_dir: Path,
 ) -> None:  # fmt: skip
     receiver = Receiver("ok")

@@ -9,7 +9,6 @@ from __future__ import annotations
 import copy
 import gzip
 import json
-import struct
 import zipfile
 from collections.abc import Callable
 from pathlib import Path
@@ -19,6 +18,7 @@ import pytest
 
 from bench import splat_bombs
 from tests.integration.fixtures.services import ApiServer
+from tests.scene.splat_mutations import glb, glb_parts
 from tests.service.conftest import scene_form
 
 pytestmark = pytest.mark.integration
@@ -75,25 +75,6 @@ def test_bombs_stay_within_the_memory_bound(
     assert growth < MAX_GROWTH_MIB, (growth, answers)
 
 
-def _glb_parts() -> tuple[dict, bytes]:
-    data = (FIXTURES / "sh3.glb").read_bytes()
-    (json_length,) = struct.unpack_from("<I", data, 12)
-    (bin_length,) = struct.unpack_from("<I", data, 20 + json_length)
-    return json.loads(data[20 : 20 + json_length]), data[28 + json_length : 28 + json_length + bin_length]
-
-
-def _glb(doc: dict, binary: bytes) -> bytes:
-    text = json.dumps(doc).encode()
-    text += b" " * (-len(text) % 4)
-    body = (
-        struct.pack("<II", len(text), 0x4E4F534A)
-        + text
-        + struct.pack("<II", len(binary), 0x004E4942)
-        + binary
-    )
-    return struct.pack("<III", 0x46546C67, 2, 12 + len(body)) + body
-
-
 def _position(doc: dict) -> dict:
     return doc["accessors"][doc["meshes"][0]["primitives"][0]["attributes"]["POSITION"]]
 
@@ -141,7 +122,7 @@ def _sog_with(edit: Callable[[dict], None]) -> bytes:
 def test_malformed_metadata_is_a_422_naming_the_field_on_one_kept_alive_connection(
     client_a: httpx.Client, scene_dir: Path, stored_scene: dict
 ) -> None:
-    doc, binary = _glb_parts()
+    doc, binary = glb_parts("sh3.glb")
     uploads: list[tuple[str, str, bytes, str]] = []
     for label, edit, expected, as_gltf in GLTF_CASES:
         changed = copy.deepcopy(doc)
@@ -149,7 +130,7 @@ def test_malformed_metadata_is_a_422_naming_the_field_on_one_kept_alive_connecti
         if as_gltf:
             uploads.append((label, "splat.gltf", json.dumps(changed).encode(), expected))
         else:
-            uploads.append((label, "splat.glb", _glb(changed, binary), expected))
+            uploads.append((label, "splat.glb", glb(changed, binary), expected))
     for bits in (0, 24, 255):
         uploads.append(
             (f"SPZ fractional bits {bits}", "splat.spz", _spz_with_fraction(bits), f"fractional bits {bits}")

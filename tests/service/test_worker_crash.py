@@ -12,19 +12,17 @@ from __future__ import annotations
 import os
 import signal
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Mapping
 from pathlib import Path
 
 import pytest
 
-from tests.integration.fixtures.s3_server import S3Server
-
 from .conftest import SERVICE_ENV
 from .private_stack import PrivateStack, pool_children, upload, wait_job
 from .scene_factory import make_scene
-from .test_workers import model_profile, worker_env  # noqa: F401 - fixtures
 
-pytestmark = [pytest.mark.integration, pytest.mark.slow]
+# Longer than the default timeout (pyproject.toml): a job waits out a 20 s foreign lock (its own deadline 260 s) on a 16-frame scene.
+pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.timeout(600)]
 
 TASKS = ["red blob", "green blob"]
 FOREIGN_LOCK_S = 20
@@ -37,25 +35,17 @@ def big_scene(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 @pytest.fixture(scope="module")
-def stack(
-    tmp_path_factory: pytest.TempPathFactory,
-    s3_server: S3Server,
-    test_api_keys: dict[str, str],
-    worker_env: dict[str, str],  # noqa: F811
-) -> Iterator[PrivateStack]:
+def stack(private_stacks: Callable[[str, Mapping[str, str]], PrivateStack]) -> PrivateStack:
     extra = {
         **SERVICE_ENV,
-        **worker_env,
         "BFIELDS_RECOVERY_GRACE_S": "36000",  # no rescue by recovery scans
         # the production TTL: a requeued delivery could not just outwait a short one by accident
         "BFIELDS_STAGE_LOCK_TTL_S": "60",
     }
-    stack = PrivateStack(tmp_path_factory.mktemp("crash-stack"), s3_server.env(), dict(test_api_keys), extra)
-    stack.start()
+    stack = private_stacks("crash-stack", extra).start()
     assert stack.pool is not None
     stack.pool.start("cpu")
-    yield stack
-    stack.stop()
+    return stack
 
 
 def test_lock_of_another_host_is_waited_out(stack: PrivateStack, big_scene: Path) -> None:

@@ -7,17 +7,14 @@ disk; printed)."""
 from __future__ import annotations
 
 import os
-from collections.abc import Iterator
+from collections.abc import Callable, Mapping
 from pathlib import Path
 
 import pytest
 
-from tests.integration.fixtures.s3_server import S3Server
-
 from .conftest import SERVICE_ENV
 from .private_stack import PrivateStack, upload, wait_job
 from .scene_factory import make_scene
-from .test_workers import model_profile, worker_env  # noqa: F401 - fixtures
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 
@@ -42,26 +39,14 @@ def bound(scenes: list[Path]) -> int:
 
 
 @pytest.fixture(scope="module")
-def stack(
-    tmp_path_factory: pytest.TempPathFactory,
-    s3_server: S3Server,
-    test_api_keys: dict[str, str],
-    worker_env: dict[str, str],  # noqa: F811
-    bound: int,
-) -> Iterator[PrivateStack]:
-    tmp = tmp_path_factory.mktemp("disk-stack")
-    extra = {
-        **SERVICE_ENV,
-        **worker_env,
-        "BFIELDS_WORKER_SCENE_CACHE_DIR": str(tmp / "scene-cache"),
-        "BFIELDS_WORKER_SCENE_CACHE_MAX_BYTES": str(bound),
-    }
-    stack = PrivateStack(tmp, s3_server.env(), dict(test_api_keys), extra).start()
+def stack(private_stacks: Callable[[str, Mapping[str, str]], PrivateStack], bound: int) -> PrivateStack:
+    stack = private_stacks("disk-stack", {**SERVICE_ENV, "BFIELDS_WORKER_SCENE_CACHE_MAX_BYTES": str(bound)})
+    stack.extra_env["BFIELDS_WORKER_SCENE_CACHE_DIR"] = str(stack.tmp / "scene-cache")
+    stack.start()
     assert stack.pool is not None
     stack.pool.start("gpu", pool="prefork", concurrency=2)
     stack.pool.start("cpu")
-    yield stack
-    stack.stop()
+    return stack
 
 
 def test_one_copy_per_scene_within_the_bound(stack: PrivateStack, scenes: list[Path], bound: int) -> None:

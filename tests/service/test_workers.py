@@ -8,7 +8,6 @@ import io
 import json
 import time
 import zipfile
-from collections.abc import Iterator
 from contextlib import redirect_stdout
 from pathlib import Path
 
@@ -28,63 +27,18 @@ from tests.scene_transforms import copy_scene, move_splat
 
 from .callback_receivers import Receiver
 from .conftest import SERVICE_ENV
+from .private_stack import wait_job
 
-pytestmark = [pytest.mark.integration, pytest.mark.slow]
+# Longer than the default timeout (pyproject.toml): jobs wait up to 240 s each, after the in-process reference run.
+pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.timeout(600)]
 
 TASKS = ["red blob", "green blob"]
 PARAMS = {"max_frames": 4}
-REPO = Path(__file__).resolve().parents[2]
-
-
-@pytest.fixture(scope="session")
-def model_profile(tmp_path_factory: pytest.TempPathFactory) -> str | None:
-    """None (the bundled default profile) when the repository's tiny CLIP exists, else a profile
-    around a random tiny CLIP made for this session."""
-    if (REPO / "bayesian_fields_core" / "models" / "tiny-clip" / "config.json").is_file():
-        return None
-    from tests.perception.conftest import make_tiny_clip
-
-    folder = tmp_path_factory.mktemp("profile")
-    clip = make_tiny_clip(folder / "tiny-clip")
-    profile = folder / "profile.yaml"
-    profile.write_text(
-        "name: service-test\n"
-        "segmenter: {kind: classical, params: {method: felzenszwalb, scale: 300, sigma: 0.8, min_size: 50, min_area: 16}}\n"
-        f"encoder: {{kind: hf_clip, path: {clip}, device: cpu}}\n"
-        "calibration: {mu0: -0.05, mu1: 0.05, s: 0.1}\n"  # random CLIP: cosines near 0
-    )
-    return str(profile)
-
-
-@pytest.fixture(scope="session")
-def worker_env(model_profile: str | None) -> dict[str, str]:
-    return {"BFIELDS_MODEL_PROFILE": model_profile} if model_profile else {}
-
-
-@pytest.fixture(scope="module")
-def workers(celery_workers: WorkerPool, worker_env: dict[str, str]) -> Iterator[WorkerPool]:
-    """One worker per queue (solo pool) with the service test settings."""
-    env = {**SERVICE_ENV, **worker_env}
-    started = [celery_workers.start("gpu", extra_env=env), celery_workers.start("cpu", extra_env=env)]
-    yield celery_workers
-    for worker in started:
-        if worker.alive:
-            worker.stop()
 
 
 def _upload(api: ApiServer, scene_dir: Path) -> str:
     with BFieldsClient(api.base_url, api.keys["tenant-a"]) as client:
         return client.upload_scene(scene_dir)["id"]
-
-
-def _wait(client: httpx.Client, job_id: str, timeout_s: float = 240) -> dict:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        job = client.get(f"/v1/jobs/{job_id}").json()
-        if job["state"] in ("succeeded", "failed", "cancelled"):
-            return job
-        time.sleep(0.5)
-    raise AssertionError(f"job {job_id} did not finish: {job}")
 
 
 def _wait_for(predicate, timeout_s: float, what: str):  # noqa: ANN001, ANN202
@@ -135,7 +89,7 @@ def test_end_to_end_over_http_matches_in_process(
     scene_id = _upload(api, scene_dir)
     resp = client_a.post("/v1/jobs", json={"scene_id": scene_id, "tasks": TASKS, "parameters": PARAMS})
     assert resp.status_code == 202, resp.text
-    job = _wait(client_a, resp.json()["id"])
+    job = wait_job(client_a, resp.json()["id"])
     assert job["state"] == "succeeded", job
     assert job["stages_done"] == ["perceive", "fuse", "cluster"] and job["progress"] == 100.0
     assert set(job["timings"]) == {"perceive", "fuse", "cluster"}
@@ -158,7 +112,7 @@ def test_end_to_end_over_http_matches_in_process(
         assert other.get(f"/v1/jobs/{job['id']}/result.zip").status_code == 404
     # a new task list on the same scene reuses the cached perception (every frame from the cache)
     again = client_a.post("/v1/jobs", json={"scene_id": scene_id, "tasks": TASKS[::-1], "parameters": PARAMS})
-    second = _wait(client_a, again.json()["id"])
+    second = wait_job(client_a, again.json()["id"])
     assert second["state"] == "succeeded", second
     assert second["stage_reports"]["perceive"]["frames_cached"] == 4
     metrics = httpx.get(f"{api.base_url}/metrics").text
@@ -176,7 +130,7 @@ def test_job_on_a_splat_that_renders_wrong_fails_with_the_reason(
     scene_id = _upload(api, moved)
     resp = client_a.post("/v1/jobs", json={"scene_id": scene_id, "tasks": TASKS, "parameters": PARAMS})
     assert resp.status_code == 202, resp.text
-    job = _wait(client_a, resp.json()["id"])
+    job = wait_job(client_a, resp.json()["id"])
     assert job["state"] == "failed", job
     error = job["error"]
     assert error.startswith("perceive: alignment: renders of the splat do not match the photos"), error
@@ -224,7 +178,7 @@ def test_cancel_running_job(
     ).json()["id"]
     _wait_for(lambda: client_a.get(f"/v1/jobs/{job_id}").json()["state"] != "queued", 60, "the job to start")
     assert client_a.delete(f"/v1/jobs/{job_id}").status_code == 202
-    final = _wait(client_a, job_id)
+    final = wait_job(client_a, job_id)
     # the cancel lands between frames; a job that finished its last frame first may still succeed
     assert final["state"] in ("cancelled", "succeeded"), final
     if final["state"] == "cancelled":
@@ -248,7 +202,7 @@ def test_worker_sigkilled_mid_job_is_completed_by_a_new_worker(
     victim.kill()
     assert client_a.get(f"/v1/jobs/{job_id}").json()["state"] == "running"
     celery_workers.start("gpu", name="rescuer", extra_env=env)
-    job = _wait(client_a, job_id)
+    job = wait_job(client_a, job_id)
     assert job["state"] == "succeeded", job
     assert job["attempts"] >= 2  # the killed execution and the rescuing one
     with BFieldsClient(api.base_url, api.keys["tenant-a"]) as client:
@@ -293,7 +247,7 @@ def test_redis_restart_loses_no_job(
                 assert client.get(f"/v1/jobs/{job_id}").json()["state"] == "queued"
             pool.start("gpu")
             pool.start("cpu")
-            finals = [_wait(client, job_id) for job_id in ids]
+            finals = [wait_job(client, job_id) for job_id in ids]
         assert [f["state"] for f in finals] == ["succeeded", "succeeded"], finals
         _wait_for(lambda: len(receiver.snapshot()) >= 1, 30, "the batch callback")
         time.sleep(2.0)  # and no second one

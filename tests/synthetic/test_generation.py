@@ -30,6 +30,9 @@ from bayesian_fields_core.scene.loader import load_scene
 
 from .conftest import SMALL
 
+# Slow (the inner loop leaves it out): its fixtures took 10 s to set up here (--durations).
+pytestmark = pytest.mark.slow
+
 
 def _digest(folder: Path) -> dict[str, str]:
     return {

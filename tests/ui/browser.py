@@ -31,9 +31,9 @@ def require_chromium() -> None:
 
 @pytest.fixture(scope="module")
 def browser() -> Iterator[object]:
-    """One chromium per test module. Not per session: tests/ui and tests/viewer each import this
-    fixture, which would make two session instances, and a second Playwright sync context cannot
-    start while the first is open in the same thread."""
+    """One chromium per test module, registered for every directory by the root conftest (a
+    Playwright sync context is tied to the thread that opened it; a module's browser closes
+    before the next module's opens)."""
     require_chromium()
     from playwright.sync_api import sync_playwright
 

@@ -1,5 +1,6 @@
 """The /ui tests run the real stack (Redis, rclone S3, uvicorn API, Celery workers on both queues)
-from the integration fixtures, and drive the page in headless chromium (`browser.py`)."""
+from the integration fixtures, and drive the page in headless chromium (`browser.py`); both are
+registered for every directory by the root conftest."""
 
 from __future__ import annotations
 
@@ -7,10 +8,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from tests.integration.conftest import *  # noqa: F403 - the integration fixtures, found by name
 from tests.integration.fixtures.services import WorkerPool
-
-from .browser import browser  # noqa: F401 - fixture found by name
 
 
 @pytest.fixture(scope="module")

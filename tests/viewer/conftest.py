@@ -1,1 +1,0 @@
-from tests.ui.browser import browser  # noqa: F401 - fixture found by name

@@ -109,7 +109,11 @@ class BulkLane:
 
     def _http(self) -> httpx.AsyncClient:
         if self._client is None:
-            transport = httpx.AsyncHTTPTransport(uds=str(self.socket_path))
+            # a connection per batch, none kept alive: a request then never goes out on a
+            # connection to a child that died since (it could not tell whether the batch arrived);
+            # it fails to connect instead, which is safe to retry
+            no_reuse = httpx.Limits(max_keepalive_connections=0)
+            transport = httpx.AsyncHTTPTransport(uds=str(self.socket_path), limits=no_reuse)
             self._client = httpx.AsyncClient(transport=transport, base_url="http://bulk-lane",
                                              timeout=httpx.Timeout(ANSWER_TIMEOUT_S, connect=5.0))  # fmt: skip
         return self._client
@@ -126,6 +130,7 @@ class BulkLane:
         deadline = time.monotonic() + START_TIMEOUT_S
         while True:
             if self._process is None or self._process.poll() is not None:
+                await self.aclose()  # its pooled connections went with the old child
                 await asyncio.to_thread(self.start)  # died (or never started): start it again
             try:
                 answer = await self._http().request(request.method, path, headers=headers, content=body)
@@ -134,7 +139,10 @@ class BulkLane:
                 if time.monotonic() > deadline:  # never reached the child: nothing was stored
                     raise LaneUnavailable("the batch intake did not start in time; retry") from None
                 await asyncio.sleep(0.05)
-            except httpx.TransportError:
+            except httpx.TransportError as exc:
+                log.warning("bulk lane: %s while serving %s %s (child pid %s, exit %s)", type(exc).__name__,
+                            request.method, path, self._process.pid if self._process else None,
+                            self._process.poll() if self._process else None)  # fmt: skip
                 raise LaneUnavailable(
                     "the batch intake stopped while serving this batch; retry with the same "
                     "Idempotency-Key to get the batch if it was stored, or a new one if not"

@@ -81,6 +81,7 @@ def test_the_suite_statistics_map_onto_the_paper_within_tolerance() -> None:
 
 
 @pytest.mark.slow  # two segment-and-embed passes over the sample: minutes on 2 cores
+@pytest.mark.timeout(900)
 def test_calibrating_in_the_realistic_regime_gives_the_mapped_likelihoods() -> None:
     """End to end on the sample scene: segment, embed through the regime, label and fit; the
     fitted likelihoods are the strong regime's, mapped (its own perception cache, no mixing)."""

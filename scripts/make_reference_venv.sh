@@ -11,18 +11,30 @@ VENV="${1:-${BFIELDS_REFERENCE_VENV:-/tmp/venv-tv}}"
 ROOT="$(cd "$(dirname "$0")/.." && pwd)"
 start=$(date +%s)
 # Already complete (an earlier run): pip's resolver alone costs minutes on a busy machine.
-if [ -x "$VENV/bin/python" ] && "$VENV/bin/python" -c "import torchvision, ultralytics, open_clip, onnxruntime, pytest, bayesian_fields_core" 2>/dev/null \
+if [ -x "$VENV/bin/python" ] && "$VENV/bin/python" -c "import torchvision, ultralytics, open_clip, onnxruntime, pytest, pytest_timeout, gsply, celery, redis, boto3, sqlalchemy, bayesian_fields_core" 2>/dev/null \
    && [ "$("$VENV/bin/python" -c 'import bayesian_fields_core, pathlib; print(pathlib.Path(bayesian_fields_core.__file__).parents[1])')" = "$ROOT" ]; then
   echo "reference venv ready at $VENV (already complete)"
   exit 0
 fi
 [ -x "$VENV/bin/python" ] || python3 -m venv "$VENV"
 "$VENV/bin/pip" install -q torch==2.14.1 torchvision==0.29.1
-# The project without its dependency list (it pins the other torch), then that list minus torch.
+# The project without its dependency list (torch is the one above), then that list minus torch,
+# read from pyproject.toml with the api and worker extras: the test harness's shared fixtures
+# (tests/conftest.py's plugins) import the service, so the reference tests need its packages too.
 "$VENV/bin/pip" install -q --no-deps -e "$ROOT"
-"$VENV/bin/pip" install -q "numpy>=1.26" "scipy>=1.11" "numba>=0.60" "plyfile>=1.0" "pillow>=10" \
-  "scikit-image>=0.22" "pyyaml>=6" "pydantic>=2.6" "pydantic-settings>=2.2" "transformers>=4.40" \
-  "safetensors>=0.4" "tokenizers>=0.15" "rich>=13" "httpx>=0.27" \
+mapfile -t project_deps < <("$VENV/bin/python" - "$ROOT/pyproject.toml" <<'PY'
+import re
+import sys
+import tomllib
+
+project = tomllib.load(open(sys.argv[1], "rb"))["project"]
+extras = project["optional-dependencies"]
+for req in dict.fromkeys(project["dependencies"] + extras["api"] + extras["worker"]):
+    if re.split(r"[<>=!~\[; ]", req, maxsplit=1)[0].lower() != "torch":
+        print(req)
+PY
+)
+"$VENV/bin/pip" install -q "${project_deps[@]}" \
   "onnxruntime>=1.17" "onnx>=1.15" "open_clip_torch>=2.24" "ultralytics>=8.1" \
   "pytest>=8" "pytest-timeout>=2.3"
 echo "reference venv ready at $VENV in $(( $(date +%s) - start )) s"

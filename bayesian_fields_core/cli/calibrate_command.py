@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import argparse
 
+from bayesian_fields_core.cli.eval_command import regime_name
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add `calibrate` to the `bfields` parser."""
@@ -26,6 +28,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="FILE",
         help="with --scene: keep mu0/mu1/s of this calibration and fit only the 'not found' threshold",
     )
+    cal.add_argument(
+        "--regime",
+        type=regime_name,
+        default="strong",
+        help="with --scene: 'strong' scores the encoder as it is; 'realistic' the evaluation's "
+        "weak-evidence embeddings (`bfields eval --regime`), to check them against the paper's "
+        "likelihoods and fit that regime's 'not found' threshold",
+    )
     cal.add_argument("--out", required=True, help="calibration JSON to write")
     cal.set_defaults(func=run)
 
@@ -43,6 +53,7 @@ def run(args: argparse.Namespace) -> int:
         max_frames=args.max_frames,
         model_id=args.model_id,
         keep_likelihoods=args.keep_likelihoods,
+        regime=args.regime,
     )
     cal = calibrate(request)
     print(

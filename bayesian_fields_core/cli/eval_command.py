@@ -52,7 +52,7 @@ def _suite_seeds(text: str) -> list[int]:
     return seeds
 
 
-def _regime_name(text: str) -> str:
+def regime_name(text: str) -> str:
     """argparse type: one of the perception regimes (`eval.regime.REGIMES`), read when used."""
     from bayesian_fields_core.eval.regime import REGIMES
 
@@ -99,7 +99,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     ev.add_argument(
         "--regime",
-        type=_regime_name,
+        type=regime_name,
         help="perception regime of the suite: realistic (default: each view as weak as a real CLIP's, "
         "the paper's mu0=0.20 mu1=0.27 s=0.035) or strong (the tiny CLIP's strong per-view evidence)",
     )

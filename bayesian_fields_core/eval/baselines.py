@@ -4,8 +4,9 @@
   through; a Gaussian takes the task with the best cosine score when that score passes a
   threshold ("best label"); the Gaussians of a task are split into spatially connected objects.
 - Clio style: the same primitives as ours (every mask, no OR-phi), each primitive's embedding is
-  the mean of its Gaussians' averaged embeddings, p(y|x) is the normalised cosine scores with a
-  fixed-score null task, then the same AIB, pruning and selection as the method.
+  the mean of its Gaussians' averaged embeddings, p(y|x) is built from its cosine scores by Clio's
+  rules (a fixed-score null task, each primitive's top two scores kept: `clio_rows.py`), then the
+  same AIB, pruning and selection as the method.
 
 Both read the per-frame perception and visibility caches a method run left behind, so the
 comparison isolates the fusion and clustering, not the perception.
@@ -20,6 +21,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from bayesian_fields_core.eval.clio_rows import clio_conditionals, clio_null_score
 from bayesian_fields_core.job.context import JobContext
 from bayesian_fields_core.job.store import get_arrays
 from bayesian_fields_core.objects.clustering import ObjectMap, objects_from_primitives
@@ -33,7 +35,8 @@ class BaselineParams:
 
     best_label_threshold: minimum cosine for a Gaussian to take a label (None = midpoint of the
     calibrated mu0 and mu1). component_radius: neighbour distance linking Gaussians of one object,
-    metres. clio_null_score: cosine score given to Clio's null task (None = calibrated mu0).
+    metres. clio_null_score: cosine score given to Clio's null task (None = Clio's
+    threshold carried to the calibration, `clio_rows.clio_null_score`).
     """
 
     best_label_threshold: float | None = None
@@ -101,8 +104,10 @@ def semantic_gaussians(
     return _finish(means, object_ids, table, obj_sizes, ctx)
 
 
-def clio_style(ctx: JobContext, text: np.ndarray, params: BaselineParams, mu0: float) -> ObjectMap:
-    """Clio's AIB on raw cosine scores over the same primitives (no Bayesian fusion)."""
+def clio_style(
+    ctx: JobContext, text: np.ndarray, params: BaselineParams, mu0: float, mu1: float
+) -> ObjectMap:
+    """Clio's AIB on its cosine-built p(y|x) over the same primitives (no Bayesian fusion)."""
     means = ctx.scene().gaussians.means
     emb, counts, builder = averaged_embeddings(ctx)
     primitive_ids = builder.primitive_ids.astype(np.int64)
@@ -110,13 +115,10 @@ def clio_style(ctx: JobContext, text: np.ndarray, params: BaselineParams, mu0: f
     members = membership_matrix(primitive_ids, n_prim)
     prim_emb = np.asarray(members @ emb)
     prim_emb /= np.maximum(np.linalg.norm(prim_emb, axis=1, keepdims=True), 1e-12)
-    # Clio normalises raw cosine scores (positive for its CLIP) with the null task at a fixed
-    # score. Cosines of other models can be negative, so both go through the order-preserving
-    # map (cos + 1) / 2 onto [0, 1] first; the rows stay valid distributions for any model.
-    cos = (prim_emb @ text.T + 1.0) / 2.0
-    null = params.clio_null_score if params.clio_null_score is not None else mu0
-    rows = np.concatenate([cos, np.full((n_prim, 1), (null + 1.0) / 2.0)], axis=1)
-    pyx = rows / rows.sum(axis=1, keepdims=True)
+    # Clio's rows (`clio_rows.py`): cosines clipped at 0, a fixed-score null task, only each
+    # primitive's top two scores kept; the null score is Clio's threshold carried to this calibration.
+    null = params.clio_null_score if params.clio_null_score is not None else clio_null_score(mu0, mu1)
+    pyx = clio_conditionals(prim_emb @ text.T, null)
     # Clio has no floater filter: the baseline keeps every Gaussian of its objects.
     return objects_from_primitives(
         means, primitive_ids, pyx, ctx.params.model_copy(update={"knn_filter": False}), lengths=ctx.lengths()

@@ -278,7 +278,7 @@ def evaluate_scene(
     mu0, mu1 = likelihood.mu0, likelihood.mu1
     for row, run in (
         (SEMANTIC_GAUSSIANS, lambda: semantic_gaussians(full_ctx, text, BaselineParams(), mu0, mu1)),
-        (CLIO, lambda: clio_style(full_ctx, text, BaselineParams(), mu0)),
+        (CLIO, lambda: clio_style(full_ctx, text, BaselineParams(), mu0, mu1)),
     ):
         t = time.perf_counter()
         object_map = run()

@@ -79,7 +79,7 @@ METHOD_ROWS: dict[str, dict[str, Any]] = {
     },
 }
 SEMANTIC_GAUSSIANS = "Semantic Gaussians-style (avg. embeddings, best label)"
-CLIO = "Clio-style (AIB on raw cosine)"
+CLIO = "Clio-style (AIB on cosine, Clio's rows)"
 
 
 @dataclass

@@ -31,7 +31,7 @@ SEGMENTER_PARAMS = {"method": "felzenszwalb", "scale": 100, "sigma": 0.5, "min_s
 
 @pytest.fixture(scope="session")
 def pipeline_clip_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    from tests.perception.conftest import make_tiny_clip
+    from tests.core.perception.conftest import make_tiny_clip
 
     return make_tiny_clip(tmp_path_factory.mktemp("pipeline-models") / "tiny-clip")
 

@@ -23,8 +23,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from tests.scene.reader_check import check_splat_file
-from tests.scene.splat_mutations import (
+from tests.core.scene.reader_check import check_splat_file
+from tests.core.scene.splat_mutations import (
     FIXTURES,
     MISSING,
     glb,
@@ -143,7 +143,7 @@ def _written(kind: str) -> bytes:
     """A small splat written by the project's own writer of that format (no fixture of it is
     made by splat-transform): the antimatter `.splat` rows, the RGB-instead-of-SH PLY."""
     from bayesian_fields_core.scene.formats.antimatter import write_antimatter
-    from tests.scene.format_writers import write_rgb_ply
+    from tests.core.scene.format_writers import write_rgb_ply
 
     with tempfile.TemporaryDirectory(prefix="bf-fuzz-src-") as tmp:
         path = Path(tmp) / f"source.{kind}"

@@ -12,7 +12,7 @@ from celery import Celery
 from tests.integration.fixtures.processes import isolated_env
 from tests.integration.fixtures.services import ApiServer, WorkerPool, celery_ping
 
-MINI_CELERY = "tests.infra.apps.mini_celery"
+MINI_CELERY = "tests.integration.apps.mini_celery"
 
 
 @pytest.fixture
@@ -92,7 +92,7 @@ def test_two_queues_are_separate(tmp_path: Path, redis_url: str, env: dict[str, 
 
 def test_api_server_fixture_mechanics(tmp_path: Path, env: dict[str, str]) -> None:
     server = ApiServer(
-        env=env, log_dir=tmp_path, keys={"tenant-a": "k"}, app="tests.infra.apps.mini_asgi:app"
+        env=env, log_dir=tmp_path, keys={"tenant-a": "k"}, app="tests.integration.apps.mini_asgi:app"
     )
     server.start()
     try:
@@ -106,6 +106,6 @@ def test_api_server_fixture_mechanics(tmp_path: Path, env: dict[str, str]) -> No
 
 
 def test_api_server_start_failure_shows_log(tmp_path: Path, env: dict[str, str]) -> None:
-    server = ApiServer(env=env, log_dir=tmp_path, keys={}, app="tests.infra.apps.no_such_module:app")
+    server = ApiServer(env=env, log_dir=tmp_path, keys={}, app="tests.integration.apps.no_such_module:app")
     with pytest.raises(RuntimeError, match="no_such_module"):
         server.start(timeout_s=30)

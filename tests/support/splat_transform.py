@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 INSTALL = "the splat-transform stage of .ci/run: npm install --prefix build/node @playcanvas/splat-transform gltf-validator"
 """How to get it (`.ci/run` pins the version the format fixtures were made with)."""
 

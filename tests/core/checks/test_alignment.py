@@ -15,9 +15,9 @@ from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.params import PipelineParams
 from bayesian_fields_core.scene.loader import load_scene
 from bayesian_fields_core.scene.types import Scene
-from tests.scene_transforms import copy_scene, flip_camera_convention, move_splat, shuffle_images
+from tests.support.scene_transforms import copy_scene, flip_camera_convention, move_splat, shuffle_images
 
-SAMPLE = Path(__file__).resolve().parents[2] / "samples" / "tabletop"
+SAMPLE = Path(__file__).resolve().parents[3] / "samples" / "tabletop"
 PARAMS = PipelineParams()
 
 

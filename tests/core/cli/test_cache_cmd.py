@@ -16,8 +16,7 @@ from bayesian_fields_core.cli.run_command import local_context
 from bayesian_fields_core.job.artifacts import ALIGNMENT_CACHE_DIR
 from bayesian_fields_core.job.pipeline import run_job
 from bayesian_fields_core.params import PipelineParams
-
-from .conftest import N_FRAMES, TASKS, counting_models
+from tests.core.conftest import N_FRAMES, TASKS, counting_models
 
 # Slow (the inner loop leaves it out): its fixtures took 21 s to set up here (--durations).
 pytestmark = pytest.mark.slow

@@ -10,9 +10,8 @@ import pytest
 
 from bayesian_fields_core.calibration.model import load_calibration
 from bayesian_fields_core.cli.main import main
-from tests.scene_transforms import copy_scene, flip_camera_convention, move_splat
-
-from .conftest import N_FRAMES
+from tests.core.conftest import N_FRAMES
+from tests.support.scene_transforms import copy_scene, flip_camera_convention, move_splat
 
 
 def _run_args(scene: Path, tmp_path: Path, profile_yaml: Path, *extra: str) -> list[str]:
@@ -150,7 +149,7 @@ def test_run_rejects_a_missing_scene(
     assert "no-scene" in _one_line_error(capsys)
 
 
-SAMPLE = Path(__file__).resolve().parents[2] / "samples" / "tabletop"
+SAMPLE = Path(__file__).resolve().parents[3] / "samples" / "tabletop"
 
 
 @pytest.mark.slow

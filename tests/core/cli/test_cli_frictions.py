@@ -15,8 +15,8 @@ from bayesian_fields_core.job.markers import is_done
 from bayesian_fields_core.job.pipeline import run_job
 from bayesian_fields_core.job.stage_table import STAGES
 from bayesian_fields_core.params import PipelineParams
+from tests.core.conftest import counting_models, make_ctx
 
-from .conftest import counting_models, make_ctx
 from .test_cli import _one_line_error, _run_args
 
 

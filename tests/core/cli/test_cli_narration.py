@@ -24,8 +24,7 @@ from bayesian_fields_core.cli.main import main
 from bayesian_fields_core.cli.run_command import local_context
 from bayesian_fields_core.job.pipeline import load_models, run_job
 from bayesian_fields_core.params import PipelineParams
-
-from .conftest import N_FRAMES
+from tests.core.conftest import N_FRAMES
 
 # Slow (the inner loop leaves it out): its fixtures took 60 s to set up here (--durations).
 pytestmark = pytest.mark.slow

@@ -16,7 +16,7 @@ import pytest
 
 from bayesian_fields_core.cli.main import VERBS, build_parser
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 HEAVY = ("torch", "scipy", "numpy", "numba", "httpx", "pydantic", "bayesian_fields_core.job.pipeline")
 """What building the parser must not import (the first three cost seconds on a busy machine)."""
 FAST_S = 0.5

@@ -26,7 +26,7 @@ from bayesian_fields_core.geometry.obb import OrientedBox
 from bayesian_fields_core.results.colours import rank_colour
 from bayesian_fields_core.results.reader import read_result
 
-SAMPLE = Path(__file__).resolve().parents[2] / "samples" / "tabletop"
+SAMPLE = Path(__file__).resolve().parents[3] / "samples" / "tabletop"
 
 RIGHT_TODAY = {
     "get the orange cone",
@@ -83,7 +83,7 @@ def test_demo_first_answers_against_the_sample_ground_truth(demo: Path) -> None:
     assert {task for task, ok in right.items() if ok} == RIGHT_TODAY, right
 
 
-DOCS = SAMPLE.parents[1] / "docs"
+DOCS = SAMPLE.parents[2] / "docs"
 SHEET = DOCS / "previews-contact-sheet.png"
 SHEET_FINGERPRINT = DOCS / "previews-contact-sheet.json"
 UPDATE_DOCS = "BFIELDS_UPDATE_DOCS_IMAGES"

@@ -15,7 +15,7 @@ from bayesian_fields_core.eval.calibration.ground_truth import TaskPeak, label_m
 from bayesian_fields_core.eval.calibration.not_found_fit import fit_answer_min_peak
 from bayesian_fields_core.objects.not_found import resolve_answer_min_peak
 
-SAMPLE = Path(__file__).resolve().parents[2] / "samples" / "tabletop"
+SAMPLE = Path(__file__).resolve().parents[3] / "samples" / "tabletop"
 
 
 def test_label_masks_by_hand() -> None:

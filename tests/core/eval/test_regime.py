@@ -23,7 +23,7 @@ from bayesian_fields_core.eval.regime import (
 )
 from bayesian_fields_core.job.pipeline import load_models
 
-SAMPLE = Path(__file__).resolve().parents[2] / "samples" / "tabletop"
+SAMPLE = Path(__file__).resolve().parents[3] / "samples" / "tabletop"
 
 
 CROPS = Likelihoods(mu0=-0.228, mu1=0.639, s=0.171)  # the tiny CLIP's bundled calibration (d' 5.1)

@@ -25,9 +25,9 @@ from bayesian_fields_core.job.pipeline import load_models
 from bayesian_fields_core.job.stage_table import ALIGNMENT_CACHE
 from bayesian_fields_core.job.store import LocalStore
 from bayesian_fields_core.params import PipelineParams
-from tests.scene_transforms import copy_scene
+from tests.support.scene_transforms import copy_scene
 
-SAMPLE = Path(__file__).resolve().parents[2] / "samples" / "tabletop"
+SAMPLE = Path(__file__).resolve().parents[3] / "samples" / "tabletop"
 TASKS = ["get the red cube"]
 
 

@@ -21,7 +21,7 @@ from bayesian_fields_core.scene.loader import load_scene
 from bayesian_fields_core.scene.scale import scene_lengths
 from bayesian_fields_core.scene.types import Scene
 
-SAMPLE = Path(__file__).resolve().parents[2] / "samples" / "tabletop"
+SAMPLE = Path(__file__).resolve().parents[3] / "samples" / "tabletop"
 
 VARIATIONS: dict[str, dict[str, object]] = {
     "default": {},

@@ -17,8 +17,7 @@ from bayesian_fields_core.job.artifacts import PRIMITIVES_KEY, RESULT_PREFIX
 from bayesian_fields_core.job.markers import is_done
 from bayesian_fields_core.job.pipeline import run_stage
 from bayesian_fields_core.job.store import LocalStore
-
-from .conftest import counting_models, make_ctx
+from tests.core.conftest import counting_models, make_ctx
 
 # Slow (the inner loop leaves it out): its fixtures took 5.0 s to set up here (--durations).
 pytestmark = pytest.mark.slow

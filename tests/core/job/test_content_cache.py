@@ -21,8 +21,7 @@ from bayesian_fields_core.cli.main import main
 from bayesian_fields_core.cli.run_command import local_context
 from bayesian_fields_core.job.pipeline import run_job
 from bayesian_fields_core.params import PipelineParams
-
-from .conftest import N_FRAMES, OTHER_TASKS, TASKS, counting_models
+from tests.core.conftest import N_FRAMES, OTHER_TASKS, TASKS, counting_models
 
 # Slow (the inner loop leaves it out): its fixtures took 3.4 s to set up here (--durations).
 pytestmark = pytest.mark.slow

@@ -22,8 +22,7 @@ from bayesian_fields_core.job.store import LocalStore, get_arrays
 from bayesian_fields_core.params import PipelineParams
 from bayesian_fields_core.results.reader import read_result
 from bayesian_fields_core.scene.loader import load_scene
-
-from .conftest import N_FRAMES, OTHER_TASKS, TASKS, counting_models, make_ctx
+from tests.core.conftest import N_FRAMES, OTHER_TASKS, TASKS, counting_models, make_ctx
 
 # Slow (the inner loop leaves it out): its fixtures took 5.4 s to set up here (--durations).
 pytestmark = pytest.mark.slow

@@ -13,8 +13,7 @@ from bayesian_fields_core.job.pipeline import run_job
 from bayesian_fields_core.job.stage_table import STAGES
 from bayesian_fields_core.job.store import LocalStore
 from bayesian_fields_core.results.reader import read_result
-
-from .conftest import counting_models, make_ctx
+from tests.core.conftest import counting_models, make_ctx
 
 
 @pytest.mark.slow
@@ -44,7 +43,7 @@ def test_read_result_takes_a_plain_path_and_reports_carry_iso_times(
 def _documented_layout() -> set[str]:
     """The paths of the "What lands where" block of the docs' getting-started page under
     `out/demo/` (numbers as NN...)."""
-    text = (Path(__file__).resolve().parents[2] / "docs" / "getting-started.md").read_text()
+    text = (Path(__file__).resolve().parents[3] / "docs" / "getting-started.md").read_text()
     block = text[text.index("What lands where:") :].split("```")[1]
     paths, folder = set(), ""
     for line in block.splitlines():

@@ -30,11 +30,11 @@ from bayesian_fields_core.params import PipelineParams
 from bayesian_fields_core.results.format import Result
 from bayesian_fields_core.results.reader import read_result
 from bayesian_fields_core.scene.similarity import Similarity
-from tests.scene_transforms import similar_scene
+from tests.support.scene_transforms import similar_scene
 
 pytestmark = pytest.mark.slow
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 SAMPLE = ROOT / "samples" / "tabletop"
 SCALES = (0.01, 2.5, 100.0)
 MIN_SHARED = 0.99

@@ -18,7 +18,7 @@ from bayesian_fields_core.job.stage_table import (
 from bayesian_fields_core.job.store import LocalStore
 from bayesian_fields_core.params import PipelineParams
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 SAMPLE = ROOT / "samples" / "tabletop"
 
 

@@ -86,7 +86,7 @@ def test_model_id_names_weights_not_path(tiny_clip_dir: Path, tmp_path: Path) ->
     copy = shutil.copytree(tiny_clip_dir, tmp_path / "tiny-clip")
     assert hf_clip_model_id(copy) == mid
     other = tmp_path / "other" / "tiny-clip"
-    from tests.perception.conftest import make_tiny_clip
+    from tests.core.perception.conftest import make_tiny_clip
 
     make_tiny_clip(other, seed=1)
     assert hf_clip_model_id(other) != mid

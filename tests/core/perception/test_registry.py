@@ -17,7 +17,7 @@ from bayesian_fields_core.perception.hf_clip import HFClipEncoder, hf_clip_model
 from bayesian_fields_core.perception.onnx_clip import OnnxClipEncoder
 from bayesian_fields_core.perception.onnx_export import export_clip_onnx
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 MODELS = REPO / "bayesian_fields_core" / "models"  # the shipped profiles and tiny CLIP (package data)
 
 
@@ -98,7 +98,7 @@ def test_fingerprint_stable_and_sensitive(tmp_path: Path, tiny_clip_dir: Path) -
     )
     assert registry.profile_fingerprint(resize) != fa
     # New weights, same folder name: new fingerprint.
-    from tests.perception.conftest import make_tiny_clip
+    from tests.core.perception.conftest import make_tiny_clip
 
     make_tiny_clip(b / "tiny-clip", seed=3)
     assert registry.profile_fingerprint(registry.load_profile(b / "profiles" / "p.yaml")) != fa

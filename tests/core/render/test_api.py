@@ -10,7 +10,7 @@ import torch
 
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.render import GaussianRenderer, render
-from tests.render.scenes import make_gaussians, pinhole
+from tests.core.render.scenes import make_gaussians, pinhole
 
 K = pinhole(50.0, 40, 30)
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from bayesian_fields_core.render import GaussianRenderer, RasterSettings, render
-from tests.render.scenes import make_gaussians, pinhole
+from tests.core.render.scenes import make_gaussians, pinhole
 
 W, H = 64, 48
 K = pinhole(60.0, W, H)

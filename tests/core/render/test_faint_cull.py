@@ -11,7 +11,7 @@ import torch
 from bayesian_fields_core.render import GaussianRenderer, RasterSettings
 from bayesian_fields_core.render.projection import project
 from bayesian_fields_core.render.tiles import _min_quadratic_on_box, bin_gaussians, faint_cull
-from tests.render.scenes import make_gaussians, pinhole
+from tests.core.render.scenes import make_gaussians, pinhole
 
 W, H = 96, 64
 K = pinhole(70.0, W, H)

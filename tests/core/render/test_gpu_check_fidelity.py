@@ -20,7 +20,7 @@ from bayesian_fields_core.render import GaussianRenderer
 
 from .scenes import make_gaussians, pinhole
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[3] / "bench"))
 import gpu_check_fidelity as fidelity  # noqa: E402 - a bench script's module, not a package
 
 W, H, TASKS = 48, 36, 3

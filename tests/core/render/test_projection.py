@@ -6,7 +6,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from bayesian_fields_core.render import render
-from tests.render.scenes import make_gaussians
+from tests.core.render.scenes import make_gaussians
 
 W, H = 96, 80
 K = np.array([[120.0, 0.0, 45.0], [0.0, 110.0, 38.0], [0.0, 0.0, 1.0]])

@@ -7,7 +7,7 @@ import torch
 
 from bayesian_fields_core.geometry.spherical_harmonics import C0, C1, sh_basis
 from bayesian_fields_core.render import render
-from tests.render.scenes import make_gaussians, pinhole
+from tests.core.render.scenes import make_gaussians, pinhole
 
 
 def test_sh_basis_is_orthonormal_on_the_sphere() -> None:

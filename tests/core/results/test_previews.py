@@ -23,7 +23,7 @@ from bayesian_fields_core.results.previews import best_view
 from bayesian_fields_core.scene.loader import load_scene
 from bayesian_fields_core.scene.ply import read_ply
 
-SAMPLE = Path(__file__).resolve().parents[2] / "samples" / "tabletop"
+SAMPLE = Path(__file__).resolve().parents[3] / "samples" / "tabletop"
 CONE, CUBE = 9, None  # gt instance of "get the orange cone"; the cube's id is looked up below
 
 

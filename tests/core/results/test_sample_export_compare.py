@@ -19,9 +19,9 @@ from bayesian_fields_core.scene.formats import read_splat
 from bayesian_fields_core.scene.formats.write import SUFFIXES as SUFFIX
 from bayesian_fields_core.scene.ply import read_ply
 from bayesian_fields_core.scene.types import Gaussians
-from tests.splat_transform import convert, gltf_issues
+from tests.support.splat_transform import convert, gltf_issues
 
-SAMPLE = Path(__file__).resolve().parents[2] / "samples" / "tabletop"
+SAMPLE = Path(__file__).resolve().parents[3] / "samples" / "tabletop"
 MUG = "pick up the orange mug"
 
 TOLERANCE = {
@@ -38,7 +38,7 @@ TOLERANCE = {
     # entries (checked against the file's codebooks below, then compared as stored)
     "sog": (1e-4, 1e-6, 2e-3, 1e-6, 0.04),
 }
-FIXTURES = Path(__file__).resolve().parents[1] / "fixtures" / "formats"
+FIXTURES = Path(__file__).resolve().parents[2] / "fixtures" / "formats"
 assert set(TOLERANCE) == set(SUFFIX), "every export format needs its tolerances here"
 
 
@@ -231,7 +231,7 @@ def test_the_documented_reader_snippet_runs_without_torch(runs: dict[str, Path])
     import subprocess
     import sys
 
-    doc = (Path(__file__).resolve().parents[2] / "docs" / "results-format.md").read_text()
+    doc = (Path(__file__).resolve().parents[3] / "docs" / "results-format.md").read_text()
     section = doc.split("### Reading a result without torch", 1)[1]
     snippet = section.split("```python\n", 1)[1].split("```", 1)[0]
     assert '"out/demo"' in snippet

@@ -130,10 +130,10 @@ def test_sh_bands_survive_the_export_in_their_frame(fmt: str, tmp_path: Path) ->
     project's readers as written, within the format's step."""
     from bayesian_fields_core.scene.formats import read_splat
     from bayesian_fields_core.scene.formats.write import SUFFIXES, write_splat
-    from tests.scene.format_writers import sh3_sample
-    from tests.splat_transform import convert
+    from tests.core.scene.format_writers import sh3_sample
+    from tests.support.splat_transform import convert
 
-    sample = sh3_sample(Path(__file__).resolve().parents[2] / "samples" / "tabletop" / "point_cloud.ply")
+    sample = sh3_sample(Path(__file__).resolve().parents[3] / "samples" / "tabletop" / "point_cloud.ply")
     path = write_splat(tmp_path / f"sh3{SUFFIXES[fmt]}", sample, fmt)
     readers = [read_splat(path, max_gaussians=10**6)]
     if fmt != "glb":  # splat-transform does not read glTF

@@ -28,7 +28,7 @@ from bayesian_fields_core.scene.formats.registry import (
 )
 from bayesian_fields_core.scene.layout import find_splat_file
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 DOCS = ROOT / "docs"
 FORMATS_PAGE = DOCS / "guide" / "your-scene.md"
 MARKER = "<!-- splat formats -->"

@@ -25,7 +25,7 @@ from bayesian_fields_core.scene.types import Gaussians
 
 from .format_writers import sh3_sample, write_gsplat_checkpoint, write_rgb_ply
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 PLY = ROOT / "samples" / "tabletop" / "point_cloud.ply"
 FIXTURES = ROOT / "tests" / "fixtures" / "formats"
 LIMIT = 10_000_000

@@ -23,11 +23,11 @@ from bayesian_fields_core.cli.main import main
 from bayesian_fields_core.results.reader import read_result
 from bayesian_fields_core.scene.formats.antimatter import write_antimatter
 from bayesian_fields_core.scene.ply import read_ply
-from tests.scene.format_writers import write_gsplat_checkpoint, write_rgb_ply
+from tests.core.scene.format_writers import write_gsplat_checkpoint, write_rgb_ply
 
 pytestmark = pytest.mark.slow
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 SAMPLE = ROOT / "samples" / "tabletop"
 FIXTURES = ROOT / "tests" / "fixtures" / "formats"
 PARAMS = ["frame_stride=4", "alignment_check=false", "previews=false", "export_ply=false"]

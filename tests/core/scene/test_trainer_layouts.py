@@ -20,7 +20,8 @@ from bayesian_fields_core.results.reader import read_result
 from bayesian_fields_core.scene.loader import load_scene
 from bayesian_fields_core.scene.ply import read_ply
 from bayesian_fields_core.scene.similarity import Similarity
-from tests.scene.trainer_layouts import (
+from tests.core.conftest import counting_models, make_ctx
+from tests.core.scene.trainer_layouts import (
     NS_PROCESS_DATA_APPLIED,
     SourceScene,
     gsplat_output,
@@ -28,8 +29,6 @@ from tests.scene.trainer_layouts import (
     scene_yaml_output,
     splatfacto_output,
 )
-
-from .conftest import counting_models, make_ctx
 
 # Slow (the inner loop leaves it out): its fixtures took 5.6 s to set up here (--durations).
 pytestmark = pytest.mark.slow

@@ -253,7 +253,7 @@ def scene_yaml_output(src: SourceScene, out: Path, splat_to_camera: Similarity) 
 def small_source_scene(root: Path, *, sh_degree: int, centre: tuple[float, float, float]) -> SourceScene:
     """300 random Gaussians around `centre`, 3 cameras looking at them, flat 64x48 images under
     `root / "src"`: the untransformed scene the layout tests (library and service) start from."""
-    from tests.scene.conftest import look_at_frame, random_gaussians
+    from tests.core.scene.conftest import look_at_frame, random_gaussians
 
     g = random_gaussians(300, sh_degree, extra=False)
     g.means[:] = g.means * 0.3 + np.array(centre, dtype=np.float32)

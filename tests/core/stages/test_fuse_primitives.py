@@ -15,8 +15,7 @@ from bayesian_fields_core.job.pipeline import run_stage
 from bayesian_fields_core.job.store import get_arrays
 from bayesian_fields_core.params import PipelineParams
 from bayesian_fields_core.stages.cluster import build_primitives, load_primitives, view_counts
-
-from .conftest import counting_models, make_ctx
+from tests.core.conftest import counting_models, make_ctx
 
 
 def _job(scene_dir: Path, profile: dict[str, Any], tmp_path: Path, params: PipelineParams) -> Any:

@@ -26,9 +26,8 @@ from bayesian_fields_core.job.store import get_arrays
 from bayesian_fields_core.params import PipelineParams
 from bayesian_fields_core.render import GaussianRenderer
 from bayesian_fields_core.stages.fuse import fusion_device, likelihood_params
-from tests.fusion.reference import reference_associations
-
-from .conftest import counting_models, make_ctx
+from tests.core.conftest import counting_models, make_ctx
+from tests.core.fusion.reference import reference_associations
 
 # Slow (the inner loop leaves it out): its fixtures took 4.5 s to set up here (--durations).
 pytestmark = pytest.mark.slow

@@ -10,8 +10,7 @@ import pytest
 
 from bayesian_fields_core.job.pipeline import run_stage
 from bayesian_fields_core.params import PipelineParams
-
-from .conftest import N_FRAMES, counting_models, make_ctx
+from tests.core.conftest import N_FRAMES, counting_models, make_ctx
 
 
 @pytest.mark.slow

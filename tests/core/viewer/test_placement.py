@@ -20,7 +20,7 @@ from bayesian_fields_core.viewer.placement import (
     start_view,
 )
 
-SAMPLE = Path(__file__).resolve().parents[2] / "samples" / "tabletop"
+SAMPLE = Path(__file__).resolve().parents[3] / "samples" / "tabletop"
 
 
 @pytest.fixture(scope="module")

@@ -14,7 +14,7 @@ import pytest
 from bayesian_fields_core.cli.main import main
 from bayesian_fields_core.results.colours import DIM, TINT, rank_colour
 from bayesian_fields_core.viewer.placement import label_text, start_view
-from tests.ui.browser import pixels
+from tests.support.browser import pixels
 
 # Slow (the inner loop leaves it out): its fixtures took 60 s to set up here (--durations).
 # Known long: over 60 s here under load (where --durations stopped measuring); the default timeout
@@ -23,7 +23,7 @@ pytestmark = [pytest.mark.slow, pytest.mark.timeout(900)]
 
 pytest.importorskip("viser", reason="the viewer needs the 'view' extra (viser)")
 
-SAMPLE = Path(__file__).resolve().parents[2] / "samples" / "tabletop"
+SAMPLE = Path(__file__).resolve().parents[3] / "samples" / "tabletop"
 TASKS = ["get the orange cone", "get the cyan cube"]
 
 

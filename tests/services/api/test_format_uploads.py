@@ -17,13 +17,13 @@ from bayesian_fields_core.scene.colmap import write_colmap_text
 from bayesian_fields_core.scene.layout import resolve_layout
 from bayesian_fields_core.scene.ply import write_ply
 from bayesian_fields_service.client import BFieldsClient
+from tests.core.scene.test_trainer_runs import gsplat_run_folder
+from tests.core.scene.trainer_layouts import SourceScene, small_source_scene
 from tests.integration.fixtures.services import ApiServer
-from tests.scene.test_trainer_runs import gsplat_run_folder
-from tests.scene.trainer_layouts import SourceScene, small_source_scene
 
 pytestmark = pytest.mark.integration
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 SAMPLE = ROOT / "samples" / "tabletop"
 FIXTURES = ROOT / "tests" / "fixtures" / "formats"
 

@@ -26,9 +26,8 @@ import httpx
 import pytest
 
 from tests.integration.fixtures.s3_server import S3Server
-
-from .conftest import SERVICE_ENV, scene_form
-from .private_stack import PrivateStack, upload
+from tests.services.conftest import SERVICE_ENV, scene_form
+from tests.services.support.private_stack import PrivateStack, upload
 
 pytestmark = [pytest.mark.integration]
 

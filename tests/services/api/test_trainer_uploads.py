@@ -12,10 +12,9 @@ import pytest
 
 from bayesian_fields_core.scene.layout import resolve_layout
 from bayesian_fields_service.client import BFieldsClient
+from tests.core.scene.trainer_layouts import SourceScene, inria_output, small_source_scene, splatfacto_output
 from tests.integration.fixtures.services import ApiServer
-from tests.scene.trainer_layouts import SourceScene, inria_output, small_source_scene, splatfacto_output
-
-from .conftest import scene_form
+from tests.services.conftest import scene_form
 
 pytestmark = pytest.mark.integration
 

@@ -17,13 +17,13 @@ import httpx
 import pytest
 
 from bench import splat_bombs
+from tests.core.scene.splat_mutations import glb, glb_parts
 from tests.integration.fixtures.services import ApiServer
-from tests.scene.splat_mutations import glb, glb_parts
-from tests.service.conftest import scene_form
+from tests.services.conftest import scene_form
 
 pytestmark = pytest.mark.integration
 
-FIXTURES = Path(__file__).resolve().parents[2] / "tests" / "fixtures" / "formats"
+FIXTURES = Path(__file__).resolve().parents[3] / "tests" / "fixtures" / "formats"
 MAX_GROWTH_MIB = 150
 """Issue 30's bound on the API's memory while it checks any upload."""
 BOMB_GAUSSIANS = 1_000_000

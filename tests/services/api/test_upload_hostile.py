@@ -21,8 +21,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from .conftest import scene_form
-from .scene_factory import image_zip, zip_bytes
+from tests.services.conftest import scene_form
+from tests.services.support.scene_factory import image_zip, zip_bytes
 
 pytestmark = pytest.mark.integration
 

@@ -14,10 +14,9 @@ import pytest
 from PIL import Image
 
 from tests.integration.fixtures.s3_server import S3Server
-from tests.scene_transforms import copy_scene, flip_camera_convention
-
-from .conftest import MAX_EXPANDED, MAX_UPLOAD, scene_form
-from .scene_factory import image_zip, zip_bytes
+from tests.services.conftest import MAX_EXPANDED, MAX_UPLOAD, scene_form
+from tests.services.support.scene_factory import image_zip, zip_bytes
+from tests.support.scene_transforms import copy_scene, flip_camera_convention
 
 pytestmark = pytest.mark.integration
 

@@ -22,8 +22,7 @@ from bayesian_fields_service.records.database import dispose_all, engine, migrat
 from bayesian_fields_service.records.tables import callback_outbox
 from tests.integration.fixtures.postgres import create_database, drop_database
 from tests.integration.fixtures.services import ControlServer
-
-from .callback_receivers import Receiver, RssSampler, overlapping
+from tests.services.support.callback_receivers import Receiver, RssSampler, overlapping
 
 pytestmark = [pytest.mark.integration]
 

@@ -27,8 +27,7 @@ from bayesian_fields_service.common import callbacks
 from bayesian_fields_service.common.settings import ServiceSettings
 from bayesian_fields_service.records.tables import callback_outbox
 from tests.integration.fixtures.postgres import records_database
-
-from .callback_receivers import Receiver
+from tests.services.support.callback_receivers import Receiver
 
 pytestmark = [pytest.mark.integration]
 

@@ -48,7 +48,7 @@ def test_every_field_is_documented() -> None:
 
 
 def test_env_example_lists_every_setting() -> None:
-    example = (Path(__file__).resolve().parents[2] / ".env.example").read_text()
+    example = (Path(__file__).resolve().parents[3] / ".env.example").read_text()
     missing = [n for n in ServiceSettings.model_fields if f"BFIELDS_{n.upper()}" not in example]
     assert missing == []
 
@@ -108,7 +108,7 @@ def test_no_service_module_reads_the_environment_itself() -> None:
     """Service knobs come from `ServiceSettings` alone (documented, validated, in .env.example):
     no module of the API or the workers reads `os.environ` / `os.getenv` on its own. The client
     (`services/client`) runs on a user's machine and is not configured by the service's settings."""
-    root = Path(__file__).resolve().parents[2] / "services"
+    root = Path(__file__).resolve().parents[3] / "services"
     readers = []
     for path in sorted(root.rglob("*.py")):
         if path.name == "settings.py" or "client" in path.relative_to(root).parts:

@@ -21,9 +21,8 @@ import pytest
 
 from tests.integration.fixtures.postgres import create_database, drop_database
 from tests.integration.fixtures.services import ApiServer, WorkerPool
-
-from .conftest import SERVICE_ENV, scene_form
-from .scene_factory import make_scene
+from tests.services.conftest import SERVICE_ENV, scene_form
+from tests.services.support.scene_factory import make_scene
 
 # Longer than the default timeout (pyproject.toml): a fleet on prefork workers; its callback wait alone may take 240 s.
 pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.timeout(600)]

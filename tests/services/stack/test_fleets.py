@@ -27,9 +27,9 @@ from bayesian_fields_service.records.database import engine
 from bayesian_fields_service.records.tables import jobs as jobs_table
 from tests.integration.fixtures.s3_server import S3Server
 from tests.integration.fixtures.services import ApiServer
+from tests.services.conftest import SERVICE_ENV
+from tests.services.support.private_stack import PrivateStack, upload, wait_job
 
-from .conftest import SERVICE_ENV
-from .private_stack import PrivateStack, upload, wait_job
 from .test_workers import _wait_for
 
 # Longer than the default timeout (pyproject.toml): a 1,000-job fleet and a 240 s wait for a job to start.

@@ -25,8 +25,7 @@ from tests.integration.fixtures.postgres import create_database, drop_database
 from tests.integration.fixtures.redis_server import RedisServer
 from tests.integration.fixtures.s3_server import S3Server
 from tests.integration.fixtures.services import ApiServer, build_service_env
-
-from .conftest import scene_form
+from tests.services.conftest import scene_form
 
 pytestmark = pytest.mark.integration
 

@@ -22,9 +22,9 @@ import redis
 from tests.integration.fixtures.redis_server import RedisServer
 from tests.integration.fixtures.s3_server import S3Server
 from tests.integration.fixtures.services import ApiServer, WorkerPool, build_service_env
+from tests.services.conftest import SERVICE_ENV
+from tests.services.support.callback_receivers import Receiver
 
-from .callback_receivers import Receiver
-from .conftest import SERVICE_ENV
 from .test_workers import PARAMS, TASKS, _upload, _wait_for
 
 # Longer than the default timeout (pyproject.toml): two fleet waits of up to 300 s each, after a stack start.

@@ -23,11 +23,10 @@ from bayesian_fields_core.results.reader import read_result
 from bayesian_fields_service.client import BFieldsClient, fetch, status, submit
 from tests.integration.fixtures.redis_server import RedisServer
 from tests.integration.fixtures.services import ApiServer, WorkerPool, build_service_env
-from tests.scene_transforms import copy_scene, move_splat
-
-from .callback_receivers import Receiver
-from .conftest import SERVICE_ENV
-from .private_stack import wait_job
+from tests.services.conftest import SERVICE_ENV
+from tests.services.support.callback_receivers import Receiver
+from tests.services.support.private_stack import wait_job
+from tests.support.scene_transforms import copy_scene, move_splat
 
 # Longer than the default timeout (pyproject.toml): jobs wait up to 240 s each, after the in-process reference run.
 pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.timeout(600)]

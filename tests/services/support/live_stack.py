@@ -6,7 +6,7 @@ a real object, then runs ``st run`` with an API key and the checks that matter h
 responses (status, content type, headers, body) that match the schema. Prints the case count and
 exits with schemathesis' status.
 
-    python -m tests.service.live_stack --max-examples 40
+    python -m tests.services.support.live_stack --max-examples 40
 """
 
 from __future__ import annotations
@@ -23,8 +23,8 @@ from tests.integration.fixtures.processes import venv_bin
 from tests.integration.fixtures.redis_server import RedisServer
 from tests.integration.fixtures.s3_server import S3Server
 from tests.integration.fixtures.services import ApiServer, build_service_env
+from tests.services.conftest import SERVICE_ENV, scene_form
 
-from .conftest import SERVICE_ENV, scene_form
 from .scene_factory import make_scene
 
 CHECKS = (

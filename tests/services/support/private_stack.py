@@ -72,7 +72,7 @@ def wait_job(client: httpx.Client, job_id: str, timeout_s: float = 240) -> dict:
 
 
 def upload(client: httpx.Client, folder: Path) -> str:
-    from .conftest import scene_form
+    from tests.services.conftest import scene_form
 
     resp = client.post("/v1/scenes", files=scene_form(folder))
     assert resp.status_code == 201, resp.text

@@ -15,11 +15,11 @@ import pytest
 from tests.integration.fixtures.pytest_fixtures import serve_api
 from tests.integration.fixtures.s3_server import S3Server
 from tests.integration.fixtures.services import ApiServer, WorkerPool
+from tests.services.conftest import SERVICE_ENV, scene_form
 
-from .conftest import SERVICE_ENV, scene_form
 from .private_stack import PrivateStack
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 
 
 @pytest.fixture(scope="session")
@@ -71,7 +71,7 @@ def model_profile(tmp_path_factory: pytest.TempPathFactory) -> str | None:
     around a random tiny CLIP made for this session."""
     if (REPO / "bayesian_fields_core" / "models" / "tiny-clip" / "config.json").is_file():
         return None
-    from tests.perception.conftest import make_tiny_clip
+    from tests.core.perception.conftest import make_tiny_clip
 
     folder = tmp_path_factory.mktemp("profile")
     clip = make_tiny_clip(folder / "tiny-clip")

@@ -17,10 +17,9 @@ import redis
 from bayesian_fields_service.common.job_queue import JobQueue
 from bayesian_fields_service.records.database import engine
 from tests.integration.fixtures.services import ApiServer
-
-from .private_stack import wait_job
-from .test_scene_races import arm, resume, wait_reached
-from .test_workers import PARAMS, TASKS, _upload
+from tests.services.api.test_scene_races import arm, resume, wait_reached
+from tests.services.stack.test_workers import PARAMS, TASKS, _upload
+from tests.services.support.private_stack import wait_job
 
 # Longer than the default timeout (pyproject.toml): its own waits: 240 s for the pause point, then 120 s for the job.
 pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.timeout(600)]

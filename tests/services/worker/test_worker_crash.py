@@ -17,9 +17,9 @@ from pathlib import Path
 
 import pytest
 
-from .conftest import SERVICE_ENV
-from .private_stack import PrivateStack, pool_children, upload, wait_job
-from .scene_factory import make_scene
+from tests.services.conftest import SERVICE_ENV
+from tests.services.support.private_stack import PrivateStack, pool_children, upload, wait_job
+from tests.services.support.scene_factory import make_scene
 
 # Longer than the default timeout (pyproject.toml): a job waits out a 20 s foreign lock (its own deadline 260 s) on a 16-frame scene.
 pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.timeout(600)]

@@ -12,9 +12,9 @@ from pathlib import Path
 
 import pytest
 
-from .conftest import SERVICE_ENV
-from .private_stack import PrivateStack, upload, wait_job
-from .scene_factory import make_scene
+from tests.services.conftest import SERVICE_ENV
+from tests.services.support.private_stack import PrivateStack, upload, wait_job
+from tests.services.support.scene_factory import make_scene
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 

@@ -243,7 +243,7 @@ def test_command_line(tmp_path: Path) -> None:
 def test_bundled_sample_scene_is_current_and_small() -> None:
     import importlib.util
 
-    repo = Path(__file__).resolve().parents[2]
+    repo = Path(__file__).resolve().parents[4]
     folder = repo / "samples" / "tabletop"
     spec_mod = importlib.util.spec_from_file_location(
         "make_sample_scene", repo / "scripts" / "make_sample_scene.py"

@@ -17,7 +17,7 @@ from bayesian_fields_core.perception.hf_clip import HFClipEncoder, hf_clip_model
 # (pyproject.toml) is too close for it.
 pytestmark = pytest.mark.timeout(900)
 
-MODEL = Path(__file__).resolve().parents[2] / "bayesian_fields_core" / "models" / "tiny-clip"
+MODEL = Path(__file__).resolve().parents[4] / "bayesian_fields_core" / "models" / "tiny-clip"
 HELD_OUT_SEED = 987_654  # training uses seeds 0 and 1000
 
 

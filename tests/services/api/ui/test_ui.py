@@ -13,12 +13,11 @@ import httpx
 import pytest
 
 from tests.integration.fixtures.services import ApiServer
-
-from .browser import pixels
+from tests.support.browser import pixels
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 
-SAMPLE = Path(__file__).resolve().parents[2] / "samples" / "tabletop"
+SAMPLE = Path(__file__).resolve().parents[4] / "samples" / "tabletop"
 TASKS = ["get the orange cone", "get the cyan cube"]
 JOB_TIMEOUT_MS = 420_000
 
@@ -105,7 +104,7 @@ def test_ui_flow(api_server: ApiServer, ui_workers, browser, images_zip: Path, t
     # every file stays one click away, folded under the tables
     assert page.is_hidden("#downloads")
     if _shots():
-        page.screenshot(path=str(Path(__file__).resolve().parents[2] / "docs" / "ui-job.png"), full_page=True)
+        page.screenshot(path=str(Path(__file__).resolve().parents[4] / "docs" / "ui-job.png"), full_page=True)
     page.click("#files summary")
     links = page.eval_on_selector_all("#downloads a", "as => as.map(a => a.dataset.path)")
     assert sorted(links) == sorted(a["path"] for a in result["artifacts"])
@@ -143,7 +142,7 @@ def test_ui_flow(api_server: ApiServer, ui_workers, browser, images_zip: Path, t
     )
     if _shots():
         page.screenshot(
-            path=str(Path(__file__).resolve().parents[2] / "docs" / "ui-batch.png"), full_page=True
+            path=str(Path(__file__).resolve().parents[4] / "docs" / "ui-batch.png"), full_page=True
         )
 
     # another tenant sees nothing of it, on the page or through the API the page uses

@@ -22,7 +22,7 @@ from tests.integration.fixtures.services import ApiServer
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 
-SAMPLE = Path(__file__).resolve().parents[2] / "samples" / "tabletop"
+SAMPLE = Path(__file__).resolve().parents[4] / "samples" / "tabletop"
 TASKS = ["get the orange cone"]
 JOB_TIMEOUT_MS = 600_000
 

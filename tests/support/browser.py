@@ -1,4 +1,4 @@
-"""Headless Debian chromium through Playwright, for the browser tests (tests/ui, tests/viewer).
+"""Headless Debian chromium through Playwright, for the browser tests (tests/services/api/ui, tests/core/viewer).
 
 Playwright cannot download its own browsers here, so it drives `/usr/bin/chromium` (apt package
 `chromium`; `.ci/browser.sh` installs it). The flags keep a closed network from stalling start-up

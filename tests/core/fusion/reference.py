@@ -1,4 +1,4 @@
-"""Independent reference formulas for the fusion tests (here and in tests/pipeline).
+"""Independent reference formulas for the fusion tests (here and in tests/core/stages).
 
 Written unlike the implementation on purpose, so a shared mistake is unlikely: visibility projects
 homogeneous points through the 3x4 matrix `K [R | t]` in numpy, where the implementation

@@ -1,7 +1,7 @@
 """`bfields export` and `export_objects` on a small written result (issue 31, item 1): what is
 picked, where the Gaussians come from when no scene folder is known, and the one-line errors.
 The read-back by splat-transform and gsply of a real run's export is in
-tests/pipeline/test_sample_export_compare.py."""
+tests/core/results/test_sample_export_compare.py."""
 
 from __future__ import annotations
 

@@ -3,7 +3,7 @@
 The stage runs the one fusion implementation that a GPU worker runs on `cuda`; here it runs on
 the CPU. The replay reads what the stage read (the perception cache, the rendered median depth)
 and recomputes every output with numpy: the associations by the homogeneous projection of
-tests/fusion/reference.py, OR-phi by its definition, the log-odds as a dense float32 sum (one add
+tests/core/fusion/reference.py, OR-phi by its definition, the log-odds as a dense float32 sum (one add
 per element and frame, as the stage does: equal bit for bit), the best-view margins as a dense
 maximum, and the correlated-views discount by its closed form.
 """

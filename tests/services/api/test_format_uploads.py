@@ -53,7 +53,7 @@ def form(splat: Path, images_zip: bytes, cameras: list[Path] | None = None) -> l
         ("tabletop.spz", "spz"),
         ("tabletop.sog", "sog"),
     ],
-)  # the 1.3 MB GLB with the images passes the test server's 2 MB upload limit; tests/scene reads it
+)  # the 1.3 MB GLB with the images passes the test server's 2 MB upload limit; tests/core/scene reads it
 def test_each_format_uploads(client_a: httpx.Client, images_zip: bytes, name: str, kind: str) -> None:
     resp = client_a.post("/v1/scenes", files=form(FIXTURES / name, images_zip))
     assert resp.status_code == 201, resp.text

@@ -1,4 +1,4 @@
-"""The service-test stack, registered for every directory by the root conftest (tests/service and
+"""The service-test stack, registered for every directory by the root conftest (tests/services and
 the API fuzz tests use it): an API with the small limits of `SERVICE_ENV`, tenant clients, the
 test scene uploaded once, the model profile of the workers, and private stacks for the modules
 whose workers must not share queues with the session's (`private_stack.py` says why).

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Browser tests (tests/ui: the /ui page against the real stack; tests/viewer: `bfields view`) in
+# Browser tests (tests/services/api/ui: the /ui page against the real stack; tests/core/viewer: `bfields view`) in
 # headless Debian chromium driven by Playwright. Installs chromium with apt when it is missing, so
 # the tests run instead of skipping. Usage: .ci/browser.sh [--install-only] (tests need .venv).
 set -euo pipefail
@@ -9,5 +9,5 @@ if [ ! -x /usr/bin/chromium ] && command -v apt-get >/dev/null 2>&1; then
 fi
 echo "browser tests: $(/usr/bin/chromium --version 2>/dev/null || echo 'no /usr/bin/chromium: they will skip')"
 if [ "${1:-}" = "--install-only" ]; then exit 0; fi  # CI: the README's test command runs them
-echo "running: .venv/bin/python -m pytest -q -rs tests/ui tests/viewer"
-.venv/bin/python -m pytest -q -rs tests/ui tests/viewer
+echo "running: .venv/bin/python -m pytest -q -rs tests/services/api/ui tests/core/viewer"
+.venv/bin/python -m pytest -q -rs tests/services/api/ui tests/core/viewer

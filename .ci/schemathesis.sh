@@ -5,4 +5,4 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export PYTHONPATH="$PWD"
-timeout 300 .venv/bin/python -m tests.service.live_stack --max-examples 25 --max-time 150
+timeout 300 .venv/bin/python -m tests.services.support.live_stack --max-examples 25 --max-time 150

@@ -39,7 +39,7 @@ class ReadBy:
     saying who reads it, and everything that needs the answer derives it from here: the cache
     keys (`stage_table`: a cache's parameters are the fields whose `keys` name it), `bfields
     params` and the docs' parameter table (its "read by" column), and the rule that lengths are
-    read only through `scene.scale.SceneLengths` (`length`; tests/pipeline/test_param_readers.py).
+    read only through `scene.scale.SceneLengths` (`length`; tests/core/test_param_readers.py).
 
     stage: the stage that reads it (module docstring of `Reader`).
     why: what the stage reads it for, in two or three words (shown in `bfields params`).
@@ -368,7 +368,7 @@ def default(name: str) -> Any:
 
     Library functions that take a pipeline tunable write `depth_tolerance: float =
     default("depth_tolerance")` instead of a second literal, so the model stays the one place a
-    default is written (tests/pipeline/test_params_single_source.py checks it)."""
+    default is written (tests/core/test_params_single_source.py checks it)."""
     try:
         return PipelineParams.model_fields[name].default
     except KeyError:

@@ -25,7 +25,13 @@ from scipy import ndimage
 from bayesian_fields_core.checks.alignment import assess_alignment, geometric_alignment
 from bayesian_fields_core.params import PipelineParams
 from bayesian_fields_core.scene.loader import load_scene
-from tests.scene_transforms import copy_scene, flip_camera_convention, move_splat, rotation_z, shuffle_images
+from tests.support.scene_transforms import (
+    copy_scene,
+    flip_camera_convention,
+    move_splat,
+    rotation_z,
+    shuffle_images,
+)
 
 
 def degrade_photos(folder: Path, blur: float = 3.0, shift: int = 2) -> Path:

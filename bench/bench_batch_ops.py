@@ -58,7 +58,7 @@ def batch_stack(
     wait); with `api_processes` 2, a second API process on the same records (`stack.other_api`)."""
     from tests.integration.fixtures.s3_server import S3Server
     from tests.integration.fixtures.services import ApiServer
-    from tests.service.private_stack import PrivateStack
+    from tests.services.support.private_stack import PrivateStack
 
     extra = {
         "BFIELDS_MAX_BATCH_JOBS": str(max_batch),
@@ -203,8 +203,8 @@ def main() -> None:
     args = parser.parse_args()
     sizes = [int(s) for s in args.sizes.split(",")]
 
-    from tests.service.private_stack import upload
-    from tests.service.scene_factory import make_scene
+    from tests.services.support.private_stack import upload
+    from tests.services.support.scene_factory import make_scene
 
     out: dict[str, Any] = {"sizes": {}, "repeats": args.repeats, "api_processes": args.api_processes,
                            "bulk_lane": not args.no_bulk_lane}  # fmt: skip

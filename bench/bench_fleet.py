@@ -4,7 +4,7 @@ real stack on this machine.
 Each run starts its own stack (a private redis-server, `rclone serve s3`, one uvicorn API and
 `--gpu-workers` + `--cpu-workers` prefork Celery workers of concurrency 1, as the service's worker
 commands run them), so no run inherits another's perception cache. Scenes are the tiny synthetic
-ones of the service tests (`tests/service/scene_factory.py`); `--max-frames` keeps jobs short.
+ones of the service tests (`tests/services/support/scene_factory.py`); `--max-frames` keeps jobs short.
 
 Runs:
 - **mixed**: tenant A submits a batch of `--a-jobs` (bulk), tenant B one of `--b-jobs` right after,
@@ -48,7 +48,7 @@ import httpx
 import numpy as np
 
 if TYPE_CHECKING:  # the stack's modules are imported where a stack starts; the pure parts need none
-    from tests.service.private_stack import PrivateStack
+    from tests.services.support.private_stack import PrivateStack
 
 Record = dict[str, Any]  # a job record as GET /v1/jobs/{id} returns it
 TERMINAL = ("succeeded", "failed", "cancelled")
@@ -208,8 +208,8 @@ def fleet_stack(workdir: Path, keys: dict[str, str], gpu: int, cpu: int) -> Iter
     fast one (stage locks expire 6 s after a crash, scans every 2 s), so a killed worker's job is
     picked up in seconds rather than the production minute; every other setting is the default."""
     from tests.integration.fixtures.s3_server import S3Server
-    from tests.service.conftest import SERVICE_ENV
-    from tests.service.private_stack import PrivateStack
+    from tests.services.conftest import SERVICE_ENV
+    from tests.services.support.private_stack import PrivateStack
 
     fast_recovery = {k: v for k, v in SERVICE_ENV.items() if "LOCK_TTL" in k or "RECOVERY" in k}
     s3 = S3Server(workdir / "s3").start()
@@ -288,7 +288,7 @@ def run_scenario(
     """Start a stack, upload the scenes, submit `plan` (tenant -> [(scene label, tasks)], one batch
     each), add C's interactive jobs while the batches run, optionally kill a GPU worker half-way, wait
     for every job (or `--timeout-s`), then read the records and result digests."""
-    from tests.service.private_stack import upload
+    from tests.services.support.private_stack import upload
 
     keys = {t: f"key-{t}-bench-{os.getpid()}" for t in TENANTS}
     run = Run(name)
@@ -457,7 +457,7 @@ def main() -> int:
         "--out", type=Path, default=None, help="JSON report (default bench/results/fleet-<time>.json)"
     )
     args = p.parse_args()
-    from tests.service.scene_factory import make_scene
+    from tests.services.support.scene_factory import make_scene
 
     runs = args.runs.split(",")
     started = datetime.now().astimezone()

@@ -63,7 +63,7 @@ def main() -> None:
     seg = ClassicalSegmenter()
     print(f"classical segment  median {median_ms(lambda: seg.segment(image), args.repeat):8.1f} ms")
 
-    from tests.perception.conftest import make_tiny_clip
+    from tests.core.perception.conftest import make_tiny_clip
 
     with tempfile.TemporaryDirectory() as tmp:
         enc = HFClipEncoder(make_tiny_clip(Path(tmp) / "tiny-clip"))

@@ -5,10 +5,10 @@ one definition and any test directory can ask for it by name:
 
 - `tests.integration.fixtures.pytest_fixtures`: the real processes (`redis_url`, `private_redis`,
   `s3_server`, `s3_store`, `test_api_keys`, `service_env`, `celery_workers`, `api_server`);
-- `tests.service.stack_fixtures`: the service-test stack on top of them (`svc_env`, `api`,
+- `tests.services.support.stack_fixtures`: the service-test stack on top of them (`svc_env`, `api`,
   `client_a`, `client_b`, `scene_dir`, `stored_scene`, `model_profile`, `worker_env`, `workers`,
-  `private_stacks`), used by tests/service and the API fuzz tests;
-- `tests.ui.browser`: `browser`, headless chromium for tests/ui and tests/viewer.
+  `private_stacks`), used by tests/services and the API fuzz tests;
+- `tests.support.browser`: `browser`, headless chromium for tests/services/api/ui and tests/core/viewer.
 
 A fixture used by one directory only stays in that directory's conftest. Every test has a default
 timeout (`timeout` in pyproject.toml's `[tool.pytest.ini_options]`); a test that legitimately runs
@@ -26,8 +26,8 @@ from tests.integration.fixtures.report import attach_process_logs
 
 pytest_plugins = [
     "tests.integration.fixtures.pytest_fixtures",
-    "tests.service.stack_fixtures",
-    "tests.ui.browser",
+    "tests.services.support.stack_fixtures",
+    "tests.support.browser",
 ]
 
 

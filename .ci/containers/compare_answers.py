@@ -5,7 +5,7 @@
 LOCAL_OUT is `bfields run samples/tabletop --out LOCAL_OUT`; FETCHED_OUT is `bfields fetch JOB
 --out FETCHED_OUT` of the same scene and tasks submitted to the stack. Passes (exit 0) when every
 task's first answer is the same object (id and Gaussian count) in both, and the stack's answers
-are right on exactly the tasks the README and `tests/pipeline/test_sample_answers.py` say (7 of
+are right on exactly the tasks the README and `tests/core/cli/test_sample_answers.py` say (7 of
 8). Also prints whether the whole ranked lists agree and the largest probability difference, to
 show how close the two runs are beyond what is required.
 """
@@ -19,7 +19,7 @@ REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO))  # the ground-truth check lives with the tests, written once there
 
 from bayesian_fields_core.results.reader import read_result  # noqa: E402
-from tests.pipeline.test_sample_answers import RIGHT_TODAY, first_answers_right  # noqa: E402
+from tests.core.cli.test_sample_answers import RIGHT_TODAY, first_answers_right  # noqa: E402
 
 
 def main(local_out: Path, fetched_out: Path) -> int:

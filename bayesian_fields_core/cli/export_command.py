@@ -10,8 +10,9 @@ from pathlib import Path
 from bayesian_fields_core.cli.arguments import int_at_least
 
 FORMAT_NAMES = "ply, compressed-ply, spz, splat, glb, sog"
-"""What --format accepts, for the help text (`scene.formats.write.EXPORT_FORMATS` is the source;
-this module does not import it so that `bfields --help` stays light; a test keeps them equal)."""
+"""What --format accepts, for the help text. The source is the format table (`scene.formats.registry`,
+each row's `export`, listed by `formats.write.EXPORT_FORMATS`); this module does not import it so
+that `bfields --help` stays light (the table imports numpy); a test keeps them equal."""
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

@@ -11,7 +11,7 @@ What applies to which verb (the verbs only take what they can honour): `run` tak
 lists); `eval` the parameters, under every evaluated row (its tasks come with the ground truth).
 
 The parser only: nothing here imports the pipeline, pydantic or a YAML reader at import time,
-so `bfields --help` and argument errors stay fast (`tests/pipeline/test_cli_speed.py`).
+so `bfields --help` and argument errors stay fast (`tests/core/cli/test_cli_parser.py`).
 """
 
 from __future__ import annotations

@@ -8,7 +8,7 @@ exit with status 2, never a traceback.
 
 Building the parser imports no verb's machinery (torch, scipy, the pipeline): each verb imports
 what it needs when it runs, so `bfields --help` and argument errors are quick
-(`tests/pipeline/test_cli_speed.py`).
+(`tests/core/cli/test_cli_parser.py`).
 """
 
 from __future__ import annotations

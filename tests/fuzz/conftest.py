@@ -4,7 +4,7 @@
 `pytest -q` run takes a 1 % sample (at least 5 cases a test) so the suite stays quick; `.ci/fuzz.sh`
 sets it to 1 for the full >= 10,000-case run. Every executed case is counted and the totals are
 printed at the end of the session, per test and overall. The API fuzz tests' real-stack fixtures
-(`api`, `scene_dir`, `stored_scene`) come from `tests/service/stack_fixtures.py` through the root conftest.
+(`api`, `scene_dir`, `stored_scene`) come from `tests/services/support/stack_fixtures.py` through the root conftest.
 """
 
 from __future__ import annotations

@@ -1,11 +1,11 @@
 """Fuzz every splat reader (issue 30, item 2): structure-aware cases built from the
 splat-transform fixtures, one target per reader. The property is the corpus's
-(`tests/scene/reader_check.check_splat_file`): the file loads (and loads whole), or the reader
+(`tests/core/scene/reader_check.check_splat_file`): the file loads (and loads whole), or the reader
 raises an InputError naming the file, within the memory bound; never any other exception. Every
 reader has a target: glTF / GLB, SOG, SPZ, compressed PLY, RGB PLY, antimatter `.splat` (the
 INRIA PLY reader's is in `test_fuzz_library`), plus bytes flipped in every splat-transform fixture.
 
-Why random on top of the deterministic corpus (`tests/scene/test_reader_corpus.py`): the corpus
+Why random on top of the deterministic corpus (`tests/core/scene/test_reader_corpus.py`): the corpus
 changes one field at a time to a fixed list of values; these change several at once, to values
 hypothesis draws and shrinks, and flip bytes the field-aware mutants never touch.
 Budgets (full CI run, `BFIELDS_FUZZ_SCALE=1`) are the numbers passed to `budget`.
@@ -23,8 +23,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from tests.scene.reader_check import check_splat_file
-from tests.scene.splat_mutations import (
+from tests.core.scene.reader_check import check_splat_file
+from tests.core.scene.splat_mutations import (
     FIXTURES,
     MISSING,
     glb,
@@ -143,7 +143,7 @@ def _written(kind: str) -> bytes:
     """A small splat written by the project's own writer of that format (no fixture of it is
     made by splat-transform): the antimatter `.splat` rows, the RGB-instead-of-SH PLY."""
     from bayesian_fields_core.scene.formats.antimatter import write_antimatter
-    from tests.scene.format_writers import write_rgb_ply
+    from tests.core.scene.format_writers import write_rgb_ply
 
     with tempfile.TemporaryDirectory(prefix="bf-fuzz-src-") as tmp:
         path = Path(tmp) / f"source.{kind}"

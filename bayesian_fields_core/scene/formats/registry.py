@@ -3,8 +3,9 @@
 The loader (`formats.read_splat`), the layout detection (`scene.layout`: which files of a folder
 may be the splat), the service's upload check (`formats.check_upload_name`, the scenes route's
 OpenAPI description), the error messages that list what we read and the docs' format table
-(`bfields` docs build, `markdown_table`) all read `SPLAT_FORMATS`. Adding a format is adding a
-row here and its reader module beside this one, as adding a model kind is a row of
+(`bfields` docs build, `markdown_table`) and the export (`formats.write`, `bfields export
+--format`: a row's `export`) all read `SPLAT_FORMATS`. Adding a format is adding a row here and
+its reader (and writer) module beside this one, as adding a model kind is a row of
 `perception/kinds.py`.
 
 A row names its functions by import path (``module:function``), imported on first use, so
@@ -21,8 +22,41 @@ from typing import Any
 
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.scene.formats.common import convert_command
+from bayesian_fields_core.scene.types import Gaussians
 
 FORMATS_MODULE = "bayesian_fields_core.scene.formats"
+
+
+def load_function(target: str) -> Callable[..., Any]:
+    """The function named by ``module:function``, imported now (a row's functions load on use)."""
+    module, _, attribute = target.partition(":")
+    return getattr(importlib.import_module(module), attribute)
+
+
+@dataclass(frozen=True)
+class SplatExport:
+    """How `bfields export` writes a format (`formats.write.write_splat`).
+
+    name: the `--format` value ('compressed-ply'), which is not always the row's name.
+    suffix: the file name ending an export gets by default ('.compressed.ply').
+    description: what the file is, said where the formats are listed.
+    writer: ``module:function`` of `(path, gaussians)`, Gaussians in a 3DGS PLY's frame and
+        parameterisation (a writer turns them into its format's axes).
+    position: where the format stands in `--format`'s list and messages (ply first: the default).
+    degree_zero_only: the format holds the degree-0 colour only (the export warns when it drops
+        higher SH bands).
+    """
+
+    name: str
+    suffix: str
+    description: str
+    writer: str
+    position: int
+    degree_zero_only: bool = False
+
+    def write(self, path: Path, gaussians: Gaussians) -> None:
+        """Write `gaussians` to `path` with this format's writer."""
+        load_function(self.writer)(path, gaussians)
 
 
 @dataclass(frozen=True)
@@ -44,8 +78,7 @@ class SplatFormat:
         Neither `source` nor `reader`: a known format we refuse, naming the converter.
     self_checked: the reader refuses non-finite values and degenerate splats itself, with its own
         messages (the INRIA PLY's); every other reader's result is checked by `read_splat`.
-    writer: ``module:function`` of `(path, gaussians)` where the project writes the format
-        itself (`bfields export` writes compressed PLY and SPZ through gsply: `formats.write`).
+    export: how `bfields export` writes the format (`SplatExport`); None: it is not written.
     upload_refusal: why an upload may not carry a format we read, and what to do instead (a
         checkpoint is a pickle stream: CLI only); None: an upload may carry it.
     notes: what the reader does beyond decoding (axes, bands dropped), for the docs' table.
@@ -60,7 +93,7 @@ class SplatFormat:
     source: str | None = None
     reader: str | None = None
     self_checked: bool = False
-    writer: str | None = None
+    export: SplatExport | None = None
     upload_refusal: str | None = None
     notes: str = ""
 
@@ -68,6 +101,11 @@ class SplatFormat:
     def upload(self) -> bool:
         """An upload may carry it: we read it and the row names no reason to refuse it."""
         return self.readable and self.upload_refusal is None
+
+    @property
+    def writer(self) -> str | None:
+        """``module:function`` of the export's writer (`function('writer')`); None: not written."""
+        return self.export.writer if self.export else None
 
     @property
     def readable(self) -> bool:
@@ -84,8 +122,7 @@ class SplatFormat:
         target = getattr(self, field)
         if target is None:
             raise ValueError(f"splat format {self.name!r} has no {field}")
-        module, _, attribute = target.partition(":")
-        return getattr(importlib.import_module(module), attribute)
+        return load_function(target)
 
 
 SPLAT_FORMATS: tuple[SplatFormat, ...] = (
@@ -95,6 +132,13 @@ SPLAT_FORMATS: tuple[SplatFormat, ...] = (
         suffixes=(".ply",),
         sniff=f"{FORMATS_MODULE}.sniff:is_compressed_ply_file",
         source=f"{FORMATS_MODULE}.compressed_ply:open_compressed_ply",
+        export=SplatExport(
+            "compressed-ply",
+            ".compressed.ply",
+            "PlayCanvas compressed PLY (gsply)",
+            f"{FORMATS_MODULE}.gsply_write:write_compressed_ply",
+            position=2,
+        ),
         notes="chunked, quantised; told from an INRIA PLY by its `packed_*` properties",
     ),
     SplatFormat(
@@ -111,7 +155,13 @@ SPLAT_FORMATS: tuple[SplatFormat, ...] = (
         suffixes=(".ply",),
         reader="bayesian_fields_core.scene.ply:read_ply",
         self_checked=True,
-        writer="bayesian_fields_core.scene.ply:write_ply",
+        export=SplatExport(
+            "ply",
+            ".ply",
+            "3DGS PLY (INRIA layout, every attribute of the input splat)",
+            "bayesian_fields_core.scene.ply:write_ply",
+            position=1,
+        ),
         notes="the reference layout; every other format is turned into it",
     ),
     SplatFormat(
@@ -119,6 +169,9 @@ SPLAT_FORMATS: tuple[SplatFormat, ...] = (
         "Niantic SPZ (`.spz`, v1-4)",
         suffixes=(".spz",),
         source=f"{FORMATS_MODULE}.spz:open_spz",
+        export=SplatExport(
+            "spz", ".spz", "Niantic SPZ v4 (gsply)", f"{FORMATS_MODULE}.gsply_write:write_spz", position=3
+        ),
         notes="its right-up-back axes turned back to the PLY's",
     ),
     SplatFormat(
@@ -128,7 +181,14 @@ SPLAT_FORMATS: tuple[SplatFormat, ...] = (
         file_names=("meta.json",),
         folder=True,
         source=f"{FORMATS_MODULE}.sog:open_sog",
-        writer=f"{FORMATS_MODULE}.sog_write:write_sog",
+        export=SplatExport(
+            "sog",
+            ".sog",
+            "PlayCanvas SOG v2 (degree-0 colour only)",
+            f"{FORMATS_MODULE}.sog_write:write_sog",
+            position=6,
+            degree_zero_only=True,
+        ),
         notes="SH bands above those it stores are dropped",
     ),
     SplatFormat(
@@ -136,7 +196,14 @@ SPLAT_FORMATS: tuple[SplatFormat, ...] = (
         "antimatter15 `.splat`",
         suffixes=(".splat",),
         source=f"{FORMATS_MODULE}.antimatter:open_antimatter",
-        writer=f"{FORMATS_MODULE}.antimatter:write_antimatter",
+        export=SplatExport(
+            "splat",
+            ".splat",
+            "antimatter15 .splat (degree-0 colour only)",
+            f"{FORMATS_MODULE}.antimatter:write_antimatter",
+            position=4,
+            degree_zero_only=True,
+        ),
         notes="degree-0 colour only",
     ),
     SplatFormat(
@@ -144,7 +211,13 @@ SPLAT_FORMATS: tuple[SplatFormat, ...] = (
         "glTF with `KHR_gaussian_splatting` (`.glb`, `.gltf`)",
         suffixes=(".glb", ".gltf"),
         source=f"{FORMATS_MODULE}.gltf:open_gltf",
-        writer=f"{FORMATS_MODULE}.gltf_write:write_glb",
+        export=SplatExport(
+            "glb",
+            ".glb",
+            "binary glTF with KHR_gaussian_splatting",
+            f"{FORMATS_MODULE}.gltf_write:write_glb",
+            position=5,
+        ),
         notes="the JSON is validated field by field",
     ),
     SplatFormat(
@@ -178,6 +251,11 @@ def splat_format_named(name: str) -> SplatFormat:
         if fmt.name == name:
             return fmt
     raise KeyError(f"unknown splat format {name!r}; known: {', '.join(f.name for f in SPLAT_FORMATS)}")
+
+
+def export_formats() -> tuple[SplatExport, ...]:
+    """What `bfields export --format` writes, in the order its help and messages list them."""
+    return tuple(sorted((fmt.export for fmt in SPLAT_FORMATS if fmt.export), key=lambda e: e.position))
 
 
 def is_splat_candidate(path: Path) -> bool:
@@ -268,7 +346,7 @@ def markdown_table() -> str:
             fmt.title,
             names,
             "yes" if fmt.readable else "no (refused, names the converter)",
-            "yes" if fmt.writer else "",
+            "yes" if fmt.export else "",
             "yes" if fmt.upload else "no",
             fmt.notes,
         )

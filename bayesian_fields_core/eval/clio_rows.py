@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 #: Clio's `top_k_tasks` and `cumulative` in its evaluation configuration.
-CLIO_TOP_K = 2
+CLIO_TOP_TASKS = 2
 CLIO_CUMULATIVE = True
 #: Where Clio's sims_thres (0.23) sits between the paper's mu0 (0.20) and mu1 (0.27).
 CLIO_NULL_POSITION = (0.23 - 0.20) / (0.27 - 0.20)
@@ -38,7 +38,11 @@ def clio_null_score(mu0: float, mu1: float) -> float:
 
 
 def clio_conditionals(
-    cosines: np.ndarray, null_score: float, *, top_k: int = CLIO_TOP_K, cumulative: bool = CLIO_CUMULATIVE
+    cosines: np.ndarray,
+    null_score: float,
+    *,
+    top_tasks: int = CLIO_TOP_TASKS,
+    cumulative: bool = CLIO_CUMULATIVE,
 ) -> np.ndarray:
     """p(y|x) per primitive from its task cosines, the null task last (the project's order).
 
@@ -50,7 +54,7 @@ def clio_conditionals(
     scores = np.concatenate(
         [np.clip(cosines, 0.0, None), np.full((n_prim, 1), null_score)], axis=1
     )  # (P, T + 1)
-    k = min(n_tasks + 1, top_k)
+    k = min(n_tasks + 1, top_tasks)
     order = np.argsort(-scores, axis=1, kind="stable")[:, :k]  # (P, k) best first
     weights = np.arange(k, 0, -1, dtype=np.float64) if cumulative else np.ones(k)  # (k,)
     rows = np.full(scores.shape, DROPPED)

@@ -67,13 +67,6 @@ SCENE_STATISTICS = Path(__file__).with_name("tiny_clip_scene_statistics.json")
 scenes tabletop-a and tabletop-b (all frames, absent-task negatives). For another encoder the
 profile's own calibration is the source (fit it with `bfields calibrate --scene`)."""
 
-REALISTIC_CALIBRATION = Path(__file__).with_name("tiny_clip_realistic_calibration.json")
-"""`bfields calibrate --scene --regime realistic` on the same public scenes (tabletop-a, -b): the
-realistic regime's own 'not found' threshold (`answer_min_peak`, a cosine in that regime's
-range) and its fitted likelihoods (which fusion does not use: it uses the paper's, the target).
-Read only when its model id is the wrapped encoder's, so a changed score map or encoder never
-picks up a threshold fitted for another."""
-
 REGIME_SEED = 33
 """Seeds the realistic regime's per-view noise (with each mask embedding's bytes)."""
 
@@ -200,20 +193,14 @@ class RegimeModels(Models):
 
     @property
     def calibration(self) -> Calibration | None:
-        """The target likelihoods, recorded for the wrapped encoder, with the regime's own fitted
-        'not found' threshold (`REALISTIC_CALIBRATION`) when it was fitted for this very encoder;
-        otherwise none, and the pipeline's fallback threshold applies."""
+        """The target likelihoods, recorded for the wrapped encoder, with no fitted 'not found'
+        threshold: `bfields calibrate --scene --regime realistic` on the public scenes the
+        statistics come from finds none to fit (their one absent task with an answer peaks above
+        a present task's answer), so the pipeline's distribution threshold applies
+        (docs/research/eval-world-decision.md, "The 'not found' threshold")."""
         if self._regime_calibration is None:
-            model_id = str(self.encoder.model_id)
-            fitted = load_calibration(REALISTIC_CALIBRATION) if REALISTIC_CALIBRATION.is_file() else None
-            own = fitted if fitted is not None and fitted.model_id == model_id else None
             self._regime_calibration = Calibration(
-                model_id=model_id,
-                mu0=self.target.mu0,
-                mu1=self.target.mu1,
-                s=self.target.s,
-                answer_min_peak=own.answer_min_peak if own else None,
-                not_found_fit=own.not_found_fit if own else None,
+                model_id=str(self.encoder.model_id), mu0=self.target.mu0, mu1=self.target.mu1, s=self.target.s
             )
         return self._regime_calibration
 

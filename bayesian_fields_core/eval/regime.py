@@ -20,7 +20,7 @@ warrant (a relevant mask at the scene mean 0.52 counts about 9 nats).
   with scale and offset (`ScoreMap.between`) taking the encoder's scene statistics onto the
   paper's mu0 / mu1, and the paper's likelihoods used for fusion. The per-view evidence then has
   the paper's distribution, the scores lie in a real CLIP's small range (about 0.1 to 0.4, which
-  matters to the Clio-style baseline's raw-cosine normalisation), and the segment-to-text ranking
+  matters to the Clio-style baseline's fixed null score, `clio_rows.py`), and the segment-to-text ranking
   is the tiny CLIP's (the map is increasing). `noise_sd` makes up the spread when an encoder's
   scene d' exceeds the target's; for the tiny CLIP (1.9 < 2.0) it is 0, and the fitted s comes
   out 0.036 instead of 0.035.

@@ -29,15 +29,15 @@ from tests.scene.trainer_layouts import (
     splatfacto_output,
 )
 
-from .conftest import counting_models, make_ctx
+from .conftest import counting_models, make_job
 
 # Slow (the inner loop leaves it out): its fixtures took 5.6 s to set up here (--durations).
 pytestmark = pytest.mark.slow
 
 
 def _run(scene: Path, root: Path, profile: dict[str, Any], **kwargs: Any):
-    ctx = make_ctx(scene, root / "job", root / "cache", counting_models(profile), **kwargs)
-    run_job(ctx)
+    job = make_job(scene, root / "job", root / "cache", counting_models(profile), **kwargs)
+    run_job(job)
     return read_result(LocalStore(root / "job"), "job/result/")
 
 

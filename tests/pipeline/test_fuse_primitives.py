@@ -38,12 +38,12 @@ def test_fuse_stores_the_primitives_that_replaying_the_frames_gives(
 ) -> None:
     job = _fused_job(scene_dir, profile, tmp_path, PipelineParams(fusion=fusion))
     stored = get_arrays(job.spec.store, job.spec.key(PRIMITIVES_KEY))["primitive_ids"]
-    replayed = build_primitives(job)
+    replayed = build_primitives(job.spec, job.scene, job.runner)
     assert len(np.unique(replayed[replayed >= 0])) > 1
     np.testing.assert_array_equal(stored, replayed)
-    np.testing.assert_array_equal(load_primitives(job), replayed)
+    np.testing.assert_array_equal(load_primitives(job.spec, job.scene, job.runner), replayed)
     job.spec.store.delete(job.spec.key(PRIMITIVES_KEY))  # a job fused before fuse stored them
-    np.testing.assert_array_equal(load_primitives(job), replayed)
+    np.testing.assert_array_equal(load_primitives(job.spec, job.scene, job.runner), replayed)
 
 
 @pytest.mark.slow
@@ -58,9 +58,11 @@ def test_fuse_stores_the_view_counts_that_replaying_the_frames_gives(
     stored = fused["view_counts"]
     assert stored.shape == (len(job.scene.loaded.gaussians),) and stored.max() > 1
     older = {k: v for k, v in fused.items() if k != "view_counts"}
-    np.testing.assert_array_equal(view_counts(job, older), stored)
+    np.testing.assert_array_equal(view_counts(job.spec, job.scene, job.runner, older), stored)
     # an unseen Gaussian has no accepted view; a seen one at most one per fused frame
     frames = len(get_arrays(job.spec.store, job.spec.key(ACCEPTED_KEY))["frame_indices"])
     assert stored.min() == 0 and stored.max() <= frames
     fused_job = _job(scene_dir, profile, tmp_path, PipelineParams(aib_conditionals="fused"))
-    assert view_counts(fused_job, fused) is None  # the paper's conditionals read no counts
+    assert (
+        view_counts(fused_job.spec, fused_job.scene, fused_job.runner, fused) is None
+    )  # the paper's conditionals read no counts

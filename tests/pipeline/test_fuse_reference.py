@@ -39,8 +39,8 @@ def _replay(job: Any) -> dict[str, np.ndarray]:
     scene = job.scene.loaded
     means = scene.gaussians.means
     n, t = len(means), len(job.spec.tasks)
-    text = job.runner.models.encoder.encode_texts(job.spec.tasks).astype(np.float32)
-    lik = likelihood_params(job)
+    text = job.runner.models.encoder.encode_texts(list(job.spec.tasks)).astype(np.float32)
+    lik = likelihood_params(job.spec.params, job.runner.models)
     lengths = job.scene.lengths  # the run's lengths in scene units (scene scale x fractions)
     renderer = GaussianRenderer(scene.gaussians, near_plane=lengths.render_near)
     logodds = np.full((n, t), np.float32(logit(job.spec.params.prior)), dtype=np.float32)
@@ -135,7 +135,7 @@ def test_fusion_runs_on_the_render_device_unless_told_the_host(
         job = make_job(
             scene_dir, tmp_path / "job", tmp_path / "cache", models, params=PipelineParams(**params)
         )
-        return fusion_device(job)
+        return fusion_device(job.spec.params, job.runner)
 
     assert device() == torch.device("cpu")  # the CLI renders on the CPU unless told otherwise
     assert device(device="cuda") == torch.device("cuda")  # the decision only; no CUDA is touched

@@ -1,6 +1,6 @@
 """CPU figures of the real-size perception models, and a whole-scene estimate from them.
 
-What it measures, each through the user's code path (`pipeline.load_models` on the reference
+What it measures, each through the user's code path (`perception.models.load_models` on the reference
 profiles that `scripts/make_reference_models.py` writes, i.e. the perception registry; the
 segmenter's `segment`, `perception.crops.mask_crops` and the perceive stage's `CropBatcher` with
 the configured `crop_batch_size`, so preprocessing and batching are included):
@@ -56,11 +56,11 @@ from PIL import Image  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from bayesian_fields_core.job.pipeline import load_models  # noqa: E402
 from bayesian_fields_core.params import PipelineParams  # noqa: E402
 from bayesian_fields_core.perception.batching import CropBatcher  # noqa: E402
 from bayesian_fields_core.perception.crops import mask_crops  # noqa: E402
 from bayesian_fields_core.perception.masks import exclusive_labels  # noqa: E402
+from bayesian_fields_core.perception.models import load_models  # noqa: E402
 
 WIDTH, HEIGHT = 640, 480
 PROFILES = {  # profile file -> (segmenter label, encoder label), as make_reference_models writes them

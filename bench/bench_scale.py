@@ -7,7 +7,7 @@ primitives < 1 s.
 
 What is real and what is synthetic:
 - the stages are the pipeline's own `run_stage("fuse")` and `run_stage("cluster")` on a
-  `JobContext` over a `LocalStore`, reading a real scene folder (binary .ply + transforms.json);
+  job built by `job.factories.local_job` (local stores), reading a real scene folder (binary .ply + transforms.json);
 - the perception cache they read is synthetic: an ideal segmenter over the Gaussian centres
   z-buffered into each view (a pixel shows the part of its nearest centre): parts are the 60
   blobs and a 10 x 10 grid of floor cells, ~100 masks per frame, with granularity varying from
@@ -55,8 +55,9 @@ from PIL import Image
 
 from bayesian_fields_core.geometry.transforms import look_at, pinhole
 from bayesian_fields_core.job.content_keys import perception_input_digest
-from bayesian_fields_core.job.context import JobContext
+from bayesian_fields_core.job.factories import Job, local_job
 from bayesian_fields_core.job.pipeline import run_stage
+from bayesian_fields_core.job.runner import ProgressFn, no_progress
 from bayesian_fields_core.job.store import LocalStore, put_arrays
 from bayesian_fields_core.params import PipelineParams
 from bayesian_fields_core.results.reader import read_result
@@ -256,7 +257,7 @@ def setup(args: argparse.Namespace, work: Path) -> None:
         labels, mask_task = frame_labels(parts, part_task, nearest, rng)
         put_arrays(
             store,
-            f"{prefix}{perception_input_digest(frame)}.npz",  # JobContext.perception_key's rule
+            f"{prefix}{perception_input_digest(frame)}.npz",  # CacheKeys.perception_key's rule
             labels=upsample(labels, frame).astype(smallest_label_dtype(len(mask_task))),
             embeddings=mask_embeddings(mask_task, basis, rng),
         )
@@ -294,7 +295,7 @@ class BenchModels:
     fingerprint = FINGERPRINT
     profile_name = "bench"
     calibration = None
-    render_device = "cpu"  # where fuse renders depth when the job names no device
+    device = None  # no forced device: fuse renders on the job's device, else on the CPU
 
     def __init__(self, encoder: FixedTextEncoder) -> None:
         self.encoder = encoder
@@ -302,16 +303,20 @@ class BenchModels:
 
 
 def perception_prefix() -> str:
-    """The context's perception prefix for the stand-in models (same rule as `JobContext`)."""
-    ctx = JobContext(
-        store=LocalStore(tempfile.gettempdir()),
+    """The job's perception prefix for the stand-in models (the rule of `CacheKeys`)."""
+    tmp = Path(tempfile.gettempdir())
+    models = BenchModels(FixedTextEncoder(["x"], np.zeros((1, EMBED_DIM))))
+    job = local_job(
+        tmp,
+        tmp,
+        tmp,
+        ["x"],
+        PipelineParams(),
+        models,  # type: ignore[arg-type]
         job_prefix="x/",
-        tasks=["x"],
-        params=PipelineParams(),
-        models=BenchModels(FixedTextEncoder(["x"], np.zeros((1, EMBED_DIM)))),  # type: ignore[arg-type]
-        scene_prefix=SCENE_PREFIX,
+        cache_prefix=SCENE_PREFIX + "cache/",
     )
-    return ctx.perception_prefix
+    return job.scene.keys.perception_prefix
 
 
 # --------------------------------------------------------------------------------------------
@@ -339,18 +344,18 @@ def output_params(args: argparse.Namespace) -> PipelineParams:
     return PipelineParams(depth_source="input" if args.depth == "synthetic" else "median", **extra)
 
 
-def bench_context(args: argparse.Namespace, work: Path) -> JobContext:
+def bench_job(args: argparse.Namespace, work: Path, progress: ProgressFn = no_progress) -> Job:
     tasks = task_texts(args.tasks)
     encoder = FixedTextEncoder(tasks, np.load(work / "texts.npy", allow_pickle=False))
-    return JobContext(
-        store=LocalStore(work / "job"),
-        job_prefix="",
-        tasks=tasks,
-        params=output_params(args),
-        models=BenchModels(encoder),  # type: ignore[arg-type]
-        scene_store=LocalStore(work / "cache"),
-        scene_prefix=SCENE_PREFIX,
-        scene_dir=work / "scene",
+    return local_job(
+        work / "scene",
+        work / "job",
+        work / "cache",
+        tasks,
+        output_params(args),
+        BenchModels(encoder),  # type: ignore[arg-type]
+        cache_prefix=SCENE_PREFIX + "cache/",
+        progress=progress,
     )
 
 
@@ -358,22 +363,23 @@ def measure(args: argparse.Namespace, work: Path) -> None:
     shutil.rmtree(work / "job", ignore_errors=True)
     for stale in list((work / "cache").rglob("visibility")):  # fuse computes visibility afresh
         shutil.rmtree(stale)
-    ctx = bench_context(args, work)
-    tasks = ctx.tasks
     ticks: list[float] = []  # fuse reports progress once per frame: per-frame times for medians
-    ctx.progress = lambda stage, fraction: ticks.append(time.perf_counter()) if stage == "fuse" else None
+    job = bench_job(
+        args, work, lambda stage, fraction: ticks.append(time.perf_counter()) if stage == "fuse" else None
+    )
+    tasks = job.spec.tasks
     rss0 = peak_rss_mb()
-    scene, load_s, _ = timed(ctx.scene)
+    scene, load_s, _ = timed(lambda: job.scene.loaded)
     rss_load = peak_rss_mb()
     fuse_start = time.perf_counter()
-    fuse, fuse_s, fuse_cpu = timed(lambda: run_stage("fuse", ctx, force=True))
+    fuse, fuse_s, fuse_cpu = timed(lambda: run_stage("fuse", job, force=True))
     per_frame = np.diff([fuse_start, *ticks])
     rss_fuse = peak_rss_mb()
-    cluster, cluster_s, cluster_cpu = timed(lambda: run_stage("cluster", ctx, force=True))
+    cluster, cluster_s, cluster_cpu = timed(lambda: run_stage("cluster", job, force=True))
     rss_cluster = peak_rss_mb()
 
     n_frames = fuse["frames"]
-    primitive_ids = read_result(ctx.store, "result/").primitive_ids
+    primitive_ids = read_result(job.spec.store, "result/").primitive_ids
     counts = cluster["counts"]
     print(
         f"scale benchmark: {len(scene.gaussians):,} Gaussians, {n_frames} frames at "
@@ -450,13 +456,13 @@ def print_steps(reports: list[dict[str, Any]]) -> None:
 def measure_cluster(args: argparse.Namespace, work: Path) -> None:
     """`--cluster-only`: rerun the cluster stage `--repeats` times on the fused state a previous
     `--keep` run left in the work folder; per-step medians."""
-    ctx = bench_context(args, work)
+    job = bench_job(args, work)
     if not (work / "job").is_dir():
         raise SystemExit(f"{work}/job has no fused state: run once without --cluster-only, with --keep")
-    ctx.scene()  # loading the scene is not the cluster stage's cost (it is cached per process)
+    _ = job.scene.loaded  # loading the scene is not the cluster stage's cost (it is cached per process)
     reports, walls, cpus = [], [], []
     for _ in range(args.repeats):
-        report, wall, cpu = timed(lambda: run_stage("cluster", ctx, force=True))
+        report, wall, cpu = timed(lambda: run_stage("cluster", job, force=True))
         reports.append(report)
         walls.append(wall)
         cpus.append(cpu)
@@ -467,9 +473,9 @@ def measure_cluster(args: argparse.Namespace, work: Path) -> None:
     )
     print_steps(reports)
     print("    counts: " + ", ".join(f"{k} {v:,}" for k, v in counts.items()))
-    ids = read_result(ctx.store, "result/")
+    ids = read_result(job.spec.store, "result/")
     digest = hashlib.sha256(np.ascontiguousarray(ids.object_ids, dtype=np.int64).tobytes()).hexdigest()[:16]
-    chosen = [[o.object_id for o in ids.selections[t]] for t in ctx.tasks]
+    chosen = [[o.object_id for o in ids.selections[t]] for t in job.spec.tasks]
     print(
         f"    partition digest {digest}; selections digest {hashlib.sha256(repr(chosen).encode()).hexdigest()[:16]}"
     )

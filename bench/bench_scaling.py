@@ -47,8 +47,9 @@ import bench_scale as bs  # noqa: E402 - sibling benchmark module, not a package
 
 from bayesian_fields_core.job.artifacts import FUSION_KEY  # noqa: E402
 from bayesian_fields_core.job.content_keys import perception_input_digest  # noqa: E402
-from bayesian_fields_core.job.context import JobContext  # noqa: E402
+from bayesian_fields_core.job.factories import Job, local_job  # noqa: E402
 from bayesian_fields_core.job.pipeline import run_stage  # noqa: E402
+from bayesian_fields_core.job.runner import ProgressFn  # noqa: E402
 from bayesian_fields_core.job.store import LocalStore, put_arrays  # noqa: E402
 from bayesian_fields_core.params import PipelineParams  # noqa: E402
 from bayesian_fields_core.scene.nerfstudio import write_transforms  # noqa: E402
@@ -122,38 +123,41 @@ def cpu_seconds() -> float:
     return usage.ru_utime + usage.ru_stime
 
 
-def context(work: Path, job: Path, n_tasks: int, n_frames: int) -> JobContext:
+def bench_job(work: Path, job: Path, n_tasks: int, n_frames: int, progress: ProgressFn) -> Job:
     tasks = bs.task_texts(n_tasks)
     encoder = bs.FixedTextEncoder(tasks, np.load(work / f"texts-{n_tasks}.npy", allow_pickle=False))
     params = PipelineParams(
         depth_source="input", export_ply=False, previews=False, max_frames=n_frames, fusion_backend="cpu"
     )
-    return JobContext(
-        store=LocalStore(job),
-        job_prefix="",
-        tasks=tasks,
-        params=params,
-        models=bs.BenchModels(encoder),  # type: ignore[arg-type]
-        scene_store=LocalStore(work / f"cache-{n_tasks}"),
-        scene_prefix=bs.SCENE_PREFIX,
-        scene_dir=work / "scene",
+    return local_job(
+        work / "scene",
+        job,
+        work / f"cache-{n_tasks}",
+        tasks,
+        params,
+        bs.BenchModels(encoder),  # type: ignore[arg-type]
+        cache_prefix=bs.SCENE_PREFIX + "cache/",
+        progress=progress,
     )
 
 
 def child(work: Path, job: Path, stage: str, n_tasks: int, n_frames: int) -> dict:
     """Run one stage; return its figures (printed as JSON by the child)."""
-    ctx = context(work, job, n_tasks, n_frames)
+    ticks: list[tuple[float, float]] = []  # (wall, process CPU) at each progress tick of the stage
+    bench = bench_job(
+        work,
+        job,
+        n_tasks,
+        n_frames,
+        lambda name, fraction: ticks.append((time.perf_counter(), cpu_seconds())) if name == stage else None,
+    )
     if stage == "fuse":  # visibility computed afresh, as on a scene's first run
         for stale in list((work / f"cache-{n_tasks}").rglob("visibility")):
             shutil.rmtree(stale)
-    scene = ctx.scene()
+    scene = bench.scene.loaded
     rss_load = peak_rss_mib()
-    ticks: list[tuple[float, float]] = []  # (wall, process CPU) at each progress tick of the stage
-    ctx.progress = lambda name, fraction: (
-        ticks.append((time.perf_counter(), cpu_seconds())) if name == stage else None
-    )
     cpu0, t0 = cpu_seconds(), time.perf_counter()
-    report = run_stage(stage, ctx, force=True)
+    report = run_stage(stage, bench, force=True)
     wall, cpu = time.perf_counter() - t0, cpu_seconds() - cpu0
     out = {
         "stage": stage,

@@ -38,10 +38,10 @@ import bench_scale  # noqa: E402 - sibling benchmark module, not a package
 import gpu_check_fidelity  # noqa: E402 - sibling module, not a package
 
 from bayesian_fields_core.fusion.state import FusionSettings  # noqa: E402
-from bayesian_fields_core.job.context import JobContext  # noqa: E402
-from bayesian_fields_core.job.pipeline import load_models, run_stage  # noqa: E402
-from bayesian_fields_core.job.store import LocalStore  # noqa: E402
+from bayesian_fields_core.job.factories import Job, local_job  # noqa: E402
+from bayesian_fields_core.job.pipeline import run_stage  # noqa: E402
 from bayesian_fields_core.params import PipelineParams  # noqa: E402
+from bayesian_fields_core.perception.models import load_models  # noqa: E402
 from bayesian_fields_core.render import GaussianRenderer  # noqa: E402
 from bayesian_fields_core.scene.loader import load_scene  # noqa: E402
 from bayesian_fields_core.stages.fuse import frame_scores, likelihood_params  # noqa: E402
@@ -97,7 +97,7 @@ def reference_profile(models: Path, gpu: bool, device: str) -> dict:
     return prof
 
 
-def renderer_fidelity(ctx: JobContext, scene, device: str, gpu: bool, n: int) -> dict:  # noqa: ANN001
+def renderer_fidelity(job: Job, scene, device: str, gpu: bool, n: int) -> dict:  # noqa: ANN001
     """Our torch rasteriser against gsplat on the first `n` frames of the fuse job (its masks and
     scores); on the CPU, our rasteriser on both sides. Prints the figures and returns them."""
     ours = GaussianRenderer(scene.gaussians, device=device, backend="torch")
@@ -108,24 +108,25 @@ def renderer_fidelity(ctx: JobContext, scene, device: str, gpu: bool, n: int) ->
         other = ours
         print(f"  fidelity: gsplat comparison skipped (no CUDA in the CPU smoke); the comparison ran with "
               f"the torch rasteriser on both sides, {n} frames (must agree exactly)")  # fmt: skip
-    p = ctx.params
-    text = ctx.models.encoder.encode_texts(ctx.tasks).astype(np.float32)
+    spec, job_scene, models = job.spec, job.scene, job.runner.models
+    p = spec.params
+    text = models.encoder.encode_texts(list(spec.tasks)).astype(np.float32)
     settings = FusionSettings(
-        likelihood_params(ctx), "bayes", p.prior, p.outlier_rejection, p.view_correlation
+        likelihood_params(p, models), "bayes", p.prior, p.outlier_rejection, p.view_correlation
     )
     t = time.perf_counter()
     fid = gpu_check_fidelity.compare_renderers(
-        ctx.selected_frames()[:n],
+        list(job_scene.selected_frames[:n]),
         ours,
         other,
         scene.gaussians.means,
-        lambda index: frame_scores(ctx, index, text),
+        lambda index: frame_scores(spec, job_scene, index, text),
         settings,
-        num_tasks=len(ctx.tasks),
+        num_tasks=len(spec.tasks),
         # the run's lengths in scene units, as the fuse stage passes them (fractions of the scale)
-        depth_tolerance=ctx.lengths().depth_tolerance,
+        depth_tolerance=job_scene.lengths.depth_tolerance,
         relative_tolerance=p.depth_tolerance_relative,
-        near=ctx.lengths().visibility_near,
+        near=job_scene.lengths.visibility_near,
         device=device,
     )
     for line in gpu_check_fidelity.report_lines(fid):
@@ -188,47 +189,45 @@ def main(argv: list[str] | None = None) -> int:
 
     tasks = bench_scale.task_texts(26)
     encoder = bench_scale.FixedTextEncoder(tasks, np.load(work / "texts.npy", allow_pickle=False))
-    ctx = JobContext(
-        store=LocalStore(work / "job"),
-        job_prefix="",
-        tasks=tasks,
-        params=PipelineParams(export_ply=False, device=device),
-        models=bench_scale.BenchModels(encoder),  # type: ignore[arg-type]
-        scene_store=LocalStore(work / "cache"),
-        scene_prefix=bench_scale.SCENE_PREFIX,
-        scene_dir=work / "scene",
+    job = local_job(
+        work / "scene",
+        work / "job",
+        work / "cache",
+        tasks,
+        PipelineParams(export_ply=False, device=device),
+        bench_scale.BenchModels(encoder),  # type: ignore[arg-type]
+        cache_prefix=bench_scale.SCENE_PREFIX + "cache/",
     )
     sync(device)
     t = time.perf_counter()
-    fuse = run_stage("fuse", ctx, force=True)
+    fuse = run_stage("fuse", job, force=True)
     sync(device)
     fuse_s = time.perf_counter() - t
     print(f"  fuse     {1000 * fuse_s / n_f:9.1f} ms/frame  (render + associations + update; "
           f"fusion on {fuse['fusion_device']}, {fuse['masks'] / n_f:.0f} masks/frame)")  # fmt: skip
     t = time.perf_counter()
-    cluster = run_stage("cluster", ctx, force=True)
+    cluster = run_stage("cluster", job, force=True)
     cluster_s = time.perf_counter() - t
     print(f"  cluster  {cluster_s:9.2f} s        ({cluster['counts']['primitives']:,} primitives)")
 
-    fidelity = renderer_fidelity(ctx, scene, device, gpu, args.fidelity_frames or (10 if gpu else 2))
+    fidelity = renderer_fidelity(job, scene, device, gpu, args.fidelity_frames or (10 if gpu else 2))
 
     prof = reference_profile(args.models, gpu, device)
     models = load_models(prof)
-    pctx = JobContext(
-        store=LocalStore(work / "pjob"),
-        job_prefix="",
-        tasks=tasks[:1],
-        params=PipelineParams(max_frames=n_p, device=device),
-        models=models,
-        scene_store=LocalStore(work / "pcache"),
-        scene_prefix="scenes/perceive/",
-        scene_dir=perceive_scene,
+    perceive_job = local_job(
+        perceive_scene,
+        work / "pjob",
+        work / "pcache",
+        tasks[:1],
+        PipelineParams(max_frames=n_p, device=device),
+        models,
+        cache_prefix="scenes/perceive/cache/",
     )
     _ = models.segmenter, models.encoder  # load outside the timing
     warm = np.asarray(Image.open(perceive_image(scene.frames[0])).convert("RGB"))
     models.segmenter.segment(warm)
     t = time.perf_counter()
-    perceive = run_stage("perceive", pctx, force=True)
+    perceive = run_stage("perceive", perceive_job, force=True)
     perceive_s = time.perf_counter() - t
     per_frame = 1000 * perceive_s / n_p
     print(f"  perceive {per_frame:9.1f} ms/frame  (FastSAM + ViT-B/16 {'fp16' if gpu else 'fp32'}, "

@@ -52,12 +52,13 @@ import numpy as np
 from bayesian_fields_core.eval.suite import SceneCase, prepare_scenes
 from bayesian_fields_core.eval.synthetic import load_ground_truth
 from bayesian_fields_core.job.artifacts import ACCEPTED_KEY, FUSION_KEY, RESULT_PREFIX
-from bayesian_fields_core.job.context import JobContext, Models
-from bayesian_fields_core.job.pipeline import load_models, run_job
-from bayesian_fields_core.job.store import LocalStore, get_arrays
+from bayesian_fields_core.job.factories import Job, local_job
+from bayesian_fields_core.job.pipeline import run_job
+from bayesian_fields_core.job.store import get_arrays
 from bayesian_fields_core.objects.clustering import MergeLog, objects_from_primitives, primitive_scores
 from bayesian_fields_core.objects.probabilities import conditionals, primitive_means
 from bayesian_fields_core.params import PipelineParams
+from bayesian_fields_core.perception.models import Models, load_models
 from bayesian_fields_core.results.reader import read_result
 from bayesian_fields_core.stages.cluster import load_primitives, view_counts
 
@@ -122,40 +123,44 @@ def run_scene(case: SceneCase, models: Models, out_dir: Path, fusion: str) -> Sc
             "answer_min_peak": None,
         }
     )
-    ctx = JobContext(
-        store=LocalStore(out_dir / case.name / fusion),
-        job_prefix="",
-        tasks=case.tasks,
-        params=params,
-        models=models,
-        scene_store=LocalStore(out_dir / "cache"),
-        scene_prefix=f"scenes/{case.name}/",
-        scene_dir=case.folder,
+    job = local_job(
+        case.folder,
+        out_dir / case.name / fusion,
+        out_dir / "cache",
+        case.tasks,
+        params,
+        models,
+        cache_prefix=f"scenes/{case.name}/cache/",
     )
-    run_job(ctx, force=True)
-    fused = get_arrays(ctx.store, ctx.job_key(FUSION_KEY))
-    primitive_ids = load_primitives(ctx)
+    spec, scene, runner = job.spec, job.scene, job.runner
+    run_job(job, force=True)
+    fused = get_arrays(spec.store, spec.key(FUSION_KEY))
+    primitive_ids = load_primitives(spec, scene, runner)
     scores = primitive_scores(
-        primitive_ids, fused["probabilities"], fused["logodds"], params, view_counts(ctx, fused)
+        primitive_ids,
+        fused["probabilities"],
+        fused["logodds"],
+        params,
+        view_counts(spec, scene, runner, fused),
     )
     object_map = objects_from_primitives(
-        ctx.scene().gaussians.means,
+        scene.loaded.gaussians.means,
         primitive_ids,
         scores.pyx,
         params,
         scores.relevance,
         scores.evidence,
-        lengths=ctx.lengths(),
+        lengths=scene.lengths,
         premerge=scores.premerge,
     )
-    stored = read_result(ctx.store, RESULT_PREFIX)
+    stored = read_result(spec.store, RESULT_PREFIX)
     if not np.array_equal(object_map.object_ids, stored.object_ids.astype(np.int64)):
         raise RuntimeError(f"{case.name}/{fusion}: the replayed clustering differs from the stored result")
     assert object_map.merges is not None
     (relevance,), _ = primitive_means(primitive_ids, [fused["probabilities"]])
     return SceneRun(
         probabilities=np.asarray(fused["probabilities"], dtype=np.float64),
-        views=accepted_views(ctx),
+        views=accepted_views(job),
         primitive_ids=primitive_ids,
         relevance=relevance,
         pyx=scores.pyx,
@@ -166,17 +171,16 @@ def run_scene(case: SceneCase, models: Models, out_dir: Path, fusion: str) -> Sc
     )
 
 
-def accepted_views(ctx: JobContext) -> np.ndarray:
+def accepted_views(job: Job) -> np.ndarray:
     """(N,) how many accepted masks saw each Gaussian: the fuse stage's cached associations and
     stored OR-phi flags, counted like `fusion.bayes.count_views` (masks are exclusive, so at most
     one per frame)."""
-    scene_store = ctx.scene_store
-    assert scene_store is not None
-    accepted = get_arrays(ctx.store, ctx.job_key(ACCEPTED_KEY))
+    spec, scene = job.spec, job.scene
+    accepted = get_arrays(spec.store, spec.key(ACCEPTED_KEY))
     offsets = np.concatenate([[0], np.cumsum(accepted["mask_counts"])])
-    views = np.zeros(len(ctx.scene().gaussians), dtype=np.int64)
+    views = np.zeros(len(scene.loaded.gaussians), dtype=np.int64)
     for n, index in enumerate(accepted["frame_indices"]):
-        vis = get_arrays(scene_store, ctx.visibility_key(int(index)))
+        vis = get_arrays(spec.cache_store, scene.keys.visibility_key(int(index)))
         flags = accepted["accepted"][offsets[n] : offsets[n + 1]]
         seen = vis["gaussian_ids"].astype(np.int64)[flags[vis["mask_ids"].astype(np.int64)]]
         views += np.bincount(seen, minlength=len(views))

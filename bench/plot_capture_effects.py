@@ -33,8 +33,8 @@ from bayesian_fields_core.eval.synthetic.pieces import SyntheticScene
 from bayesian_fields_core.eval.synthetic.spec import suite_specs
 from bayesian_fields_core.eval.synthetic.tasks import fine_task_text, label_task_text, make_tasks
 from bayesian_fields_core.geometry.transforms import look_at, pinhole
-from bayesian_fields_core.job.pipeline import load_models
 from bayesian_fields_core.perception.crops import mask_crops
+from bayesian_fields_core.perception.models import load_models
 from bayesian_fields_core.render import GaussianRenderer
 
 MIN_PIXELS = 30

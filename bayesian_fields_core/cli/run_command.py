@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING, TypedDict, Unpack
+from typing import TYPE_CHECKING
 
 from bayesian_fields_core.cli.job_options import (
     add_out_argument,
@@ -25,8 +25,6 @@ from bayesian_fields_core.errors import InputError
 
 if TYPE_CHECKING:
     from bayesian_fields_core.cli.run_config import RunConfig
-    from bayesian_fields_core.job.context import CancelFn, JobContext, Models, ProgressFn
-    from bayesian_fields_core.job.scene_source import SceneSource
     from bayesian_fields_core.params import PipelineParams
 
 OUTPUT_FORMATS = ("table", "tsv", "json")
@@ -107,48 +105,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.set_defaults(func=run)
 
 
-class LocalContextOptions(TypedDict, total=False):
-    """The `JobContext` fields `local_context` passes through (the others it sets itself)."""
-
-    scene_prefix: str
-    work_dir: Path | None
-    allow_source_path: bool
-    splat_transform: Path | None
-    progress: ProgressFn
-    should_cancel: CancelFn
-    scene_source: SceneSource | None
-
-
-def local_context(
-    scene_dir: Path,
-    out: Path,
-    cache_dir: Path,
-    tasks: list[str],
-    params: PipelineParams,
-    models: Models,
-    **options: Unpack[LocalContextOptions],
-) -> JobContext:
-    """The `JobContext` of `bfields run`: the job in `out`, the caches in `cache_dir`.
-
-    Cache keys are content digests, so one cache serves every scene wherever its folder is; the
-    scene's own path reaches only the cache index, for `bfields cache ls`.
-    """
-    from bayesian_fields_core.job.context import JobContext
-    from bayesian_fields_core.job.store import LocalStore
-
-    return JobContext(
-        store=LocalStore(out),
-        job_prefix="",
-        tasks=tasks,
-        params=params,
-        models=models,
-        scene_store=LocalStore(cache_dir),
-        cache_prefix="",
-        scene_dir=scene_dir,
-        **options,
-    )
-
-
 def check_device(device: str | None) -> None:
     """Refuse a torch device this machine does not have, before any model is loaded."""
     if device is None or device == "cpu":
@@ -212,8 +168,10 @@ def _execute(args: argparse.Namespace, config: RunConfig, params: PipelineParams
     from bayesian_fields_core.cli.report import print_result
     from bayesian_fields_core.cli.run_config import running_versions, write_run_config
     from bayesian_fields_core.job.artifacts import RESULT_PREFIX
-    from bayesian_fields_core.job.pipeline import check_inputs, load_models, run_job
+    from bayesian_fields_core.job.factories import local_job
+    from bayesian_fields_core.job.pipeline import check_inputs, run_job
     from bayesian_fields_core.job.store import LocalStore
+    from bayesian_fields_core.perception.models import load_models
     from bayesian_fields_core.results.reader import read_result
 
     console = stderr_console()
@@ -222,7 +180,7 @@ def _execute(args: argparse.Namespace, config: RunConfig, params: PipelineParams
     cache_dir = Path(args.cache_dir) if args.cache_dir else _default_cache_dir()
     # Cache keys digest the Gaussians as loaded (after any --splat-transform), so a changed
     # transform cannot reuse stale visibility.
-    ctx = local_context(
+    job = local_job(
         config.scene,
         out,
         cache_dir,
@@ -234,16 +192,15 @@ def _execute(args: argparse.Namespace, config: RunConfig, params: PipelineParams
     )
     # Loads the scene and checks that the splat lines up with its cameras and photos (one-line
     # InputError otherwise), before the progress bars start and before perception.
-    check_inputs(ctx)  # parameter-implied input problems, before the alignment renders
-    alignment = ctx.alignment()
+    check_inputs(params, job.scene)  # parameter-implied input problems, before the alignment renders
+    alignment = job.scene.alignment(job.runner.render_device(params))
     console.print(alignment.summary() if alignment is not None else "alignment check: off")
     with StageProgress(console, enabled=not args.quiet) as progress:
-        ctx.progress = progress.update
-        reports = run_job(ctx, force=True)
+        reports = run_job(replace(job, runner=replace(job.runner, progress=progress.update)), force=True)
     config_path = write_run_config(out, replace(config, versions=running_versions()))
     result = read_result(LocalStore(out), RESULT_PREFIX)
     print_result(result, reports, out, output_format=args.format, config_path=config_path)
     return 0
 
 
-__all__ = ["OUTPUT_FORMATS", "check_device", "local_context", "register", "run"]
+__all__ = ["OUTPUT_FORMATS", "check_device", "register", "run"]

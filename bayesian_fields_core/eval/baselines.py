@@ -22,7 +22,8 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from bayesian_fields_core.eval.clio_rows import clio_conditionals, clio_null_score
-from bayesian_fields_core.job.context import JobContext
+from bayesian_fields_core.job.job_scene import JobScene
+from bayesian_fields_core.job.spec import JobSpec
 from bayesian_fields_core.job.store import get_arrays
 from bayesian_fields_core.objects.clustering import ObjectMap, objects_from_primitives
 from bayesian_fields_core.objects.primitives import PrimitiveBuilder
@@ -45,18 +46,17 @@ class BaselineParams:
     clio_null_score: float | None = None
 
 
-def averaged_embeddings(ctx: JobContext) -> tuple[np.ndarray, np.ndarray, PrimitiveBuilder]:
+def averaged_embeddings(spec: JobSpec, scene: JobScene) -> tuple[np.ndarray, np.ndarray, PrimitiveBuilder]:
     """(N, D) mean mask embedding per Gaussian (L2-normalised), (N,) view counts, and the
     primitives built from every mask (no rejection), in one pass over the cached frames."""
-    store = ctx.scene_store
-    assert store is not None
-    n = len(ctx.scene().gaussians)
+    store = spec.cache_store
+    n = len(scene.loaded.gaussians)
     sums: np.ndarray | None = None
     counts = np.zeros(n, dtype=np.int64)
     builder = PrimitiveBuilder(n)
-    for index, _frame in ctx.selected_frames():
-        emb = get_arrays(store, ctx.perception_key(index))["embeddings"].astype(np.float32)
-        vis = get_arrays(store, ctx.visibility_key(index))
+    for index, _frame in scene.selected_frames:
+        emb = get_arrays(store, scene.keys.perception_key(index))["embeddings"].astype(np.float32)
+        vis = get_arrays(store, scene.keys.visibility_key(index))
         g = vis["gaussian_ids"].astype(np.int64)
         m = vis["mask_ids"].astype(np.int64)
         if sums is None:
@@ -72,11 +72,11 @@ def averaged_embeddings(ctx: JobContext) -> tuple[np.ndarray, np.ndarray, Primit
 
 
 def semantic_gaussians(
-    ctx: JobContext, text: np.ndarray, params: BaselineParams, mu0: float, mu1: float
+    spec: JobSpec, scene: JobScene, text: np.ndarray, params: BaselineParams, mu0: float, mu1: float
 ) -> ObjectMap:
     """Best-label thresholding of per-Gaussian averaged embeddings, objects = connected parts."""
-    means = ctx.scene().gaussians.means
-    emb, counts, _ = averaged_embeddings(ctx)
+    means = scene.loaded.gaussians.means
+    emb, counts, _ = averaged_embeddings(spec, scene)
     scores = emb @ text.T  # (N, T)
     threshold = params.best_label_threshold if params.best_label_threshold is not None else 0.5 * (mu0 + mu1)
     best = np.argmax(scores, axis=1)
@@ -101,15 +101,15 @@ def semantic_gaussians(
     # An object answers only the task it is labelled with; its score ranks it among that task's.
     table = np.zeros((n_obj, text.shape[0] + 1))
     table[np.arange(n_obj), obj_label] = obj_scores[np.arange(n_obj), obj_label]
-    return _finish(means, object_ids, table, obj_sizes, ctx)
+    return _finish(means, object_ids, table, obj_sizes, spec.params.top_k)
 
 
 def clio_style(
-    ctx: JobContext, text: np.ndarray, params: BaselineParams, mu0: float, mu1: float
+    spec: JobSpec, scene: JobScene, text: np.ndarray, params: BaselineParams, mu0: float, mu1: float
 ) -> ObjectMap:
     """Clio's AIB on its cosine-built p(y|x) over the same primitives (no Bayesian fusion)."""
-    means = ctx.scene().gaussians.means
-    emb, counts, builder = averaged_embeddings(ctx)
+    means = scene.loaded.gaussians.means
+    emb, counts, builder = averaged_embeddings(spec, scene)
     primitive_ids = builder.primitive_ids.astype(np.int64)
     n_prim = int(primitive_ids.max(initial=-1)) + 1
     members = membership_matrix(primitive_ids, n_prim)
@@ -121,22 +121,18 @@ def clio_style(
     pyx = clio_conditionals(prim_emb @ text.T, null)
     # Clio has no floater filter: the baseline keeps every Gaussian of its objects.
     return objects_from_primitives(
-        means, primitive_ids, pyx, ctx.params.model_copy(update={"knn_filter": False}), lengths=ctx.lengths()
+        means, primitive_ids, pyx, spec.params.model_copy(update={"knn_filter": False}), lengths=scene.lengths
     )
 
 
 def _finish(
-    means: np.ndarray, object_ids: np.ndarray, table: np.ndarray, sizes: np.ndarray, ctx: JobContext
+    means: np.ndarray, object_ids: np.ndarray, table: np.ndarray, sizes: np.ndarray, k: int
 ) -> ObjectMap:
     """Selection and boxes for a baseline that produced objects directly."""
     from bayesian_fields_core.geometry.obb import OrientedBox, minimum_obb
     from bayesian_fields_core.objects.select import top_k
 
-    selection = (
-        top_k(table, sizes, ctx.params.top_k)
-        if len(table)
-        else np.full((table.shape[1] - 1, ctx.params.top_k), -1, dtype=np.int64)
-    )
+    selection = top_k(table, sizes, k) if len(table) else np.full((table.shape[1] - 1, k), -1, dtype=np.int64)
     centroids = np.zeros((len(table), 3))
     np.add.at(centroids, object_ids[object_ids >= 0], means[object_ids >= 0])
     centroids /= np.maximum(sizes, 1)[:, None]

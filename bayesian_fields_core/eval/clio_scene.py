@@ -19,7 +19,7 @@ from bayesian_fields_core.eval.bootstrap import paired_differences
 from bayesian_fields_core.eval.clio import ClioScores, format_table
 from bayesian_fields_core.eval.clio_format import load_clio_case
 from bayesian_fields_core.eval.suite import FULL, SceneCase, evaluate_scene, print_not_found, run_threshold
-from bayesian_fields_core.job.pipeline import load_models
+from bayesian_fields_core.perception.models import load_models
 
 
 def clio_case(

@@ -54,8 +54,8 @@ import numpy as np
 from bayesian_fields_core.calibration.model import Calibration, load_calibration
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.job.cache_keys import short_hash
-from bayesian_fields_core.job.context import Models
 from bayesian_fields_core.perception.encoder import Encoder, l2_normalize
+from bayesian_fields_core.perception.models import Models
 
 Regime = Literal["realistic", "strong"]
 REGIMES: tuple[Regime, ...] = ("realistic", "strong")

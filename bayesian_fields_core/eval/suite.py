@@ -56,13 +56,13 @@ from bayesian_fields_core.eval.regime import DEFAULT_REGIME, Regime, describe, r
 from bayesian_fields_core.eval.tables import format_interval_table
 from bayesian_fields_core.fusion.likelihood import resolve_likelihood
 from bayesian_fields_core.job.artifacts import RESULT_PREFIX
-from bayesian_fields_core.job.context import JobContext, Models
-from bayesian_fields_core.job.pipeline import load_models, run_job
-from bayesian_fields_core.job.store import LocalStore
+from bayesian_fields_core.job.factories import Job, local_job
+from bayesian_fields_core.job.pipeline import run_job
 from bayesian_fields_core.job.task_list import load_tasks
 from bayesian_fields_core.objects.clustering import ObjectMap
 from bayesian_fields_core.objects.not_found import resolve_answer_min_peak
 from bayesian_fields_core.params import PipelineParams
+from bayesian_fields_core.perception.models import Models, load_models
 from bayesian_fields_core.results.reader import read_result
 
 FULL = "Bayesian Fields (ours)"
@@ -213,8 +213,7 @@ def evaluate_scene(
     """All rows of both tables for one scene; `lerf_views=0` skips the LeRF protocol."""
     gt_per_task = {t: sum(1 for g in case.ground_truth if g.task == t) for t in case.tasks}
     top_k = max(5, max(gt_per_task.values(), default=1))
-    scene_store = LocalStore(out_dir / "cache")
-    scene_prefix = f"scenes/{case.name}/"
+    cache_prefix = f"scenes/{case.name}/cache/"
     rows: dict[str, ClioScores] = {}
     code_rows: dict[str, ClioScores] = {}
     lerf: dict[str, LerfScores] = {}
@@ -223,35 +222,29 @@ def evaluate_scene(
     views: LerfViews | None = None
     perceive_s = 0.0
     visibility_s = 0.0
-    full_ctx: JobContext | None = None
+    full_job: Job | None = None
     for row, overrides in METHOD_ROWS.items():
         # The first row checks the scene's alignment; the other rows run on the very same scene.
         # Previews off: the tables never look at them, and rendering them would add to every row.
-        checked = {} if full_ctx is None else {"alignment_check": False}
+        checked = {} if full_job is None else {"alignment_check": False}
         # Every task answered (the rule off), as the paper scores Table 1; the "not found" columns
         # apply the rule afterwards to each task's best candidate (eval/not_found.py).
         params = PipelineParams.model_validate(
             {"previews": False, **(base_params or {}), "top_k": top_k, **overrides, **checked}
             | {"answer_min_peak": None}
         )
-        store = LocalStore(out_dir / case.name / _slug(row))
-        ctx = JobContext(
-            store=store,
-            job_prefix="",
-            tasks=case.tasks,
-            params=params,
-            models=models,
-            scene_store=scene_store,
-            scene_prefix=scene_prefix,
-            scene_dir=case.folder,
-        )
-        reports = run_job(ctx, force=True)
-        if full_ctx is None:
-            full_ctx = ctx
+        job = local_job(
+            case.folder, out_dir / case.name / _slug(row), out_dir / "cache", case.tasks, params, models,
+            cache_prefix=cache_prefix,
+        )  # fmt: skip
+        store = job.spec.store
+        reports = run_job(job, force=True)
+        if full_job is None:
+            full_job = job
             perceive_s = float(reports["perceive"]["seconds"])
             visibility_s = float(reports["fuse"]["seconds"])
             if lerf_views > 0:
-                scene = ctx.scene()
+                scene = job.scene.loaded
                 views = prepare_views(case.folder, scene.gaussians, scene.frames, lerf_views)
         seconds = perceive_s + float(reports["fuse"]["seconds"]) + float(reports["cluster"]["seconds"])
         result = read_result(store, RESULT_PREFIX)
@@ -272,13 +265,14 @@ def evaluate_scene(
             lerf[row] = score_map(views, case.tasks, result.object_ids, result.task_scores)
         log(_row_line(case.name, row, rows[row], lerf.get(row)))
 
-    assert full_ctx is not None
+    assert full_job is not None
     text = models.encoder.encode_texts(case.tasks).astype(np.float32)
-    likelihood = resolve_likelihood(full_ctx.params, models.calibration)
+    full, full_scene = full_job.spec, full_job.scene
+    likelihood = resolve_likelihood(full.params, models.calibration)
     mu0, mu1 = likelihood.mu0, likelihood.mu1
     for row, run in (
-        (SEMANTIC_GAUSSIANS, lambda: semantic_gaussians(full_ctx, text, BaselineParams(), mu0, mu1)),
-        (CLIO, lambda: clio_style(full_ctx, text, BaselineParams(), mu0, mu1)),
+        (SEMANTIC_GAUSSIANS, lambda: semantic_gaussians(full, full_scene, text, BaselineParams(), mu0, mu1)),
+        (CLIO, lambda: clio_style(full, full_scene, text, BaselineParams(), mu0, mu1)),
     ):
         t = time.perf_counter()
         object_map = run()

@@ -2,8 +2,8 @@
 
 A stage reads and writes named artifacts through a `Store` (METHOD: a job resumes from the last
 finished stage); the worker, the CLI, the viewer and the evaluation read the same names, so
-they are written once, here. Job artifacts are relative to the job's prefix (`ctx.job_key`);
-cache folders are relative to the cache root (`ctx.cache_root`).
+they are written once, here. Job artifacts are relative to the job's prefix (`JobSpec.key`);
+cache folders are relative to the cache root (`JobSpec.cache_prefix`).
 """
 
 from __future__ import annotations

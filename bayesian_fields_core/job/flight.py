@@ -2,7 +2,7 @@
 
 Twenty jobs submitted together on the same scene and model profile all find the perception cache
 empty; without coordination each would segment and embed every frame. A stage therefore asks its
-context's `Flight` to *hold* a key naming the cache entries it is about to fill (the content keys,
+runner's `Flight` to *hold* a key naming the cache entries it is about to fill (the content keys,
 never a path) before computing them: the first holder computes, the others wait for it, then
 look at the cache again and find the frames there. The library defines only the seam: the CLI
 runs alone (`NoFlight`), the service's workers hold a Redis lock with a heartbeat

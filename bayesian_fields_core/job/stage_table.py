@@ -8,7 +8,8 @@ stage is adding a row here and its module under `stages/`.
 
 A row names its function by import path (``module:function``) and the runtime imports it on
 first use. That keeps the job runtime below the stages it runs: stages import the runtime's
-context and store, and nothing in `job/` imports a stage (`tests/test_layers.py`).
+`JobSpec`, `JobScene`, `Runner` and store, and nothing in `job/` imports a stage
+(`tests/test_layers.py`).
 """
 
 from __future__ import annotations
@@ -23,7 +24,8 @@ from bayesian_fields_core.job.artifacts import ALIGNMENT_CACHE_DIR, PERCEPTION_C
 from bayesian_fields_core.params import PipelineParams, keyed_parameters
 
 StageFunction = Callable[..., dict[str, Any]]
-"""`run(ctx: JobContext) -> report`; the context is not named here, since it imports the table."""
+"""`run(spec: JobSpec, scene: JobScene, runner: Runner) -> report`; the parts are not named here,
+since `JobScene` imports the table (through its cache keys)."""
 Queue = Literal["gpu", "cpu"]
 
 
@@ -50,7 +52,8 @@ class StageSpec:
 
     name: str
     function: str
-    """``module:function`` of `run(ctx) -> report`, imported when the stage first runs."""
+    """``module:function`` of `run(spec, scene, runner) -> report`, imported when the stage
+    first runs."""
     queue: Queue
     """The worker pool role: "gpu" (segmentation, CLIP, rendering) or "cpu"."""
     weight: float

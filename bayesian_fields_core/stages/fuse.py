@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -32,9 +33,11 @@ from bayesian_fields_core.fusion.state import FusedArrays, FusionSettings, Fusio
 from bayesian_fields_core.fusion.tensors import as_tensor, fusion_threads, to_numpy
 from bayesian_fields_core.fusion.visibility import centre_columns, mask_associations
 from bayesian_fields_core.job.artifacts import ACCEPTED_KEY, FUSION_KEY, PRIMITIVES_KEY
-from bayesian_fields_core.job.context import JobContext
 from bayesian_fields_core.job.flight import fill_once
+from bayesian_fields_core.job.job_scene import JobScene
 from bayesian_fields_core.job.markers import write_marker
+from bayesian_fields_core.job.runner import Runner
+from bayesian_fields_core.job.spec import JobSpec
 from bayesian_fields_core.job.store import (
     ARRAY_BLOCK_BYTES,
     ArrayBlocks,
@@ -43,33 +46,31 @@ from bayesian_fields_core.job.store import (
     put_arrays,
 )
 from bayesian_fields_core.objects.primitives import PrimitiveBuilder
+from bayesian_fields_core.params import PipelineParams
+from bayesian_fields_core.perception.models import Models
 from bayesian_fields_core.scene.images import load_depth
 
 log = logging.getLogger(__name__)
 
 
-def likelihood_params(ctx: JobContext) -> LikelihoodParams:
+def likelihood_params(params: PipelineParams, models: Models) -> LikelihoodParams:
     """Job parameters override the model's calibration, which overrides the paper's defaults."""
-    return resolve_likelihood(ctx.params, ctx.models.calibration)
+    return resolve_likelihood(params, models.calibration)
 
 
-def render_device(ctx: JobContext) -> str:
-    """Where depth is rendered: the job's device, else the models' render device."""
-    return ctx.params.device or ctx.models.render_device
-
-
-def fusion_device(ctx: JobContext) -> torch.device:
+def fusion_device(params: PipelineParams, runner: Runner) -> torch.device:
     """Where the fusion state lives (`fusion_backend`): the render device ('auto'), so rendered
     depth is used where it was rendered, or the host ('cpu')."""
-    return torch.device("cpu" if ctx.params.fusion_backend == "cpu" else render_device(ctx))
+    return torch.device("cpu" if params.fusion_backend == "cpu" else runner.render_device(params))
 
 
 class LazyRenderer:
-    """The splat's renderer on the render device, built when a frame first needs rendered depth
-    (a job whose associations all come from the cache never converts the splat to tensors)."""
+    """The splat's renderer on `device`, built when a frame first needs rendered depth (a job
+    whose associations all come from the cache never converts the splat to tensors)."""
 
-    def __init__(self, ctx: JobContext) -> None:
-        self._ctx = ctx
+    def __init__(self, scene: JobScene, device: str) -> None:
+        self._scene = scene
+        self._device = device
         self._renderer: Any = None
 
     def __call__(self) -> Any:
@@ -77,17 +78,17 @@ class LazyRenderer:
             from bayesian_fields_core.render import GaussianRenderer
 
             self._renderer = GaussianRenderer(
-                self._ctx.scene().gaussians,
-                device=render_device(self._ctx),
-                near_plane=self._ctx.lengths().render_near,
+                self._scene.loaded.gaussians,
+                device=self._device,
+                near_plane=self._scene.lengths.render_near,
             )
         return self._renderer
 
 
-def frame_depth(ctx: JobContext, renderer: LazyRenderer, frame: Any) -> np.ndarray | torch.Tensor:
+def frame_depth(params: PipelineParams, renderer: LazyRenderer, frame: Any) -> np.ndarray | torch.Tensor:
     """(H, W) depth for visibility: the input depth image (host array) or the rendered median /
     expected depth (a tensor on the render device)."""
-    if ctx.params.depth_source == "input":
+    if params.depth_source == "input":
         depth = load_depth(frame)
         if depth is None:
             raise InputError(
@@ -98,7 +99,7 @@ def frame_depth(ctx: JobContext, renderer: LazyRenderer, frame: Any) -> np.ndarr
     _rgb, expected, median, _alpha = renderer().render_tensors(
         frame.K, frame.world_to_camera, frame.width, frame.height, depth_only=True
     )
-    return median if ctx.params.depth_source == "median" else expected
+    return median if params.depth_source == "median" else expected
 
 
 @dataclass
@@ -125,7 +126,8 @@ def _cache_pairs(store: Any, key: str, gaussian_ids: np.ndarray, mask_ids: np.nd
 
 
 def associations(
-    ctx: JobContext,
+    spec: JobSpec,
+    scene: JobScene,
     index: int,
     frame: Any,
     labels: np.ndarray,
@@ -137,16 +139,15 @@ def associations(
     centres: (3, N) float64 (`visibility.centre_columns`) on the fusion device. Only the pairs (a
     few per cent of the Gaussians) are copied to the host, for the cache and the primitives.
     """
-    store = ctx.scene_store
-    assert store is not None
+    store = spec.cache_store
     device = centres.device
-    key = ctx.visibility_key(index)
+    key = scene.keys.visibility_key(index)
     if store.exists(key):
         cached = get_arrays(store, key)
         host = (cached["gaussian_ids"], cached["mask_ids"])
         gids = as_tensor(host[0].astype(np.int64), device)
         return FramePairs(gids, as_tensor(host[1].astype(np.int32), device), host, computed=False)
-    depth = frame_depth(ctx, renderer, frame)
+    depth = frame_depth(spec.params, renderer, frame)
     with torch_threads(fusion_threads(device)):
         gids, mids = mask_associations(
             centres,
@@ -156,20 +157,21 @@ def associations(
             frame.height,
             depth,
             labels,
-            depth_tolerance=ctx.lengths().depth_tolerance,
-            relative_tolerance=ctx.params.depth_tolerance_relative,
-            near=ctx.lengths().visibility_near,
+            depth_tolerance=scene.lengths.depth_tolerance,
+            relative_tolerance=spec.params.depth_tolerance_relative,
+            near=scene.lengths.visibility_near,
         )
     host = (to_numpy(gids), to_numpy(mids))
     _cache_pairs(store, key, *host)
     return FramePairs(gids, mids, host, computed=True)
 
 
-def frame_scores(ctx: JobContext, index: int, text: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def frame_scores(
+    spec: JobSpec, scene: JobScene, index: int, text: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Frame `index`'s label image (H, W) int32 and its masks' cosine scores (M, T) float32 against
     the task texts `text` (T, D), from the perception cache."""
-    assert ctx.scene_store is not None
-    perception = get_arrays(ctx.scene_store, ctx.perception_key(index))
+    perception = get_arrays(spec.cache_store, scene.keys.perception_key(index))
     labels = perception["labels"].astype(np.int32)
     phi = perception["embeddings"].astype(np.float32) @ text.T
     return labels, phi
@@ -192,28 +194,33 @@ class FrameTally:
 
 
 def fuse_frames(
-    ctx: JobContext, frames: list[tuple[int, Any]], state: FusionState, text: np.ndarray
+    spec: JobSpec,
+    scene: JobScene,
+    runner: Runner,
+    frames: Sequence[tuple[int, Any]],
+    state: FusionState,
+    text: np.ndarray,
 ) -> FrameTally:
     """Feed every frame to `state` and the primitive builder, reporting progress per frame."""
-    num_gaussians = len(ctx.scene().gaussians)
-    centres = centre_columns(ctx.scene().gaussians.means, state.device)
-    renderer = LazyRenderer(ctx)
+    num_gaussians = len(scene.loaded.gaussians)
+    centres = centre_columns(scene.loaded.gaussians.means, state.device)
+    renderer = LazyRenderer(scene, runner.render_device(spec.params))
     tally = FrameTally(PrimitiveBuilder(num_gaussians), np.zeros(len(frames), dtype=np.int64))
     for n, (index, frame) in enumerate(frames):
-        ctx.check_cancel()
-        labels, phi = frame_scores(ctx, index, text)
-        pairs = associations(ctx, index, frame, labels, renderer, centres)
+        runner.check_cancel()
+        labels, phi = frame_scores(spec, scene, index, text)
+        pairs = associations(spec, scene, index, frame, labels, renderer, centres)
         with torch_threads(fusion_threads(state.device)):
             accepted = state.add_frame(pairs.gaussian_ids, pairs.mask_ids, phi)
         tally.primitives.add_frame(*pairs.host, accepted)
         tally.accepted += accepted.tobytes()
         tally.mask_counts[n] = len(phi)
         tally.rendered += int(pairs.computed)
-        ctx.progress("fuse", (n + 1) / len(frames))
+        runner.progress("fuse", (n + 1) / len(frames))
     return tally
 
 
-def write_state(ctx: JobContext, fused: FusedArrays) -> None:
+def write_state(spec: JobSpec, fused: FusedArrays) -> None:
     """The per-Gaussian artifact: probabilities, log-odds, peak margins (and `observed` of the
     averaging ablation, `view_counts` of the Bayesian update)."""
     if fused.probabilities is None:
@@ -227,8 +234,8 @@ def write_state(ctx: JobContext, fused: FusedArrays) -> None:
     if fused.view_counts is not None:
         optional["view_counts"] = fused.view_counts
     put_array_blocks(  # uncompressed: float32 state barely compresses (83 -> 50 MB at the scale
-        ctx.store,  # bench) and zlib cost seconds here and ~0.4 s in `cluster`, which reads it back
-        ctx.job_key(FUSION_KEY),
+        spec.store,  # bench) and zlib cost seconds here and ~0.4 s in `cluster`, which reads it back
+        spec.key(FUSION_KEY),
         compress=False,
         block_bytes=ARRAY_BLOCK_BYTES,
         probabilities=probs,
@@ -240,54 +247,54 @@ def write_state(ctx: JobContext, fused: FusedArrays) -> None:
     )
 
 
-def write_frames(ctx: JobContext, frames: list[tuple[int, Any]], tally: FrameTally) -> np.ndarray:
+def write_frames(spec: JobSpec, frames: Sequence[tuple[int, Any]], tally: FrameTally) -> np.ndarray:
     """The per-mask OR-phi flags and the primitives; returns all flags (masks of every frame)."""
     accepted_all = np.frombuffer(tally.accepted, dtype=bool).copy()
     put_arrays(
-        ctx.store,
-        ctx.job_key(ACCEPTED_KEY),
+        spec.store,
+        spec.key(ACCEPTED_KEY),
         accepted=accepted_all,
         mask_counts=tally.mask_counts,
         frame_indices=np.array([i for i, _ in frames], dtype=np.int64),
     )
-    put_arrays(ctx.store, ctx.job_key(PRIMITIVES_KEY), primitive_ids=tally.primitives.primitive_ids)
+    put_arrays(spec.store, spec.key(PRIMITIVES_KEY), primitive_ids=tally.primitives.primitive_ids)
     return accepted_all
 
 
-def run(ctx: JobContext) -> dict[str, Any]:
+def run(spec: JobSpec, scene: JobScene, runner: Runner) -> dict[str, Any]:
     """The stage: fuse every selected frame, write the state, the flags and the primitives, and
     return the stage marker (timing, counts, where fusion ran, the likelihood used)."""
-    assert ctx.scene_store is not None
     t0 = time.perf_counter()
-    frames = ctx.selected_frames()
-    text = ctx.models.encoder.encode_texts(ctx.tasks).astype(np.float32)
-    lik = likelihood_params(ctx)
-    p = ctx.params
+    frames = scene.selected_frames
+    text = runner.models.encoder.encode_texts(list(spec.tasks)).astype(np.float32)
+    p = spec.params
+    lik = likelihood_params(p, runner.models)
     settings = FusionSettings(lik, p.fusion, p.prior, p.outlier_rejection, p.view_correlation)
-    state = FusionState(len(ctx.scene().gaussians), len(ctx.tasks), settings, fusion_device(ctx))
-    keys = [ctx.visibility_key(index) for index, _ in frames]
-    ctx.record_cache_use("fuse", keys)
-    store = ctx.scene_store
+    device = fusion_device(p, runner)
+    state = FusionState(len(scene.loaded.gaussians), len(spec.tasks), settings, device)
+    keys = [scene.keys.visibility_key(index) for index, _ in frames]
+    scene.record_cache_use("fuse", keys)
+    store = spec.cache_store
 
     # Single flight on the visibility cache: concurrent jobs on this scene render it once.
     def missing() -> bool:
         return any(not store.exists(k) for k in keys)
 
-    with fill_once(ctx.flight, "fuse", keys, missing, ctx.check_cancel):
-        tally = fuse_frames(ctx, frames, state, text)
+    with fill_once(runner.flight, "fuse", keys, missing, runner.check_cancel):
+        tally = fuse_frames(spec, scene, runner, frames, state, text)
     log.debug(
         "visibility cache: %d hit(s), %d miss(es) in %s",
         len(frames) - tally.rendered,
         tally.rendered,
-        ctx.visibility_prefix,
+        scene.keys.visibility_prefix,
     )
     with torch_threads(fusion_threads(state.device)):
         fused = state.finish()
     del state  # a GPU worker's device copy of the state is no longer needed
-    write_state(ctx, fused)
-    accepted_all = write_frames(ctx, frames, tally)
+    write_state(spec, fused)
+    accepted_all = write_frames(spec, frames, tally)
     return write_marker(
-        ctx,
+        spec,
         "fuse",
         {
             "seconds": time.perf_counter() - t0,
@@ -295,8 +302,8 @@ def run(ctx: JobContext) -> dict[str, Any]:
             "frames_rendered": tally.rendered,
             "masks": int(tally.mask_counts.sum()),
             "masks_rejected": int((~accepted_all).sum()),
-            "fusion_device": str(fusion_device(ctx)),
+            "fusion_device": str(device),
             "likelihood": {"mu0": lik.mu0, "mu1": lik.mu1, "s": lik.s, "s_eps": lik.s_eps},
-            "scene_scale": ctx.lengths().record(),
+            "scene_scale": scene.lengths.record(),
         },
     )

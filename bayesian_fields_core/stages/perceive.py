@@ -17,9 +17,11 @@ from typing import Any
 import numpy as np
 
 from bayesian_fields_core.errors import CancelledError
-from bayesian_fields_core.job.context import JobContext
 from bayesian_fields_core.job.flight import fill_once
+from bayesian_fields_core.job.job_scene import JobScene
 from bayesian_fields_core.job.markers import write_marker
+from bayesian_fields_core.job.runner import Runner
+from bayesian_fields_core.job.spec import JobSpec
 from bayesian_fields_core.job.store import put_arrays
 from bayesian_fields_core.perception.batching import CropBatcher
 from bayesian_fields_core.perception.crops import mask_crops
@@ -47,7 +49,7 @@ def alignment_summary(report: Any) -> dict[str, Any]:
     }
 
 
-def run(ctx: JobContext) -> dict[str, Any]:
+def run(spec: JobSpec, scene: JobScene, runner: Runner) -> dict[str, Any]:
     """Segment and embed every frame not yet in the perception cache.
 
     Decoding, segmentation and cropping run ahead in threads (`pipelined`, at most
@@ -56,19 +58,21 @@ def run(ctx: JobContext) -> dict[str, Any]:
     encoded, so a crash still resumes frame by frame.
     """
     t0 = time.perf_counter()
-    store = ctx.scene_store
-    assert store is not None
+    store = spec.cache_store
+    params = spec.params
     # Refuse a splat that does not line up with its cameras before any frame is segmented.
-    alignment = ctx.alignment()
-    frames = ctx.selected_frames()
+    alignment = scene.alignment(runner.render_device(params))
+    frames = scene.selected_frames
     t_hash = time.perf_counter()
-    keys = {index: ctx.perception_key(index) for index, _ in frames}
+    keys = {index: scene.keys.perception_key(index) for index, _ in frames}
     hash_seconds = time.perf_counter() - t_hash
-    ctx.record_cache_use("perceive", list(keys.values()))
+    scene.record_cache_use("perceive", list(keys.values()))
     todo = [(n, index, frame) for n, (index, frame) in enumerate(frames)]
     todo = [t for t in todo if not store.exists(keys[t[1]])]
     done_frames = len(frames) - len(todo)
-    log.debug("perception cache: %d hit(s), %d miss(es) in %s", done_frames, len(todo), ctx.perception_prefix)
+    log.debug(
+        "perception cache: %d hit(s), %d miss(es) in %s", done_frames, len(todo), scene.keys.perception_prefix
+    )
     masks_total = 0
     timings = {"decode": 0.0, "segment": 0.0, "crop": 0.0, "embed": 0.0}
     batcher = None
@@ -78,15 +82,15 @@ def run(ctx: JobContext) -> dict[str, Any]:
     def missing() -> bool:
         return bool(todo)
 
-    with fill_once(ctx.flight, "perceive", sorted(keys.values()), missing, ctx.check_cancel):
+    with fill_once(runner.flight, "perceive", sorted(keys.values()), missing, runner.check_cancel):
         todo = [t for t in todo if not store.exists(keys[t[1]])]  # what a flight before us left
         done_frames = len(frames) - len(todo)
         if todo:
             # Built on first need only, in this thread: a fully cached scene loads no model, and each
             # model is then used from one thread only (the segmenter in its step, the encoder here).
-            ctx.models.load("segmenter", "encoder")
-            segmenter, encoder = ctx.models.segmenter, ctx.models.encoder
-            batcher = CropBatcher(encoder, ctx.params.crop_batch_size)
+            runner.models.load("segmenter", "encoder")
+            segmenter, encoder = runner.models.segmenter, runner.models.encoder
+            batcher = CropBatcher(encoder, params.crop_batch_size)
 
             def timed(name: str, fn: Any) -> Any:
                 def step(item: tuple) -> tuple:
@@ -113,13 +117,13 @@ def run(ctx: JobContext) -> dict[str, Any]:
                 )
                 masks_total += int(embeddings.shape[0])
                 done_frames += 1
-                ctx.progress("perceive", done_frames / len(frames))
+                runner.progress("perceive", done_frames / len(frames))
 
             for index, labels, crops in pipelined(
-                ((index, frame) for _n, index, frame in todo), steps, ctx.params.prefetch_frames
+                ((index, frame) for _n, index, frame in todo), steps, params.prefetch_frames
             ):
                 try:
-                    ctx.check_cancel()
+                    runner.check_cancel()
                 except CancelledError:
                     # Frames already received are finished and cached, so a resume skips them.
                     for (i, lab), emb in batcher.flush():
@@ -135,9 +139,9 @@ def run(ctx: JobContext) -> dict[str, Any]:
             timings["embed"] += time.perf_counter() - t
             for (i, lab), emb in ready:
                 write(i, lab, emb)
-    ctx.progress("perceive", 1.0)
+    runner.progress("perceive", 1.0)
     return write_marker(
-        ctx,
+        spec,
         "perceive",
         {
             "seconds": time.perf_counter() - t0,
@@ -150,9 +154,9 @@ def run(ctx: JobContext) -> dict[str, Any]:
             "crop_seconds": timings["crop"],
             "embed_seconds": timings["embed"],
             "encoder_calls": 0 if batcher is None else batcher.calls,
-            "crop_batch_size": ctx.params.crop_batch_size,
+            "crop_batch_size": params.crop_batch_size,
             "hash_seconds": hash_seconds,
-            "cache_prefix": ctx.perception_prefix,
+            "cache_prefix": scene.keys.perception_prefix,
             "alignment": None if alignment is None else alignment_summary(alignment),
         },
     )

@@ -26,12 +26,13 @@ from bayesian_fields_service.common.heartbeat_lock import HeartbeatLock
 
 log = logging.getLogger(__name__)
 
+
 def flight_redis_key(tenant: str, key: str) -> str:
     return redis_keys.flight_lock(tenant, key)
 
 
 class RedisFlight:
-    """Holds flight keys of one tenant in Redis (one object per job context)."""
+    """Holds flight keys of one tenant in Redis (one object per job)."""
 
     def __init__(
         self,
@@ -53,7 +54,9 @@ class RedisFlight:
     @contextlib.contextmanager
     def hold(self, key: str, *, on_wait: Callable[[], None]) -> Iterator[None]:
         token = f"{socket.gethostname()}:{os.getpid()}:{secrets.token_hex(8)}"
-        lock = HeartbeatLock(self.client, flight_redis_key(self.tenant, key), token, self.ttl_ms / 1000, beats=3)
+        lock = HeartbeatLock(
+            self.client, flight_redis_key(self.tenant, key), token, self.ttl_ms / 1000, beats=3
+        )
         start = time.monotonic()
         held = True
         while not lock.acquire():

@@ -37,11 +37,13 @@ from celery.signals import worker_init, worker_process_init
 from celery.utils.log import get_logger
 
 from bayesian_fields_core.errors import CancelledError, InputError, ModelError
-from bayesian_fields_core.job.context import JobContext, Models
-from bayesian_fields_core.job.pipeline import discard_result, load_models, run_stage
+from bayesian_fields_core.job.factories import store_job
+from bayesian_fields_core.job.pipeline import discard_result, run_stage
+from bayesian_fields_core.job.scene_source import SceneOrigin
 from bayesian_fields_core.job.stage_table import STAGE_TABLE, StageSpec
 from bayesian_fields_core.job.store import Store
 from bayesian_fields_core.params import PipelineParams
+from bayesian_fields_core.perception.models import Models, load_models
 from bayesian_fields_service.common import redis_keys
 from bayesian_fields_service.common.heartbeat_lock import HeartbeatLock
 from bayesian_fields_service.common.jobs import JobRecord, JobState, JobStore
@@ -201,6 +203,8 @@ def _process_start(pid: int) -> str | None:
 
 
 _HOST = socket.gethostname()
+
+
 class StageLock:
     """A lock on (job, stage) with a heartbeat (`common.heartbeat_lock`), so a redelivered
     duplicate never runs the same stage concurrently; a crashed holder's lock expires after
@@ -212,7 +216,9 @@ class StageLock:
 
     def __init__(self, client: redis.Redis, key: str, ttl_s: int) -> None:
         pid = os.getpid()
-        self.lock = HeartbeatLock(client, key, f"{_HOST}:{pid}:{_process_start(pid)}:{secrets.token_hex(8)}", ttl_s)
+        self.lock = HeartbeatLock(
+            client, key, f"{_HOST}:{pid}:{_process_start(pid)}:{secrets.token_hex(8)}", ttl_s
+        )
 
     def acquire(self) -> bool:
         return self.lock.acquire() or self._take_over_from_dead()
@@ -297,6 +303,10 @@ class SharedSceneCopy:
         lease = self.cache.lease(self.store, self.tenant, self.scene_id, self.prefix)
         return self.leases.enter_context(lease)
 
+    def origin(self) -> SceneOrigin:
+        """The scene's prefix in the tenant's store (what the copy was made from)."""
+        return SceneOrigin(prefix=self.prefix)
+
 
 def _run_locked(rt: _Runtime, record: JobRecord, stage: str) -> str:
     tenant, job_id = record.tenant, record.id
@@ -327,27 +337,27 @@ def _run_locked(rt: _Runtime, record: JobRecord, stage: str) -> str:
         store = tenant_store(rt.store, tenant)
         leases = contextlib.ExitStack()
         source = SharedSceneCopy(rt.scene_cache, store, tenant, record.scene_id, record.scene_prefix, leases)
-        ctx = JobContext(
-            store=store,
-            job_prefix=record.job_prefix,
-            scene_prefix=record.scene_prefix,
-            tasks=record.tasks,
+        job = store_job(
+            store,
+            record.job_prefix,
+            record.scene_prefix,
+            record.tasks,
             # The worker's own device (BFIELDS_WORKER_DEVICE) wins over a job's: clients cannot
             # know which hardware a pool has.
-            params=PipelineParams.model_validate({**record.parameters, "device": None}),
-            models=rt.models(record.model_profile),
+            PipelineParams.model_validate({**record.parameters, "device": None}),
+            rt.models(record.model_profile),
+            scene_source=source,
             progress=progress,
             should_cancel=should_cancel,
-            scene_source=source,
             flight=RedisFlight(
                 rt.redis, tenant, ttl_s=rt.settings.flight_lock_ttl_s,
                 wait_timeout_s=rt.settings.flight_wait_timeout_s, poll_s=rt.settings.flight_poll_s,
             ),
         )  # fmt: skip
-        meter.gpu = (ctx.models.device or "").startswith("cuda")
+        meter.gpu = (job.runner.models.device or "").startswith("cuda")
         t0 = time.perf_counter()
         with leases, meter:  # the scene copy stays in use (not evictable) until the stage ends
-            report = run_stage(stage, ctx)
+            report = run_stage(stage, job)
         seconds = time.perf_counter() - t0
     except CancelledError:
         record = account_stage(rt.store, rt.jobs.database, record, stage, meter)

@@ -1,5 +1,6 @@
 """Fixtures for the in-process pipeline tests: one tiny rendered scene and one tiny random CLIP per
-session, a model profile around them, and helpers that build a `JobContext` on local stores.
+session, a model profile around them, and helpers that build a job on local stores (through
+`job.factories.local_job`, as the CLI does).
 
 The scene is a real synthetic tabletop (~7k Gaussians) rendered by the project's renderer from 5
 orbit cameras at 128x96, so every stage runs on real images, real masks and real CLIP features.
@@ -12,16 +13,15 @@ from __future__ import annotations
 
 from collections import Counter
 from pathlib import Path
-from typing import Any
+from typing import Any, Unpack
 
 import numpy as np
 import pytest
 from PIL import Image
 
-from bayesian_fields_core.job.context import JobContext, Models
-from bayesian_fields_core.job.pipeline import load_models
-from bayesian_fields_core.job.store import LocalStore
+from bayesian_fields_core.job.factories import Job, LocalJobOptions, local_job
 from bayesian_fields_core.params import PipelineParams
+from bayesian_fields_core.perception.models import Models, load_models
 
 TASKS = ["red chair", "blue cup", "green plant"]
 OTHER_TASKS = ["the mug", "a table", "photo of a red cup"]
@@ -152,27 +152,22 @@ def counting_models(profile: dict[str, Any]) -> CountingModels:
     return CountingModels(load_models(profile).profile)
 
 
-def make_ctx(
+def make_job(
     scene_dir: Path,
     job_root: Path,
     cache_root: Path,
     models: Models,
     *,
     tasks: list[str] | None = None,
-    **kwargs: Any,
-) -> JobContext:
-    """A job on local folders: `job_root` holds the job's artifacts, `cache_root` the scene caches."""
-    params = kwargs.pop("params", PipelineParams())
-    return JobContext(
-        store=LocalStore(job_root),
-        job_prefix="job/",
-        tasks=list(tasks or TASKS),
-        params=params,
-        models=models,
-        scene_store=LocalStore(cache_root),
-        scene_prefix="scenes/tiny/",
-        scene_dir=scene_dir,
-        **kwargs,
+    params: PipelineParams | None = None,
+    **options: Unpack[LocalJobOptions],
+) -> Job:
+    """A job on local folders: `job_root` holds the job's artifacts (below ``job/``), `cache_root`
+    the scene caches (below ``scenes/tiny/cache/``)."""
+    options.setdefault("job_prefix", "job/")
+    options.setdefault("cache_prefix", "scenes/tiny/cache/")
+    return local_job(
+        scene_dir, job_root, cache_root, list(tasks or TASKS), params or PipelineParams(), models, **options
     )
 
 

@@ -119,6 +119,6 @@ def test_lengths_are_read_only_through_the_scene_lengths() -> None:
         if path != LENGTH_RESOLVER
         for line in _raw_length_reads(path, names)
     ]
-    assert found == [], "read these from SceneLengths (ctx.lengths()):\n" + "\n".join(found)
+    assert found == [], "read these from SceneLengths (scene.lengths):\n" + "\n".join(found)
     # the walk does see a raw read where there is one
     assert _raw_length_reads(LENGTH_RESOLVER, names)

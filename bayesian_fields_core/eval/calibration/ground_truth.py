@@ -30,10 +30,11 @@ from bayesian_fields_core.eval.regime import Regime, regime_models
 from bayesian_fields_core.eval.synthetic import load_ground_truth
 from bayesian_fields_core.fusion.likelihood import resolve_likelihood
 from bayesian_fields_core.job.artifacts import RESULT_PREFIX
-from bayesian_fields_core.job.context import JobContext
-from bayesian_fields_core.job.pipeline import load_models, run_stage
-from bayesian_fields_core.job.store import LocalStore, get_arrays
+from bayesian_fields_core.job.factories import Job, local_job
+from bayesian_fields_core.job.pipeline import run_stage
+from bayesian_fields_core.job.store import get_arrays
 from bayesian_fields_core.params import PipelineParams
+from bayesian_fields_core.perception.models import load_models
 from bayesian_fields_core.results.reader import read_result
 
 Negatives = Literal["absent", "unrelated"]
@@ -105,29 +106,28 @@ def scene_scores(
         ids = [o.instance_id for o in task.objects]
         relevant[:, t] = np.isin(gt.instance_ids, ids)
 
-    cache = LocalStore(work_dir / "cache")
-    ctx = JobContext(
-        store=LocalStore(work_dir / "job"),
-        job_prefix="",
-        tasks=tasks,
-        params=PipelineParams(max_frames=max_frames, answer_min_peak=None),
-        models=models,
-        scene_store=cache,
-        scene_prefix="scene/",
-        scene_dir=scene_dir,
+    job = local_job(
+        scene_dir,
+        work_dir / "job",
+        work_dir / "cache",
+        tasks,
+        PipelineParams(max_frames=max_frames, answer_min_peak=None),
+        models,
+        cache_prefix="scene/cache/",
     )
-    run_stage("perceive", ctx)
-    run_stage("fuse", ctx)  # computes and caches the per-frame mask-to-Gaussian associations
+    cache, keys = job.spec.cache_store, job.scene.keys
+    run_stage("perceive", job)
+    run_stage("fuse", job)  # computes and caches the per-frame mask-to-Gaussian associations
     text = models.encoder.encode_texts(tasks).astype(np.float32)
     text /= np.linalg.norm(text, axis=1, keepdims=True)
 
     pos: list[np.ndarray] = []
     neg: list[np.ndarray] = []
-    for index, _frame in ctx.selected_frames():
-        embeddings = get_arrays(cache, ctx.perception_key(index))["embeddings"]
+    for index, _frame in job.scene.selected_frames:
+        embeddings = get_arrays(cache, keys.perception_key(index))["embeddings"]
         if embeddings.shape[0] == 0:
             continue
-        vis = get_arrays(cache, ctx.visibility_key(index))
+        vis = get_arrays(cache, keys.visibility_key(index))
         emb = embeddings.astype(np.float32)
         emb /= np.maximum(np.linalg.norm(emb, axis=1, keepdims=True), 1e-12)
         scores = emb @ text.T
@@ -146,20 +146,20 @@ def scene_scores(
     return SceneLabels(
         np.concatenate(pos or [np.zeros(0)]),
         np.concatenate(neg or [np.zeros(0)]),
-        first_answer_peaks(ctx, [not task.objects for task in gt.tasks]),
+        first_answer_peaks(job, [not task.objects for task in gt.tasks]),
     )
 
 
-def first_answer_peaks(ctx: JobContext, absent: list[bool]) -> list[TaskPeak]:
+def first_answer_peaks(job: Job, absent: list[bool]) -> list[TaskPeak]:
     """Run the cluster stage (rule off) and read each task's first answer's peak, as a raw
     cosine score: the stored peaks are margins of the profile's likelihoods, turned back into
     scores here (`phi = mu0 + margin (mu1 - mu0)`, exact: the object peak is a median of a
     linear function)."""
-    run_stage("cluster", ctx)
-    result = read_result(ctx.store, RESULT_PREFIX)
-    likelihood = resolve_likelihood(ctx.params, ctx.models.calibration)
+    run_stage("cluster", job)
+    result = read_result(job.spec.store, RESULT_PREFIX)
+    likelihood = resolve_likelihood(job.spec.params, job.runner.models.calibration)
     peaks = []
-    for task, is_absent in zip(ctx.tasks, absent, strict=True):
+    for task, is_absent in zip(job.spec.tasks, absent, strict=True):
         answers = result.selections.get(task, [])
         margin = answers[0].peak if answers else None
         score = None if margin is None else likelihood.mu0 + margin * (likelihood.mu1 - likelihood.mu0)

@@ -12,8 +12,8 @@ import pytest
 
 from bayesian_fields_core.cli.cache_command import parse_duration, parse_size
 from bayesian_fields_core.cli.main import main
-from bayesian_fields_core.cli.run_command import local_context
 from bayesian_fields_core.job.artifacts import ALIGNMENT_CACHE_DIR
+from bayesian_fields_core.job.factories import local_job
 from bayesian_fields_core.job.pipeline import run_job
 from bayesian_fields_core.params import PipelineParams
 from tests.core.conftest import N_FRAMES, TASKS, counting_models
@@ -28,8 +28,8 @@ def _other(profile: dict[str, Any]) -> dict[str, Any]:
 
 
 def _run(scene: Path, out: Path, cache: Path, profile: dict[str, Any]) -> dict:
-    ctx = local_context(scene, out, cache, list(TASKS), PipelineParams(), counting_models(profile))
-    return run_job(ctx, force=True)
+    job = local_job(scene, out, cache, list(TASKS), PipelineParams(), counting_models(profile))
+    return run_job(job, force=True)
 
 
 @pytest.fixture(scope="module")

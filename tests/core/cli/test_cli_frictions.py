@@ -10,12 +10,11 @@ import pytest
 
 from bayesian_fields_core.cli import params_table
 from bayesian_fields_core.cli.main import main
-from bayesian_fields_core.job.context import JobContext
 from bayesian_fields_core.job.markers import is_done
 from bayesian_fields_core.job.pipeline import run_job
 from bayesian_fields_core.job.stage_table import STAGES
 from bayesian_fields_core.params import PipelineParams
-from tests.core.conftest import counting_models, make_ctx
+from tests.core.conftest import counting_models, make_job
 
 from .test_cli import _one_line_error, _run_args
 
@@ -113,18 +112,25 @@ def test_a_failed_rerun_leaves_no_marker_of_the_run_before(
 ) -> None:
     """`run_job(force=True)` over a finished job that fails in its second stage: the first
     run's later markers must not survive to say the job is done."""
-    ctx = make_ctx(scene_dir, tmp_path / "job", tmp_path / "cache", counting_models(profile))
-    run_job(ctx, force=True)
-    assert all(is_done(ctx, s) for s in STAGES)
+    job = make_job(scene_dir, tmp_path / "job", tmp_path / "cache", counting_models(profile))
+    run_job(job, force=True)
+    assert all(is_done(job.spec, s) for s in STAGES)
 
-    def cancel_in_fuse(stage: str, _fraction: float) -> None:
+    in_fuse: list[str] = []  # the cancel flag is raised once fuse has reported progress
+
+    def note_stage(stage: str, _fraction: float) -> None:
         if stage == "fuse":
-            rerun.should_cancel = lambda: True
+            in_fuse.append(stage)
 
-    rerun: JobContext = make_ctx(
-        scene_dir, tmp_path / "job", tmp_path / "cache", counting_models(profile), progress=cancel_in_fuse
+    rerun = make_job(
+        scene_dir,
+        tmp_path / "job",
+        tmp_path / "cache",
+        counting_models(profile),
+        progress=note_stage,
+        should_cancel=lambda: bool(in_fuse),
     )
     with pytest.raises(Exception, match="cancelled"):
         run_job(rerun, force=True)
-    assert is_done(rerun, "perceive")
-    assert not is_done(rerun, "fuse") and not is_done(rerun, "cluster")
+    assert is_done(rerun.spec, "perceive")
+    assert not is_done(rerun.spec, "fuse") and not is_done(rerun.spec, "cluster")

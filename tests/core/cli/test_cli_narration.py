@@ -21,9 +21,10 @@ from typing import Any
 import pytest
 
 from bayesian_fields_core.cli.main import main
-from bayesian_fields_core.cli.run_command import local_context
-from bayesian_fields_core.job.pipeline import load_models, run_job
+from bayesian_fields_core.job.factories import local_job
+from bayesian_fields_core.job.pipeline import run_job
 from bayesian_fields_core.params import PipelineParams
+from bayesian_fields_core.perception.models import load_models
 from tests.core.conftest import N_FRAMES
 
 # Slow (the inner loop leaves it out): its fixtures took 60 s to set up here (--durations).
@@ -132,7 +133,7 @@ def test_each_stage_clock_starts_before_its_model_loading(
     lib.addHandler(handler)
     lib.setLevel(logging.INFO)
     try:
-        ctx = local_context(
+        job = local_job(
             scene_dir,
             tmp_path / "out",
             first_run["cache"],  # perception cached: the encoder loads inside fuse
@@ -141,7 +142,7 @@ def test_each_stage_clock_starts_before_its_model_loading(
             load_models(profile_yaml),
             progress=lambda stage, fraction: events.append(("progress", stage, str(fraction))),
         )
-        run_job(ctx, force=True)
+        run_job(job, force=True)
     finally:
         lib.removeHandler(handler)
         lib.setLevel(level)

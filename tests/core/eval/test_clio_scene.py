@@ -20,12 +20,13 @@ from bayesian_fields_core.eval.synthetic import generate_scene, load_clio_boxes,
 from bayesian_fields_core.eval.synthetic.spec import SceneSpec
 from bayesian_fields_core.geometry.obb import OrientedBox
 from bayesian_fields_core.job.artifacts import RESULT_PREFIX
-from bayesian_fields_core.job.context import JobContext
-from bayesian_fields_core.job.pipeline import load_models, run_stage
+from bayesian_fields_core.job.factories import local_job
+from bayesian_fields_core.job.pipeline import run_stage
 from bayesian_fields_core.job.store import LocalStore
 from bayesian_fields_core.job.task_list import load_tasks
 from bayesian_fields_core.objects.not_found import is_not_found
 from bayesian_fields_core.params import PipelineParams
+from bayesian_fields_core.perception.models import load_models
 from bayesian_fields_core.results import read_result
 from bayesian_fields_core.scene.similarity import Similarity
 
@@ -174,17 +175,16 @@ def test_not_found_answers_come_from_the_pipeline_and_match_the_eval_rule(
     params = PipelineParams.model_validate(
         {"previews": True, "preview_max_side": 64, "export_ply": True, "answer_min_peak": threshold}
     )
-    ctx = JobContext(
-        store=store,
-        job_prefix="",
-        tasks=before.tasks,
-        params=params,
-        models=load_models(None),
-        scene_store=LocalStore(out / "cache"),
-        scene_prefix="scenes/clio-small/",
-        scene_dir=scene,
+    job = local_job(
+        scene,
+        out / "clio-small" / _slug(FULL),
+        out / "cache",
+        before.tasks,
+        params,
+        load_models(None),
+        cache_prefix="scenes/clio-small/cache/",
     )
-    run_stage("cluster", ctx, force=True)
+    run_stage("cluster", job, force=True)
     after = read_result(store, RESULT_PREFIX)
     expected = {t for t, p in peaks.items() if is_not_found(p, threshold)}
     assert set(after.not_found) == expected | unanswerable and 0 < len(expected) < len(peaks)

@@ -21,7 +21,7 @@ from bayesian_fields_core.eval.regime import (
     WeakEvidenceEncoder,
     regime_models,
 )
-from bayesian_fields_core.job.pipeline import load_models
+from bayesian_fields_core.perception.models import load_models
 
 SAMPLE = Path(__file__).resolve().parents[3] / "samples" / "tabletop"
 

@@ -20,8 +20,8 @@ from bayesian_fields_core.eval.suite import (
 from bayesian_fields_core.eval.synthetic import generate_scene, load_clio_boxes
 from bayesian_fields_core.eval.synthetic.ground_truth import load_ground_truth
 from bayesian_fields_core.eval.synthetic.spec import SceneSpec
-from bayesian_fields_core.job.pipeline import load_models
 from bayesian_fields_core.job.task_list import load_tasks
+from bayesian_fields_core.perception.models import load_models
 from bayesian_fields_core.scene.loader import load_scene
 
 # Slow (the inner loop leaves it out): its fixtures took 5.5 s to set up here (--durations).

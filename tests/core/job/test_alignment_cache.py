@@ -1,8 +1,8 @@
 """The alignment verdict is cached on the content it depends on, like perception.
 
-Real sample, real check (renders and photos), contexts laid out as `bfields run`'s (the job in its
+Real sample, real check (renders and photos), jobs laid out as `bfields run`'s (the job in its
 output folder, the caches in one cache folder with no prefix): a
-second context reads the verdict back (the report says `cached`, carries the first run's numbers
+second job reads the verdict back (the report says `cached`, carries the first run's numbers
 and its stage report says so too); changing any input the check reads (the splat transform, one
 camera, one compared photo, each declared parameter) misses the cache; the task list, an
 undeclared parameter or the folder's location do not.
@@ -19,19 +19,20 @@ import pytest
 from PIL import Image
 
 from bayesian_fields_core.checks.alignment import _PACKAGE, CODE_FILES
+from bayesian_fields_core.checks.alignment_reports import AlignmentReport
 from bayesian_fields_core.job.cache_index import list_entries, prune
-from bayesian_fields_core.job.context import JobContext
-from bayesian_fields_core.job.pipeline import load_models
+from bayesian_fields_core.job.factories import Job, local_job
 from bayesian_fields_core.job.stage_table import ALIGNMENT_CACHE
 from bayesian_fields_core.job.store import LocalStore
 from bayesian_fields_core.params import PipelineParams
+from bayesian_fields_core.perception.models import load_models
 from tests.support.scene_transforms import copy_scene
 
 SAMPLE = Path(__file__).resolve().parents[3] / "samples" / "tabletop"
 TASKS = ["get the red cube"]
 
 
-def context(
+def make_job(
     scene: Path,
     cache: Path,
     out: Path,
@@ -39,18 +40,15 @@ def context(
     tasks: list[str] = TASKS,
     splat_transform: Path | None = None,
     **params: object,
-) -> JobContext:
-    return JobContext(
-        store=LocalStore(out),
-        job_prefix="",
-        tasks=list(tasks),
-        params=PipelineParams(**params),  # type: ignore[arg-type]
-        models=load_models(),
-        scene_store=LocalStore(cache),
-        cache_prefix="",
-        scene_dir=scene,
-        splat_transform=splat_transform,
-    )
+) -> Job:
+    """A job laid out as `bfields run`'s: the job in `out`, the caches in `cache`."""
+    params_ = PipelineParams(**params)  # type: ignore[arg-type]
+    return local_job(scene, out, cache, tasks, params_, load_models(), splat_transform=splat_transform)
+
+
+def alignment(job: Job) -> AlignmentReport | None:
+    """The job's alignment check, on the device its stages would render on."""
+    return job.scene.alignment(job.runner.render_device(job.spec.params))
 
 
 def write_transform(path: Path, shift: float) -> Path:
@@ -64,21 +62,21 @@ def write_transform(path: Path, shift: float) -> Path:
 @pytest.mark.slow
 def test_a_second_run_reads_the_verdict_and_a_prune_drops_it(tmp_path: Path) -> None:
     cache = tmp_path / "cache"
-    first = context(SAMPLE, cache, tmp_path / "a").alignment()
+    first = alignment(make_job(SAMPLE, cache, tmp_path / "a"))
     assert first is not None and first.passed and not first.cached
-    again = context(SAMPLE, cache, tmp_path / "b")
-    second = again.alignment()
+    again = make_job(SAMPLE, cache, tmp_path / "b")
+    second = alignment(again)
     assert second is not None and second.cached and "(cached)" in second.summary()
     # the stored report, not a new measurement: every number (the check's own seconds included)
     assert second.model_dump(exclude={"cached"}) == first.model_dump(exclude={"cached"})
-    key = again.keys.alignment_key()
+    key = again.scene.keys.alignment_key()
     assert key.startswith(ALIGNMENT_CACHE.folder) and (cache / key).is_file()
     # the cache index counts it (bfields cache ls) and a prune removes it with its entry
     [entry] = list_entries(LocalStore(cache))
     assert key in entry.keys
     assert prune(LocalStore(cache), max_size=0).files_removed >= 1
     assert not (cache / key).exists()
-    third = context(SAMPLE, cache, tmp_path / "c").alignment()
+    third = alignment(make_job(SAMPLE, cache, tmp_path / "c"))
     assert third is not None and not third.cached
 
 
@@ -87,8 +85,8 @@ def test_the_perceive_report_says_the_verdict_was_cached(tmp_path: Path) -> None
     from bayesian_fields_core.stages.perceive import alignment_summary
 
     cache = tmp_path / "cache"
-    context(SAMPLE, cache, tmp_path / "a").alignment()
-    report = context(SAMPLE, cache, tmp_path / "b").alignment()
+    alignment(make_job(SAMPLE, cache, tmp_path / "a"))
+    report = alignment(make_job(SAMPLE, cache, tmp_path / "b"))
     assert alignment_summary(report)["cached"] is True
 
 
@@ -101,16 +99,16 @@ def test_a_failed_verdict_is_cached_and_still_refuses(
     cache = tmp_path / "cache"
     caplog.set_level(logging.DEBUG, logger="bayesian_fields_core.job.alignment_cache")
     for out in ("a", "b"):
-        ctx = context(SAMPLE, cache, tmp_path / out, alignment_min_score=0.999)
+        job = make_job(SAMPLE, cache, tmp_path / out, alignment_min_score=0.999)
         with pytest.raises(InputError, match="renders of the splat do not match"):
-            ctx.alignment()
+            alignment(job)
     assert [r.getMessage().split()[2] for r in caplog.records] == ["miss", "hit"]
-    stored = json.loads(ctx.scene_store.get_bytes(ctx.keys.alignment_key()))  # type: ignore[union-attr]
+    stored = json.loads(job.spec.cache_store.get_bytes(job.scene.keys.alignment_key()))
     assert stored["passed"] is False and stored["cached"] is False  # `cached` is set on reading
 
 
 def _key(scene: Path, tmp_path: Path, **kwargs: object) -> str:
-    return context(scene, tmp_path / "cache", tmp_path / "out", **kwargs).keys.alignment_key()  # type: ignore[arg-type]
+    return make_job(scene, tmp_path / "cache", tmp_path / "out", **kwargs).scene.keys.alignment_key()  # type: ignore[arg-type]
 
 
 CHANGED = {
@@ -154,12 +152,12 @@ def test_one_camera_changes_the_key(tmp_path: Path) -> None:
 def test_one_compared_photo_changes_the_key_and_the_verdict_is_recomputed(tmp_path: Path) -> None:
     cache = tmp_path / "cache"
     scene = copy_scene(SAMPLE, tmp_path / "photo")
-    assert not context(scene, cache, tmp_path / "a").alignment().cached  # type: ignore[union-attr]
+    assert not alignment(make_job(scene, cache, tmp_path / "a")).cached  # type: ignore[union-attr]
     first = sorted((scene / "images").iterdir())[0]  # frame 0 is always compared
     pixels = np.asarray(Image.open(first)).copy()
     pixels[0, 0] ^= 1
     Image.fromarray(pixels).save(first)
-    report = context(scene, cache, tmp_path / "b").alignment()
+    report = alignment(make_job(scene, cache, tmp_path / "b"))
     assert report is not None and not report.cached
 
 

@@ -17,7 +17,7 @@ from bayesian_fields_core.job.artifacts import PRIMITIVES_KEY, RESULT_PREFIX
 from bayesian_fields_core.job.markers import is_done
 from bayesian_fields_core.job.pipeline import run_stage
 from bayesian_fields_core.job.store import LocalStore
-from tests.core.conftest import counting_models, make_ctx
+from tests.core.conftest import counting_models, make_job
 
 # Slow (the inner loop leaves it out): its fixtures took 5.0 s to set up here (--durations).
 pytestmark = pytest.mark.slow
@@ -38,25 +38,25 @@ class _Counter:
 def fused(scene_dir: Path, profile: dict, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A job folder with perceive and fuse done (so the primitives are stored)."""
     root = tmp_path_factory.mktemp("cluster-cancel")
-    ctx = make_ctx(scene_dir, root / "job", root / "cache", counting_models(profile))
-    run_stage("perceive", ctx)
-    run_stage("fuse", ctx)
-    assert ctx.store.exists(ctx.job_key(PRIMITIVES_KEY))
+    job = make_job(scene_dir, root / "job", root / "cache", counting_models(profile))
+    run_stage("perceive", job)
+    run_stage("fuse", job)
+    assert job.spec.store.exists(job.spec.key(PRIMITIVES_KEY))
     return root
 
 
-def _ctx(fused: Path, scene_dir: Path, profile: dict, cancel: _Counter, job: str):  # noqa: ANN202
+def _job(fused: Path, scene_dir: Path, profile: dict, cancel: _Counter, name: str):  # noqa: ANN202
     import shutil
 
-    shutil.rmtree(fused / job, ignore_errors=True)
-    shutil.copytree(fused / "job", fused / job)
-    return make_ctx(scene_dir, fused / job, fused / "cache", counting_models(profile), should_cancel=cancel)
+    shutil.rmtree(fused / name, ignore_errors=True)
+    shutil.copytree(fused / "job", fused / name)
+    return make_job(scene_dir, fused / name, fused / "cache", counting_models(profile), should_cancel=cancel)
 
 
 def _checks(fused: Path, scene_dir: Path, profile: dict) -> int:
     counter = _Counter()
-    ctx = _ctx(fused, scene_dir, profile, counter, "count")
-    run_stage("cluster", ctx)
+    job = _job(fused, scene_dir, profile, counter, "count")
+    run_stage("cluster", job)
     return counter.calls
 
 
@@ -74,12 +74,14 @@ def test_a_cancel_at_any_check_of_the_cluster_stage_leaves_no_result(
     assert total > 0, "the cluster stage never checks for cancellation"
     for n in range(total):
         cancel = _Counter(n)
-        ctx = _ctx(fused, scene_dir, profile, cancel, f"cancel-{n}")
+        job = _job(fused, scene_dir, profile, cancel, f"cancel-{n}")
         with pytest.raises(CancelledError):
-            run_stage("cluster", ctx)
+            run_stage("cluster", job)
         assert cancel.calls == n + 1
-        assert ctx.store.list(ctx.job_key(RESULT_PREFIX)) == [], f"cancel at check {n + 1} left a result"
-        assert not is_done(ctx, "cluster")
+        assert job.spec.store.list(job.spec.key(RESULT_PREFIX)) == [], (
+            f"cancel at check {n + 1} left a result"
+        )
+        assert not is_done(job.spec, "cluster")
 
 
 def test_discard_result_removes_a_result_written_before_the_cancel_was_seen(
@@ -87,9 +89,9 @@ def test_discard_result_removes_a_result_written_before_the_cancel_was_seen(
 ) -> None:
     from bayesian_fields_core.job.pipeline import discard_result
 
-    ctx = _ctx(fused, scene_dir, profile, _Counter(), "late")
-    run_stage("cluster", ctx)
-    assert ctx.store.list(ctx.job_key(RESULT_PREFIX)) and is_done(ctx, "cluster")
-    discard_result(LocalStore(fused / "late"), ctx.job_prefix)
-    assert ctx.store.list(ctx.job_key(RESULT_PREFIX)) == [] and not is_done(ctx, "cluster")
-    assert is_done(ctx, "fuse")  # earlier stages stay: their outputs are not the result
+    job = _job(fused, scene_dir, profile, _Counter(), "late")
+    run_stage("cluster", job)
+    assert job.spec.store.list(job.spec.key(RESULT_PREFIX)) and is_done(job.spec, "cluster")
+    discard_result(LocalStore(fused / "late"), job.spec.job_prefix)
+    assert job.spec.store.list(job.spec.key(RESULT_PREFIX)) == [] and not is_done(job.spec, "cluster")
+    assert is_done(job.spec, "fuse")  # earlier stages stay: their outputs are not the result

@@ -2,8 +2,9 @@
 
 Each test edits a copy of the tiny scene the way a user would (tasks.yaml in the folder, outputs
 inside it, folder moved or copied, one image changed or dropped, another profile) and re-runs it
-on a cache primed once, counting calls into the real models. The contexts are the CLI's own
-(`cli.local_context`), and one test goes through `bfields run` itself and reads its report line.
+on a cache primed once, counting calls into the real models. The jobs are built as the CLI builds
+its own (`job.factories.local_job`), and one test goes through `bfields run` itself and reads its
+report line.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ import pytest
 from PIL import Image
 
 from bayesian_fields_core.cli.main import main
-from bayesian_fields_core.cli.run_command import local_context
+from bayesian_fields_core.job.factories import local_job
 from bayesian_fields_core.job.pipeline import run_job
 from bayesian_fields_core.params import PipelineParams
 from tests.core.conftest import N_FRAMES, OTHER_TASKS, TASKS, counting_models
@@ -36,8 +37,8 @@ def _run(
     params: PipelineParams | None = None,
 ):
     models = counting_models(profile)
-    ctx = local_context(scene, out, cache, list(tasks), params or PipelineParams(), models)
-    return run_job(ctx, force=True), models.counts
+    job = local_job(scene, out, cache, list(tasks), params or PipelineParams(), models)
+    return run_job(job, force=True), models.counts
 
 
 @pytest.fixture(scope="module")

@@ -22,7 +22,7 @@ from bayesian_fields_core.job.store import LocalStore, get_arrays
 from bayesian_fields_core.params import PipelineParams
 from bayesian_fields_core.results.reader import read_result
 from bayesian_fields_core.scene.loader import load_scene
-from tests.core.conftest import N_FRAMES, OTHER_TASKS, TASKS, counting_models, make_ctx
+from tests.core.conftest import N_FRAMES, OTHER_TASKS, TASKS, counting_models, make_job
 
 # Slow (the inner loop leaves it out): its fixtures took 5.4 s to set up here (--durations).
 pytestmark = pytest.mark.slow
@@ -37,11 +37,11 @@ def baseline(scene_dir: Path, profile: dict[str, Any], tmp_path_factory: pytest.
     """One clean run from empty caches; other tests compare against it and reuse its caches."""
     root = tmp_path_factory.mktemp("baseline")
     models = counting_models(profile)
-    ctx = make_ctx(scene_dir, root / "job", root / "cache", models)
-    reports = run_job(ctx)
+    job = make_job(scene_dir, root / "job", root / "cache", models)
+    reports = run_job(job)
     return {
         "root": root,
-        "ctx": ctx,
+        "job": job,
         "reports": reports,
         "result": _result(root / "job"),
         "counts": dict(models.counts),
@@ -49,7 +49,7 @@ def baseline(scene_dir: Path, profile: dict[str, Any], tmp_path_factory: pytest.
 
 
 def test_end_to_end_result_is_complete_and_consistent(baseline: dict, scene_dir: Path) -> None:
-    result, reports, ctx = baseline["result"], baseline["reports"], baseline["ctx"]
+    result, reports, job = baseline["result"], baseline["reports"], baseline["job"]
     means = load_scene(scene_dir).gaussians.means
     n_objects = result.probabilities.shape[0]
 
@@ -60,7 +60,7 @@ def test_end_to_end_result_is_complete_and_consistent(baseline: dict, scene_dir:
     assert result.object_ids.min() >= -1 and result.object_ids.max() < n_objects
     assert result.probabilities.shape == (n_objects, len(TASKS) + 1)
     np.testing.assert_allclose(result.probabilities.sum(axis=1), 1.0, atol=1e-5)
-    assert all(is_done(ctx, stage) for stage in STAGES)
+    assert all(is_done(job.spec, stage) for stage in STAGES)
 
     # Every stage did its real work once per frame.
     assert reports["perceive"]["frames_computed"] == N_FRAMES
@@ -81,17 +81,17 @@ def test_end_to_end_result_is_complete_and_consistent(baseline: dict, scene_dir:
     object_of_primitive = np.full(prims.max() + 1, -1)
     object_of_primitive[prims[kept]] = result.object_ids[kept]
     unfiltered = np.where(prims >= 0, object_of_primitive[np.maximum(prims, 0)], -1)
-    logodds = get_arrays(ctx.store, ctx.job_key(FUSION_KEY))["logodds"]
+    logodds = get_arrays(job.spec.store, job.spec.key(FUSION_KEY))["logodds"]
     for task, objects in result.selections.items():
         t = TASKS.index(task)
-        assert len(objects) <= ctx.params.top_k
+        assert len(objects) <= job.spec.params.top_k
         # Ranked by evidence (mean fused log-odds), reported with their relevance p(y=1|object).
         evidence = [float(logodds[unfiltered == o.object_id, t].mean()) for o in objects]
         assert evidence == sorted(evidence, reverse=True)
         for obj in objects:
             members = means[result.object_ids == obj.object_id].astype(np.float64)
             assert obj.num_gaussians == len(members) > 0
-            assert (unfiltered == obj.object_id).sum() >= ctx.params.min_object_gaussians
+            assert (unfiltered == obj.object_id).sum() >= job.spec.params.min_object_gaussians
             assert obj.probability == pytest.approx(float(result.relevance[obj.object_id, t]), abs=1e-6)
             np.testing.assert_allclose(obj.centroid, members.mean(axis=0), atol=1e-5)
             grown = type(obj.box)(obj.box.center, obj.box.rotation, obj.box.extents + 1e-5)
@@ -102,8 +102,8 @@ def test_new_task_list_reuses_perception_and_visibility(
     baseline: dict, scene_dir: Path, profile: dict, tmp_path: Path
 ) -> None:
     models = counting_models(profile)
-    ctx = make_ctx(scene_dir, tmp_path / "job", baseline["root"] / "cache", models, tasks=OTHER_TASKS)
-    reports = run_job(ctx)
+    job = make_job(scene_dir, tmp_path / "job", baseline["root"] / "cache", models, tasks=OTHER_TASKS)
+    reports = run_job(job)
 
     # reuse is proven by the counts, not by wall time (which the shared machine's load decides)
     assert models.counts["segment"] == 0
@@ -131,7 +131,7 @@ class _CrashAfter:
 
 def test_resume_after_crash_in_fuse(baseline: dict, scene_dir: Path, profile: dict, tmp_path: Path) -> None:
     crashed_after = 2
-    first = make_ctx(
+    first = make_job(
         scene_dir,
         tmp_path / "job",
         tmp_path / "cache",
@@ -140,11 +140,15 @@ def test_resume_after_crash_in_fuse(baseline: dict, scene_dir: Path, profile: di
     )
     with pytest.raises(RuntimeError, match="simulated crash in fuse"):
         run_job(first)
-    assert is_done(first, "perceive") and not is_done(first, "fuse") and not is_done(first, "cluster")
+    assert (
+        is_done(first.spec, "perceive")
+        and not is_done(first.spec, "fuse")
+        and not is_done(first.spec, "cluster")
+    )
     perceive_marker = run_stage("perceive", first)  # marker read back, nothing recomputed
 
     models = counting_models(profile)
-    resumed = make_ctx(scene_dir, tmp_path / "job", tmp_path / "cache", models)
+    resumed = make_job(scene_dir, tmp_path / "job", tmp_path / "cache", models)
     reports = run_job(resumed)
     assert reports["perceive"] == perceive_marker
     assert models.counts["segment"] == 0 and models.counts["encode_images"] == 0
@@ -174,41 +178,47 @@ class _CancelAfter:
 def test_cancel_between_frames(stage: str, scene_dir: Path, profile: dict, tmp_path: Path) -> None:
     cache = tmp_path / "cache"
     if stage == "fuse":
-        run_stage("perceive", make_ctx(scene_dir, tmp_path / "job", cache, counting_models(profile)))
+        run_stage("perceive", make_job(scene_dir, tmp_path / "job", cache, counting_models(profile)))
     cancel = _CancelAfter(3)
-    ctx = make_ctx(scene_dir, tmp_path / "job", cache, counting_models(profile), should_cancel=cancel)
+    job = make_job(scene_dir, tmp_path / "job", cache, counting_models(profile), should_cancel=cancel)
     with pytest.raises(CancelledError):
-        run_job(ctx)
+        run_job(job)
     assert cancel.calls == 4  # checked at the stage boundary and before each frame: stopped before the third
-    assert not is_done(ctx, stage)
-    assert not is_done(ctx, "cluster")
-    prefix = ctx.perception_prefix if stage == "perceive" else ctx.visibility_prefix
+    assert not is_done(job.spec, stage)
+    assert not is_done(job.spec, "cluster")
+    prefix = job.scene.keys.perception_prefix if stage == "perceive" else job.scene.keys.visibility_prefix
     assert len(LocalStore(cache).list(prefix)) == 2  # the two finished frames stay cached
 
-    reports = run_job(make_ctx(scene_dir, tmp_path / "job", cache, counting_models(profile)))
+    reports = run_job(make_job(scene_dir, tmp_path / "job", cache, counting_models(profile)))
     if stage == "perceive":
         assert reports["perceive"]["frames_computed"] == N_FRAMES - 2
     else:
         assert reports["fuse"]["frames_rendered"] == N_FRAMES - 2
-    assert is_done(ctx, "cluster")
+    assert is_done(job.spec, "cluster")
 
 
-def _variant(baseline: dict, scene_dir: Path, profile: dict, job: Path, **params: Any) -> tuple[dict, Any]:
+def _variant(
+    baseline: dict, scene_dir: Path, profile: dict, job_root: Path, **params: Any
+) -> tuple[dict, Any]:
     """Run with changed parameters on the baseline's caches (so only fuse and cluster compute)."""
-    ctx = make_ctx(
-        scene_dir, job, baseline["root"] / "cache", counting_models(profile), params=PipelineParams(**params)
+    job = make_job(
+        scene_dir,
+        job_root,
+        baseline["root"] / "cache",
+        counting_models(profile),
+        params=PipelineParams(**params),
     )
-    return run_job(ctx), ctx
+    return run_job(job), job
 
 
 def test_ablation_no_outlier_rejection_accepts_every_mask(
     baseline: dict, scene_dir: Path, profile: dict, tmp_path: Path
 ) -> None:
     assert baseline["reports"]["fuse"]["masks_rejected"] > 0  # the switch has something to change
-    reports, ctx = _variant(baseline, scene_dir, profile, tmp_path / "job", outlier_rejection=False)
+    reports, job = _variant(baseline, scene_dir, profile, tmp_path / "job", outlier_rejection=False)
     assert reports["fuse"]["masks_rejected"] == 0
     assert reports["fuse"]["masks"] == baseline["reports"]["fuse"]["masks"]
-    assert get_arrays(ctx.store, ctx.job_key(ACCEPTED_KEY))["accepted"].all()
+    assert get_arrays(job.spec.store, job.spec.key(ACCEPTED_KEY))["accepted"].all()
     assert (
         reports["cluster"]["counts"]["primitives"] >= baseline["reports"]["cluster"]["counts"]["primitives"]
     )
@@ -217,9 +227,9 @@ def test_ablation_no_outlier_rejection_accepts_every_mask(
 def test_ablation_average_fusion_runs_and_differs(
     baseline: dict, scene_dir: Path, profile: dict, tmp_path: Path
 ) -> None:
-    reports, ctx = _variant(baseline, scene_dir, profile, tmp_path / "job", fusion="average")
-    fused = get_arrays(ctx.store, ctx.job_key(FUSION_KEY))
-    bayes = get_arrays(baseline["ctx"].store, baseline["ctx"].job_key(FUSION_KEY))
+    reports, job = _variant(baseline, scene_dir, profile, tmp_path / "job", fusion="average")
+    fused = get_arrays(job.spec.store, job.spec.key(FUSION_KEY))
+    bayes = get_arrays(baseline["job"].spec.store, baseline["job"].spec.key(FUSION_KEY))
     assert "observed" in fused and fused["observed"].any()
     assert fused["probabilities"].shape == bayes["probabilities"].shape
     assert not np.allclose(fused["probabilities"], bayes["probabilities"])
@@ -243,7 +253,7 @@ def test_ablation_without_knn_filter_removes_nothing(
 
 
 def test_two_clean_runs_are_identical(baseline: dict, scene_dir: Path, profile: dict, tmp_path: Path) -> None:
-    run_job(make_ctx(scene_dir, tmp_path / "job", tmp_path / "cache", counting_models(profile)))
+    run_job(make_job(scene_dir, tmp_path / "job", tmp_path / "cache", counting_models(profile)))
     again, first = _result(tmp_path / "job"), baseline["result"]
     np.testing.assert_array_equal(again.object_ids, first.object_ids)
     np.testing.assert_array_equal(again.primitive_ids, first.primitive_ids)
@@ -259,8 +269,8 @@ def test_scene_where_every_mask_is_rejected_gives_an_empty_result(
 ) -> None:
     """Tasks nothing in the scene matches: OR-phi rejects every mask, the job still succeeds."""
     hopeless = dict(profile, calibration={"mu0": 0.9, "mu1": 1.0, "s": 0.05})
-    ctx = make_ctx(scene_dir, tmp_path / "job", baseline["root"] / "cache", counting_models(hopeless))
-    reports = run_job(ctx)
+    job = make_job(scene_dir, tmp_path / "job", baseline["root"] / "cache", counting_models(hopeless))
+    reports = run_job(job)
     assert reports["fuse"]["masks_rejected"] == reports["fuse"]["masks"] > 0
     assert reports["cluster"]["counts"]["primitives"] == 0
     result = _result(tmp_path / "job")

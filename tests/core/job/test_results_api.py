@@ -13,16 +13,16 @@ from bayesian_fields_core.job.pipeline import run_job
 from bayesian_fields_core.job.stage_table import STAGES
 from bayesian_fields_core.job.store import LocalStore
 from bayesian_fields_core.results.reader import read_result
-from tests.core.conftest import counting_models, make_ctx
+from tests.core.conftest import counting_models, make_job
 
 
 @pytest.mark.slow
 def test_read_result_takes_a_plain_path_and_reports_carry_iso_times(
     scene_dir: Path, profile: dict, tmp_path: Path
 ) -> None:
-    ctx = make_ctx(scene_dir, tmp_path / "run", tmp_path / "cache", counting_models(profile))
+    job = make_job(scene_dir, tmp_path / "run", tmp_path / "cache", counting_models(profile))
     before = datetime.now().astimezone()
-    run_job(ctx, force=True)
+    run_job(job, force=True)
     out = tmp_path / "run" / "job"  # the job's folder, as `bfields run --out` makes it
 
     by_store = read_result(LocalStore(out), "result/")
@@ -33,7 +33,7 @@ def test_read_result_takes_a_plain_path_and_reports_carry_iso_times(
         read_result(tmp_path / "cache")
 
     for stage in STAGES:
-        report = read_marker(ctx, stage)
+        report = read_marker(job.spec, stage)
         started = datetime.fromisoformat(report["started_at"])
         finished = datetime.fromisoformat(report["finished_at"])
         assert started.tzinfo is not None and before - timedelta(seconds=1) <= started <= finished
@@ -66,8 +66,8 @@ def _documented_layout() -> set[str]:
 def test_docs_list_every_file_a_run_writes(scene_dir: Path, profile: dict, tmp_path: Path) -> None:
     import re
 
-    ctx = make_ctx(scene_dir, tmp_path / "run", tmp_path / "cache", counting_models(profile))
-    run_job(ctx, force=True)
+    job = make_job(scene_dir, tmp_path / "run", tmp_path / "cache", counting_models(profile))
+    run_job(job, force=True)
     out = tmp_path / "run" / "job"
     written = {
         re.sub(r"object_\d+", "object_NNNNN", re.sub(r"task_\d+", "task_NN", str(p.relative_to(out))))

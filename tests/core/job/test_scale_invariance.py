@@ -22,11 +22,11 @@ from scipy.optimize import linear_sum_assignment
 from bayesian_fields_core.eval.synthetic.generate import generate_scene
 from bayesian_fields_core.eval.synthetic.spec import SceneSpec, capture_layouts
 from bayesian_fields_core.job.artifacts import RESULT_PREFIX
-from bayesian_fields_core.job.context import JobContext, Models
-from bayesian_fields_core.job.pipeline import load_models, run_job
-from bayesian_fields_core.job.store import LocalStore
+from bayesian_fields_core.job.factories import local_job
+from bayesian_fields_core.job.pipeline import run_job
 from bayesian_fields_core.job.task_list import load_tasks
 from bayesian_fields_core.params import PipelineParams
+from bayesian_fields_core.perception.models import Models, load_models
 from bayesian_fields_core.results.format import Result
 from bayesian_fields_core.results.reader import read_result
 from bayesian_fields_core.scene.similarity import Similarity
@@ -59,19 +59,11 @@ def run(
 ) -> Result:
     """The whole pipeline on `folder`; the scene cache is shared, so perception (which only sees
     the photos, identical in every copy) runs once per scene."""
-    store = LocalStore(root)
-    ctx = JobContext(
-        store=store,
-        job_prefix="job/",
-        tasks=tasks,
-        params=params,
-        models=models,
-        scene_store=LocalStore(cache),
-        scene_prefix="scene/",
-        scene_dir=folder,
+    job = local_job(
+        folder, root, cache, tasks, params, models, job_prefix="job/", cache_prefix="scene/cache/"
     )
-    run_job(ctx)
-    return read_result(store, ctx.job_key(RESULT_PREFIX))
+    run_job(job)
+    return read_result(job.spec.store, job.spec.key(RESULT_PREFIX))
 
 
 def matching(a: np.ndarray, b: np.ndarray) -> tuple[float, dict[int, int]]:

@@ -7,16 +7,16 @@ from pathlib import Path
 
 import pytest
 
-from bayesian_fields_core.job.context import JobContext
-from bayesian_fields_core.job.pipeline import load_models
+from bayesian_fields_core.job.cache_keys import CacheKeys
+from bayesian_fields_core.job.factories import local_job
 from bayesian_fields_core.job.stage_table import (
     STAGE_TABLE,
     STAGES,
     VISIBILITY_CACHE,
     stage,
 )
-from bayesian_fields_core.job.store import LocalStore
 from bayesian_fields_core.params import PipelineParams
+from bayesian_fields_core.perception.models import load_models
 
 ROOT = Path(__file__).resolve().parents[3]
 SAMPLE = ROOT / "samples" / "tabletop"
@@ -31,15 +31,10 @@ def test_table_rows_are_complete() -> None:
         assert stage(spec.name) is spec
 
 
-def context(tmp_path: Path, **params: object) -> JobContext:
-    return JobContext(
-        store=LocalStore(tmp_path),
-        job_prefix="job/",
-        tasks=["get the red cube"],
-        params=PipelineParams(**params),
-        models=load_models(),
-        scene_dir=SAMPLE,
-    )
+def keys(tmp_path: Path, **params: object) -> CacheKeys:
+    """The cache keys of a job on the sample under `params`."""
+    job = local_job(SAMPLE, tmp_path, tmp_path, ["get the red cube"], PipelineParams(**params), load_models())
+    return job.scene.keys
 
 
 @pytest.mark.parametrize("name", VISIBILITY_CACHE.params)
@@ -51,13 +46,13 @@ def test_a_declared_parameter_changes_the_visibility_key(tmp_path: Path, name: s
         "depth_tolerance_scene": 0.05,
         "depth_tolerance_relative": 0.321,
     }[name]
-    assert context(tmp_path).visibility_key(0) != context(tmp_path, **{name: changed}).visibility_key(0)
+    assert keys(tmp_path).visibility_key(0) != keys(tmp_path, **{name: changed}).visibility_key(0)
 
 
 @pytest.mark.parametrize("name", ["prior", "top_k", "crop_batch_size", "knn_k"])
 def test_an_undeclared_parameter_keeps_every_cache_key(tmp_path: Path, name: str) -> None:
     changed = {"prior": 0.2, "top_k": 2, "crop_batch_size": 7, "knn_k": 11}[name]
-    a, b = context(tmp_path), context(tmp_path, **{name: changed})
+    a, b = keys(tmp_path), keys(tmp_path, **{name: changed})
     assert a.visibility_key(0) == b.visibility_key(0)
     assert a.perception_key(0) == b.perception_key(0)
 

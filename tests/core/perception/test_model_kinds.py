@@ -13,7 +13,6 @@ import pytest
 import yaml
 
 from bayesian_fields_core.errors import InputError
-from bayesian_fields_core.job.pipeline import load_models
 from bayesian_fields_core.perception import profiles as registry
 from bayesian_fields_core.perception.digest import files_digest
 from bayesian_fields_core.perception.encoder import Encoder, l2_normalize
@@ -25,6 +24,7 @@ from bayesian_fields_core.perception.kind_base import (
     Runtime,
     SegmenterConfig,
 )
+from bayesian_fields_core.perception.models import load_models
 from bayesian_fields_core.perception.segmenter import Segmenter
 
 

@@ -20,7 +20,7 @@ from bayesian_fields_core.results.reader import read_result
 from bayesian_fields_core.scene.loader import load_scene
 from bayesian_fields_core.scene.ply import read_ply
 from bayesian_fields_core.scene.similarity import Similarity
-from tests.core.conftest import counting_models, make_ctx
+from tests.core.conftest import counting_models, make_job
 from tests.core.scene.trainer_layouts import (
     NS_PROCESS_DATA_APPLIED,
     SourceScene,
@@ -35,8 +35,8 @@ pytestmark = pytest.mark.slow
 
 
 def _run(scene: Path, root: Path, profile: dict[str, Any], **kwargs: Any):
-    ctx = make_ctx(scene, root / "job", root / "cache", counting_models(profile), **kwargs)
-    run_job(ctx)
+    job = make_job(scene, root / "job", root / "cache", counting_models(profile), **kwargs)
+    run_job(job)
     return read_result(LocalStore(root / "job"), "job/result/")
 
 

@@ -26,28 +26,28 @@ from bayesian_fields_core.job.store import get_arrays
 from bayesian_fields_core.params import PipelineParams
 from bayesian_fields_core.render import GaussianRenderer
 from bayesian_fields_core.stages.fuse import fusion_device, likelihood_params
-from tests.core.conftest import counting_models, make_ctx
+from tests.core.conftest import counting_models, make_job
 from tests.core.fusion.reference import reference_associations
 
 # Slow (the inner loop leaves it out): its fixtures took 4.5 s to set up here (--durations).
 pytestmark = pytest.mark.slow
 
 
-def _replay(ctx: Any) -> dict[str, np.ndarray]:
+def _replay(job: Any) -> dict[str, np.ndarray]:
     """The fused state recomputed from the stage's inputs, frame by frame, in dense numpy."""
-    scene = ctx.scene()
+    scene = job.scene.loaded
     means = scene.gaussians.means
-    n, t = len(means), len(ctx.tasks)
-    text = ctx.models.encoder.encode_texts(ctx.tasks).astype(np.float32)
-    lik = likelihood_params(ctx)
-    lengths = ctx.lengths()  # the run's lengths in scene units (scene scale x fractions)
+    n, t = len(means), len(job.spec.tasks)
+    text = job.runner.models.encoder.encode_texts(list(job.spec.tasks)).astype(np.float32)
+    lik = likelihood_params(job.spec.params, job.runner.models)
+    lengths = job.scene.lengths  # the run's lengths in scene units (scene scale x fractions)
     renderer = GaussianRenderer(scene.gaussians, near_plane=lengths.render_near)
-    logodds = np.full((n, t), np.float32(logit(ctx.params.prior)), dtype=np.float32)
+    logodds = np.full((n, t), np.float32(logit(job.spec.params.prior)), dtype=np.float32)
     peak = np.full((n, t), UNSEEN, dtype=np.float32)
     views = np.zeros(n, dtype=np.int64)
     accepted_all = []
-    for index, frame in ctx.selected_frames():
-        perception = get_arrays(ctx.scene_store, ctx.perception_key(index))
+    for index, frame in job.scene.selected_frames:
+        perception = get_arrays(job.spec.cache_store, job.scene.keys.perception_key(index))
         labels = perception["labels"].astype(np.int32)
         phi = perception["embeddings"].astype(np.float32) @ text.T
         depth = renderer.render(frame.K, frame.world_to_camera, frame.width, frame.height).median_depth
@@ -60,10 +60,10 @@ def _replay(ctx: Any) -> dict[str, np.ndarray]:
             depth,
             labels,
             tolerance=lengths.depth_tolerance,
-            relative=ctx.params.depth_tolerance_relative,
+            relative=job.spec.params.depth_tolerance_relative,
             near=lengths.visibility_near,
         )
-        cached = get_arrays(ctx.scene_store, ctx.visibility_key(index))
+        cached = get_arrays(job.spec.cache_store, job.scene.keys.visibility_key(index))
         assert set(zip(cached["gaussian_ids"].tolist(), cached["mask_ids"].tolist(), strict=True)) == pairs
         llr = log_likelihood_ratio(phi, lik)
         accepted = np.array([any(v >= 0 for v in row) for row in llr.tolist()], dtype=bool)
@@ -82,23 +82,23 @@ def _replay(ctx: Any) -> dict[str, np.ndarray]:
 def fused(scene_dir: Path, profile: dict[str, Any], tmp_path_factory: pytest.TempPathFactory) -> dict:
     """One perceive + fuse run with the paper's update and its replay."""
     root = tmp_path_factory.mktemp("fuse-reference")
-    ctx = make_ctx(scene_dir, root / "job", root / "cache", counting_models(profile))
-    run_stage("perceive", ctx)
-    marker = run_stage("fuse", ctx)
-    return {"root": root, "ctx": ctx, "marker": marker, "replay": _replay(ctx)}
+    job = make_job(scene_dir, root / "job", root / "cache", counting_models(profile))
+    run_stage("perceive", job)
+    marker = run_stage("fuse", job)
+    return {"root": root, "job": job, "marker": marker, "replay": _replay(job)}
 
 
 def test_fused_state_equals_the_replay(fused: dict) -> None:
-    ctx, replay = fused["ctx"], fused["replay"]
+    job, replay = fused["job"], fused["replay"]
     assert fused["marker"]["fusion_device"] == "cpu"
-    assert fused["marker"]["frames_rendered"] == len(ctx.selected_frames())
-    state = get_arrays(ctx.store, ctx.job_key(FUSION_KEY))
+    assert fused["marker"]["frames_rendered"] == len(job.scene.selected_frames)
+    state = get_arrays(job.spec.store, job.spec.key(FUSION_KEY))
     assert (replay["logodds"] != replay["logodds"][0, 0]).any()  # evidence was fused
     assert not replay["accepted"].all() and replay["accepted"].any()  # OR-phi rejected some masks
     np.testing.assert_array_equal(state["logodds"], replay["logodds"])
     np.testing.assert_array_equal(state["probabilities"], expit(replay["logodds"]).astype(np.float32))
     np.testing.assert_array_equal(state["peak_margin"], replay["peak"])
-    accepted = get_arrays(ctx.store, ctx.job_key(ACCEPTED_KEY))
+    accepted = get_arrays(job.spec.store, job.spec.key(ACCEPTED_KEY))
     np.testing.assert_array_equal(accepted["accepted"], replay["accepted"])
 
 
@@ -109,15 +109,15 @@ def test_view_correlation_divides_evidence_by_the_closed_form(
     accepted views: never more evidence than the paper's update, less for Gaussians seen twice+."""
     rho = 0.3
     root, replay = fused["root"], fused["replay"]
-    ctx = make_ctx(
+    job = make_job(
         scene_dir,
         root / "job-rho",
         root / "cache",  # the first run's caches: same perception and associations
         counting_models(profile),
         params=PipelineParams(view_correlation=rho),
     )
-    assert run_stage("fuse", ctx)["frames_rendered"] == 0
-    discounted = get_arrays(ctx.store, ctx.job_key(FUSION_KEY))["logodds"].astype(np.float64)
+    assert run_stage("fuse", job)["frames_rendered"] == 0
+    discounted = get_arrays(job.spec.store, job.spec.key(FUSION_KEY))["logodds"].astype(np.float64)
     base = float(np.float32(logit(PipelineParams().prior)))
     paper = replay["logodds"].astype(np.float64) - base
     expected = base + paper / (1.0 + np.maximum(replay["views"] - 1, 0) * rho)[:, None]
@@ -131,10 +131,10 @@ def test_fusion_runs_on_the_render_device_unless_told_the_host(
 ) -> None:
     def device(**params: Any) -> torch.device:
         models = counting_models(profile)
-        ctx = make_ctx(
+        job = make_job(
             scene_dir, tmp_path / "job", tmp_path / "cache", models, params=PipelineParams(**params)
         )
-        return fusion_device(ctx)
+        return fusion_device(job.spec.params, job.runner)
 
     assert device() == torch.device("cpu")  # the CLI renders on the CPU unless told otherwise
     assert device(device="cuda") == torch.device("cuda")  # the decision only; no CUDA is touched

@@ -10,7 +10,7 @@ import pytest
 
 from bayesian_fields_core.job.pipeline import run_stage
 from bayesian_fields_core.params import PipelineParams
-from tests.core.conftest import N_FRAMES, counting_models, make_ctx
+from tests.core.conftest import N_FRAMES, counting_models, make_job
 
 
 @pytest.mark.slow
@@ -18,7 +18,7 @@ def test_batched_prefetched_perception_equals_sequential(
     scene_dir: Path, profile: dict[str, Any], tmp_path: Path
 ) -> None:
     seq_models = counting_models(profile)
-    seq = make_ctx(
+    seq = make_job(
         scene_dir,
         tmp_path / "a",
         tmp_path / "cache-a",
@@ -27,7 +27,7 @@ def test_batched_prefetched_perception_equals_sequential(
     )
     marker_seq = run_stage("perceive", seq)
     par_models = counting_models(profile)
-    par = make_ctx(
+    par = make_job(
         scene_dir,
         tmp_path / "b",
         tmp_path / "cache-b",
@@ -52,7 +52,7 @@ def test_batched_prefetched_perception_equals_sequential(
         np.testing.assert_allclose(a["embeddings"], b["embeddings"], atol=1e-5)
     # A second run finds every frame cached and loads no model.
     again_models = counting_models(profile)
-    again = make_ctx(
+    again = make_job(
         scene_dir,
         tmp_path / "c",
         tmp_path / "cache-b",

@@ -15,10 +15,11 @@ import httpx
 import numpy as np
 import pytest
 
-from bayesian_fields_core.job.context import JobContext
-from bayesian_fields_core.job.pipeline import load_models, run_job
+from bayesian_fields_core.job.factories import local_job
+from bayesian_fields_core.job.pipeline import run_job
 from bayesian_fields_core.job.store import LocalStore
 from bayesian_fields_core.params import PipelineParams
+from bayesian_fields_core.perception.models import load_models
 from bayesian_fields_core.results.reader import read_result
 from bayesian_fields_service.client import BFieldsClient, fetch, status, submit
 from tests.integration.fixtures.redis_server import RedisServer
@@ -56,13 +57,13 @@ def reference(tmp_path_factory: pytest.TempPathFactory, scene_dir: Path, model_p
     import torch
 
     torch.set_num_threads(1)  # the workers run single-threaded (OMP_NUM_THREADS=1): same sums
-    store = LocalStore(tmp_path_factory.mktemp("reference"))
-    ctx = JobContext(
-        store=store, job_prefix="job/", tasks=TASKS, params=PipelineParams.model_validate(PARAMS),
-        models=load_models(model_profile), scene_dir=scene_dir,
+    root = tmp_path_factory.mktemp("reference")
+    job = local_job(
+        scene_dir, root, root, TASKS, PipelineParams.model_validate(PARAMS), load_models(model_profile),
+        job_prefix="job/", cache_prefix="scene/cache/",
     )  # fmt: skip
-    run_job(ctx)
-    return read_result(store, "job/result/")
+    run_job(job)
+    return read_result(LocalStore(root), "job/result/")
 
 
 def _assert_same_result(folder: Path, reference) -> None:  # noqa: ANN001

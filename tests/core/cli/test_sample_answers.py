@@ -83,7 +83,7 @@ def test_demo_first_answers_against_the_sample_ground_truth(demo: Path) -> None:
     assert {task for task, ok in right.items() if ok} == RIGHT_TODAY, right
 
 
-DOCS = SAMPLE.parents[2] / "docs"
+DOCS = SAMPLE.parents[1] / "docs"
 SHEET = DOCS / "previews-contact-sheet.png"
 SHEET_FINGERPRINT = DOCS / "previews-contact-sheet.json"
 UPDATE_DOCS = "BFIELDS_UPDATE_DOCS_IMAGES"

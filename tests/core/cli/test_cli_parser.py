@@ -125,3 +125,21 @@ def test_eval_refuses_a_bad_parameter_before_any_work(
 
     assert main(["eval", "--suite-dir", str(tmp_path / "s"), "--param", "top_k=0"]) == 2
     assert "top_k" in capsys.readouterr().err and not (tmp_path / "s").exists()
+
+
+@pytest.mark.parametrize("verb", [["eval"], ["calibrate", "--scene", "s", "--out", "c.json"]])
+def test_eval_and_calibrate_take_the_same_regimes(
+    verb: list[str], capsys: pytest.CaptureFixture[str]
+) -> None:
+    parser = build_parser()
+    assert parser.parse_args([*verb, "--regime", "realistic"]).regime == "realistic"
+    with pytest.raises(SystemExit) as exc:
+        parser.parse_args([*verb, "--regime", "weak"])
+    assert exc.value.code == 2
+    assert "expected one of realistic, strong, got 'weak'" in capsys.readouterr().err
+
+
+def test_calibrate_defaults_to_the_strong_regime_and_eval_to_none() -> None:
+    """calibrate fits the encoder as it is unless asked; eval's None means its own default."""
+    assert build_parser().parse_args(["calibrate", "--scene", "s", "--out", "c.json"]).regime == "strong"
+    assert build_parser().parse_args(["eval"]).regime is None

@@ -31,6 +31,7 @@ from typing import Any, Literal
 
 from sqlalchemy import Connection, Engine, and_, func, literal, select, tuple_, update
 
+from bayesian_fields_service.records.leases import Fence, assert_lease
 from bayesian_fields_service.records.locks import lock_key
 from bayesian_fields_service.records.tables import jobs
 
@@ -142,10 +143,13 @@ class JobQueue:
             out.setdefault(tenant, TenantBacklog(tenant, 0, 0, 0)).dispatched = int(n)
         return [out[t] for t in sorted(out)]
 
-    def take(self, tenant: str) -> dict[str, Any] | None:
+    def take(self, tenant: str, fence: Fence | None = None) -> dict[str, Any] | None:
         """Stamp the tenant's next waiting job dispatched and return its row (None: nothing waits,
-        or what waits is being changed by another transaction right now, e.g. cancelled)."""
+        or what waits is being changed by another transaction right now, e.g. cancelled). With a
+        `fence`, only while that lease is still current (`records.leases.LeaseLost` otherwise)."""
         with self.database.begin() as conn:
+            if fence is not None:
+                assert_lease(conn, fence)
             for priority in PRIORITIES:
                 head = (
                     select(jobs.c.id)
@@ -173,11 +177,13 @@ class JobQueue:
             rows = conn.execute(select(jobs.c.tenant, jobs.c.id).where(DISPATCHED).order_by(jobs.c.id))
             return [(r.tenant, r.id) for r in rows]
 
-    def requeue(self, tenant: str, job_id: str) -> bool:
+    def requeue(self, tenant: str, job_id: str, fence: Fence | None = None) -> bool:
         """Back to the queue (front: it is older than what still waits), as *queued* again even if
         a stage of it had started: no stage runs now, and only queued rows are waiting work. False
-        when the job ended or was not dispatched meanwhile."""
+        when the job ended or was not dispatched meanwhile. Fenced as `take` is."""
         with self.database.begin() as conn:
+            if fence is not None:
+                assert_lease(conn, fence)
             moved = conn.execute(
                 update(jobs)
                 .where(jobs.c.tenant == tenant, jobs.c.id == job_id, DISPATCHED)

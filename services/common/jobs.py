@@ -51,6 +51,7 @@ from bayesian_fields_service.common.sanitize import redact_locations, scrub
 from bayesian_fields_service.common.scenes import lock_ready
 from bayesian_fields_service.common.storage import tenant_store
 from bayesian_fields_service.common.usage import JobUsage
+from bayesian_fields_service.records.leases import Fence
 from bayesian_fields_service.records.tables import idempotency_keys, jobs
 
 log = logging.getLogger(__name__)
@@ -619,9 +620,10 @@ class JobStore:
                 return out, None
             position = records[-1].id
 
-    def dispatch_next(self, tenant: str) -> JobRecord | None:
-        """Stamp the tenant's next waiting job dispatched (`JobQueue.take`) and return its record."""
-        row = self.queue.take(tenant)
+    def dispatch_next(self, tenant: str, fence: Fence | None = None) -> JobRecord | None:
+        """Stamp the tenant's next waiting job dispatched (`JobQueue.take`, fenced by the leader's
+        lease when given) and return its record."""
+        row = self.queue.take(tenant, fence)
         return _record_of(row) if row is not None else None
 
     def count_active(self, tenant: str | None = None) -> int:

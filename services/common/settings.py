@@ -187,7 +187,21 @@ class ServiceSettings(BaseSettings):
         gt=0,
         le=60,
         description="Seconds between a standby control process's tries to become the leader (and the "
-        "leader's checks that it still is): a killed leader is replaced within about this.",
+        "leader's renewals of its lease): a leader that resigns is replaced within about this, one that is "
+        "killed, frozen or cut off within `control_lease_ttl_s` plus this.",
+    )
+    control_lease_ttl_s: float = Field(
+        6.0,
+        gt=0,
+        le=300,
+        description="Seconds the control leader's lease lasts after its last renewal (it renews every "
+        "election interval). A leader that is frozen or cut off from the database is replaced within "
+        "about this plus one election interval; keep it several election intervals long.",
+    )
+    control_host: str = Field(
+        "127.0.0.1",
+        description="Address the control process's /healthz and /readyz listen on: loopback by "
+        "default; the images set 0.0.0.0, so a Kubernetes probe reaches the pod's address.",
     )
     control_port: int = Field(
         8001,
@@ -403,6 +417,11 @@ class ServiceSettings(BaseSettings):
             raise ValueError(
                 "BFIELDS_CELERY_VISIBILITY_TIMEOUT_S must be >= BFIELDS_JOB_TIME_LIMIT_S, otherwise Redis "
                 "redelivers a task that is still running"
+            )
+        if self.control_lease_ttl_s < 2 * self.control_election_interval_s:
+            raise ValueError(
+                "BFIELDS_CONTROL_LEASE_TTL_S must be at least twice BFIELDS_CONTROL_ELECTION_INTERVAL_S, "
+                "otherwise the leader's lease runs out between two of its renewals"
             )
         if (self.s3_access_key_id is None) != (self.s3_secret_access_key is None):
             raise ValueError("set both BFIELDS_S3_ACCESS_KEY_ID and BFIELDS_S3_SECRET_ACCESS_KEY, or neither")

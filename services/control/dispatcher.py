@@ -16,6 +16,7 @@ crash after the send, then recovery) is harmless: stages are locked and skip fin
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 
 import redis
 from celery import Celery
@@ -24,6 +25,7 @@ from bayesian_fields_service.common.job_queue import StrideClock, TenantBacklog,
 from bayesian_fields_service.common.jobs import JobRecord, JobStore, id_age_s
 from bayesian_fields_service.common.metrics import observe_queue_wait
 from bayesian_fields_service.common.settings import ServiceSettings
+from bayesian_fields_service.records.leases import Fence, LeaseLost
 from bayesian_fields_service.worker.dispatch import enqueue_stages, queue_length
 
 log = logging.getLogger(__name__)
@@ -32,16 +34,27 @@ log = logging.getLogger(__name__)
 class Dispatcher:
     """The fair-share dispatcher (module docstring); `round` is called by the leader's loop."""
 
-    def __init__(self, app: Celery, jobs: JobStore, settings: ServiceSettings, client: redis.Redis) -> None:
+    def __init__(
+        self,
+        app: Celery,
+        jobs: JobStore,
+        settings: ServiceSettings,
+        client: redis.Redis,
+        fence: Callable[[], Fence | None] = lambda: None,
+    ) -> None:
         self.app = app
+        self.fence = fence
         self.jobs = jobs
         self.settings = settings
         self.client = client
         self.clock = StrideClock()
 
     def round(self) -> int:
-        """Dispatch while the GPU queue has room and some tenant may go; returns jobs sent."""
+        """Dispatch while the GPU queue has room and some tenant may go; returns jobs sent. Each
+        stamp carries the leader's fence, so a round a frozen leader resumes after losing its
+        lease stamps nothing (`records.leases`)."""
         s = self.settings
+        fence = self.fence()
         room = s.dispatch_queue_depth - queue_length(self.client, s.gpu_queue)
         if room <= 0:
             return 0
@@ -52,7 +65,11 @@ class Dispatcher:
             pick = choose(backlog, s.max_active_jobs_per_tenant, set())
             if pick is None:
                 return sent
-            record = self.jobs.dispatch_next(pick.tenant)
+            try:
+                record = self.jobs.dispatch_next(pick.tenant, fence)
+            except LeaseLost as exc:
+                log.warning("dispatch round stopped: %s", exc)
+                return sent
             if record is None:  # what it had was cancelled (or is being changed) meanwhile
                 pick.interactive = pick.bulk = 0
                 continue

@@ -3,7 +3,7 @@
 Why a process of its own: the dispatcher used to run inside every API process, recovery and the
 callback sender inside every worker and the bucket sweep in the API again, each elected its own
 way. Now API processes serve HTTP only, workers run stages only, and every loop below runs in the
-replica that leads (`leadership`: one PostgreSQL advisory lock); run two replicas for failover.
+replica that leads (`leadership`: a lease row with a deadline and a fencing token); run two replicas for failover.
 
 Loops (each a thread that acts only while this replica leads):
 - dispatch, every `dispatch_interval_s`: `Dispatcher.round` (the fair-share queue in the table);
@@ -93,12 +93,13 @@ class ControlProcess:
         self.database = open_records(settings.database_url, migrate_first=settings.migrate_on_start)
         self.jobs = JobStore(self.store, self.redis, self.database)
         self.scenes = SceneStore(self.database)
-        self.leadership = Leadership(self.database)
+        self.leadership = Leadership(self.database, lease_ttl_s=settings.control_lease_ttl_s)
         self.stop = threading.Event()
         self.alive_at = time.time()
         self._callbacks: CallbackSender | None = None
-        dispatcher = Dispatcher(make_celery(settings), self.jobs, settings, self.redis)
-        recovery = Recovery(self.jobs, settings)
+        fence = lambda: self.leadership.fence  # noqa: E731
+        dispatcher = Dispatcher(make_celery(settings), self.jobs, settings, self.redis, fence)
+        recovery = Recovery(self.jobs, settings, fence)
         leads = lambda: self.leadership.held  # noqa: E731
         self.loops = [
             Loop("dispatch", settings.dispatch_interval_s, dispatcher.round, leads, self.stop),
@@ -145,7 +146,11 @@ class ControlProcess:
     # ---- health --------------------------------------------------------------------------------
     def health(self) -> tuple[int, dict[str, Any]]:
         stale = time.time() - self.alive_at > 10 * self.settings.control_election_interval_s + 30
-        body = {"leader": self.leadership.held, "loops": {lp.name: lp.last_ok for lp in self.loops}}
+        body = {
+            "leader": self.leadership.held,
+            "lease_token": self.leadership.token,
+            "loops": {lp.name: lp.last_ok for lp in self.loops},
+        }
         return (503 if stale else 200), body
 
     def ready(self) -> tuple[int, dict[str, Any]]:
@@ -157,8 +162,10 @@ class ControlProcess:
         return 200, {"leader": self.leadership.held}
 
 
-def serve_health(control: ControlProcess, port: int) -> ThreadingHTTPServer:
-    """/healthz and /readyz on `port` (0: a free one) in a daemon thread; returns the server."""
+def serve_health(control: ControlProcess, port: int, host: str = "127.0.0.1") -> ThreadingHTTPServer:
+    """/healthz and /readyz on `host`:`port` (0: a free one) in a daemon thread; returns the
+    server. Loopback unless the `control_host` setting opens it (the images set 0.0.0.0, where a
+    probe reaches the pod's address)."""
 
     class Handler(BaseHTTPRequestHandler):
         def do_GET(self) -> None:  # noqa: N802 (the http.server API)
@@ -177,7 +184,7 @@ def serve_health(control: ControlProcess, port: int) -> ThreadingHTTPServer:
         def log_message(self, *_: Any) -> None:  # probes every few seconds: keep the log for events
             return
 
-    server = ThreadingHTTPServer(("0.0.0.0", port), Handler)  # noqa: S104 (a probe port in a pod)
+    server = ThreadingHTTPServer((host, port), Handler)
     threading.Thread(target=server.serve_forever, name="bf-control-health", daemon=True).start()
     return server
 
@@ -188,8 +195,8 @@ def main() -> int:
     apply_log_level(settings)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     control = ControlProcess(settings)
-    server = serve_health(control, settings.control_port)
-    log.warning("control process ready (health on port %d)", server.server_address[1])
+    server = serve_health(control, settings.control_port, settings.control_host)
+    log.warning("control process ready (health on %s:%d)", settings.control_host, server.server_address[1])
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: control.stop.set())
     try:

@@ -25,11 +25,13 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from bayesian_fields_service.common.jobs import JobStore
 from bayesian_fields_service.common.redis_keys import stage_lock_pattern
 from bayesian_fields_service.common.settings import ServiceSettings
+from bayesian_fields_service.records.leases import Fence, LeaseLost
 from bayesian_fields_service.worker.dispatch import jobs_with_queued_messages
 
 log = logging.getLogger(__name__)
@@ -41,6 +43,7 @@ class Recovery:
 
     jobs: JobStore
     settings: ServiceSettings
+    fence: Callable[[], Fence | None] = lambda: None
     suspects: dict[tuple[str, str], float] = field(default_factory=dict)
 
     def scan(self, *, grace_s: float | None = None) -> list[str]:
@@ -66,7 +69,12 @@ class Recovery:
             first_seen = self.suspects.setdefault(pair, now)
             if first_seen == now and grace_s > 0 or now - first_seen < grace_s:
                 continue
-            if self.jobs.queue.requeue(tenant, job_id):
+            try:
+                moved = self.jobs.queue.requeue(tenant, job_id, self.fence())
+            except LeaseLost as exc:  # another replica leads now: its own scan takes over
+                log.warning("recovery scan stopped: %s", exc)
+                break
+            if moved:
                 requeued.append(job_id)
                 log.warning("requeued orphaned job %s/%s (no stage lock, no queued message)", tenant, job_id)
             seen.discard(pair)

@@ -230,3 +230,15 @@ usage_ledger = Table(
     UniqueConstraint("entry_id"),
     Index(None, "tenant", "recorded_at"),
 )
+
+control_leases = Table(
+    "control_leases",
+    metadata,
+    # A lease with a deadline and a fencing token (`records.leases`, revision 0007): the control
+    # process's leader holds 'control-leader' while it renews it before `expires_at`; every take by
+    # another holder bumps `token`, and a leader's statements check theirs is still current.
+    Column("name", String(64), primary_key=True),
+    Column("holder", String(255), nullable=False),
+    Column("token", BigInteger, nullable=False),
+    Column("expires_at", DateTime(timezone=True), nullable=False),
+)

@@ -18,7 +18,16 @@ from sqlalchemy import inspect
 from bayesian_fields_service.records.database import current_revision, engine, head_revision, migrate
 from bayesian_fields_service.records.tables import metadata
 
-TABLES = {"scenes", "batches", "batch_jobs", "jobs", "idempotency_keys", "callback_outbox", "usage_ledger"}
+TABLES = {
+    "scenes",
+    "batches",
+    "batch_jobs",
+    "jobs",
+    "idempotency_keys",
+    "callback_outbox",
+    "usage_ledger",
+    "control_leases",
+}
 
 
 def test_migrating_an_empty_database_creates_the_tables_of_records_tables(fresh_database: str) -> None:

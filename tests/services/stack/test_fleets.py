@@ -8,7 +8,9 @@ processes and, where jobs must run, one solo Celery worker per queue.
 from __future__ import annotations
 
 import json
+import os
 import secrets
+import signal
 import time
 from collections.abc import Callable, Iterator, Mapping
 from datetime import datetime
@@ -24,9 +26,10 @@ from bayesian_fields_service.client import BFieldsClient
 from bayesian_fields_service.client.api import ClientError, RetryPolicy
 from bayesian_fields_service.common.jobs import JobState, JobStore, new_id
 from bayesian_fields_service.records.database import engine
+from bayesian_fields_service.records.leases import CONTROL_LEADER, current_token
 from bayesian_fields_service.records.tables import jobs as jobs_table
 from tests.integration.fixtures.s3_server import S3Server
-from tests.integration.fixtures.services import ApiServer
+from tests.integration.fixtures.services import ApiServer, ControlServer
 from tests.services.conftest import SERVICE_ENV
 from tests.services.support.private_stack import PrivateStack, upload, wait_job
 
@@ -329,7 +332,7 @@ def test_killing_the_leading_control_process_loses_no_job_and_runs_none_twice(
     busy: PrivateStack, scene_dir: Path, s3_server: S3Server
 ) -> None:
     """SIGKILL the control replica that leads mid-fleet: the other takes the lead within ~10 s
-    (the database ends the dead leader's session and with it the advisory lock), and every job
+    (the dead leader's lease runs out, `BFIELDS_CONTROL_LEASE_TTL_S`), and every job
     finishes once: none lost, none listed twice, no stage run twice."""
     assert busy.api is not None
     controls = [api.controller for api in (busy.api, busy.second_api)]  # type: ignore[attr-defined]
@@ -370,6 +373,78 @@ def test_killing_the_leading_control_process_loses_no_job_and_runs_none_twice(
             assert jobs.queue.dispatched_ids("tenant-a") == []
         finally:
             victim.start()
+
+
+def _says_it_does_not_lead(control: ControlServer) -> bool:
+    """The replica answers its health probe, and says it does not lead (not merely silent)."""
+    try:
+        return control._health().get("leader") is False  # noqa: SLF001
+    except (httpx.HTTPError, ValueError):
+        return False
+
+
+#: How long the leader stays frozen: the fault as it was measured (issue 41), many lease lengths.
+FREEZE_S = 60
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(600)
+def test_a_frozen_leader_is_replaced_and_changes_nothing_when_it_wakes(
+    busy: PrivateStack, scene_dir: Path, s3_server: S3Server
+) -> None:
+    """SIGSTOP the control replica that leads, mid-fleet, for a minute: it keeps its database
+    connection (under the advisory lock it kept the lead, and nothing was dispatched for the whole
+    freeze); with the lease the standby leads within ~10 s and jobs keep finishing during the
+    freeze; once woken, the old leader says it does not lead, and every job finishes once."""
+    assert busy.api is not None
+    controls = [api.controller for api in (busy.api, busy.second_api)]  # type: ignore[attr-defined]
+    assert all(c is not None and c.alive for c in controls)
+    database = engine(busy.env["BFIELDS_DATABASE_URL"])
+    jobs = JobStore(s3_server.store(), busy.redis, database)
+    with busy.api.client("tenant-a") as a:
+        scene = upload(a, scene_dir)
+        resp = a.post("/v1/batches", json={"scene_ids": [scene], "task_lists": [[f"thing {i}"] for i in range(10)],
+                                           "parameters": PARAMS})  # fmt: skip
+        assert resp.status_code == 202
+        batch_id, ids = resp.json()["id"], [j["id"] for j in resp.json()["jobs"]]
+        done = lambda: sum(a.get(f"/v1/jobs/{j}").json()["state"] == "succeeded" for j in ids)  # noqa: E731
+        _wait_for(lambda: done() >= 1 or None, 240, "a first job")
+        leaders = [c for c in controls if c is not None and c.leads]
+        assert len(leaders) == 1, "exactly one control replica leads"
+        victim = leaders[0]
+        survivor = next(c for c in controls if c is not victim)
+        assert survivor is not None and victim.process is not None and victim.process.pid is not None
+        token_before = current_token(database, CONTROL_LEADER)
+        os.kill(victim.process.pid, signal.SIGSTOP)  # frozen: its sockets stay open
+        t0 = time.monotonic()
+        try:
+            _wait_for(lambda: survivor.leads or None, 30, "the standby to take the lead")
+            takeover_s = time.monotonic() - t0
+            finished_at_takeover = done()
+            _wait_for(
+                lambda: done() > finished_at_takeover or None, FREEZE_S, "a job to finish during the freeze"
+            )
+            progressed_s = time.monotonic() - t0
+            time.sleep(max(0.0, FREEZE_S - (time.monotonic() - t0)))
+        finally:
+            os.kill(victim.process.pid, signal.SIGCONT)
+        print(f"\nfrozen {FREEZE_S} s: the standby led after {takeover_s:.1f} s, a job finished "
+              f"{progressed_s:.1f} s into the freeze")  # fmt: skip
+        assert takeover_s < 10
+        woke = time.monotonic()
+        _wait_for(lambda: _says_it_does_not_lead(victim) or None, 10, "the woken replica to step down")
+        print(f"the woken replica stepped down within {time.monotonic() - woke:.1f} s")
+        assert survivor.leads and not victim.leads
+        token_now = current_token(database, CONTROL_LEADER)
+        assert token_before is not None and token_now is not None and token_now > token_before
+        finals = [wait_job(a, j, 300) for j in ids]
+        assert [f["state"] for f in finals] == ["succeeded"] * 10
+        assert [f["stage_runs"] for f in finals] == [3] * 10  # no stage ran twice
+        listed = [
+            j for j in a.get("/v1/jobs", params={"limit": 500}).json()["items"] if j["batch_id"] == batch_id
+        ]
+        assert sorted(j["id"] for j in listed) == sorted(ids)
+        assert jobs.queue.dispatched_ids("tenant-a") == []
 
 
 @pytest.mark.slow

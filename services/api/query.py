@@ -17,9 +17,12 @@ from pydantic import AfterValidator
 
 from bayesian_fields_service.common.jobs import id_pattern
 
+#: The most items a listing route answers in one page (its `limit`).
+PAGE_LIMIT = 500
 #: A position cursor is a job's position in its batch, an `integer` column (a batch holds at most
-#: `max_batch_jobs` of them): 0 <= n < 2**31, so the page's range (n + limit) is a number too.
-MAX_POSITION = 2**31 - 1
+#: `max_batch_jobs` of them), and a page reads positions n to n + limit + 1: the largest n leaves
+#: that range inside the column's type (2**31 - 1), which is also far below 2**63.
+MAX_POSITION = 2**31 - 1 - (PAGE_LIMIT + 1)
 #: The years a usage period may name: the service's records all fall inside, and a day's
 #: arithmetic (the next day, the 1st of the month) cannot leave Python's date range.
 YEARS = (2000, 2999)

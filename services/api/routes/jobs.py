@@ -19,7 +19,7 @@ from fastapi.responses import FileResponse, StreamingResponse
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.job.store import ArtifactNotFound, LocalStore, get_json, validate_key
 from bayesian_fields_service.api.json_body import openapi_body, parse_body
-from bayesian_fields_service.api.query import JobCursor, PositionCursor, SceneFilter
+from bayesian_fields_service.api.query import PAGE_LIMIT, JobCursor, PositionCursor, SceneFilter
 from bayesian_fields_service.api.result_zip import zip_stream
 from bayesian_fields_service.api.schemas import (
     Artifact,
@@ -94,7 +94,7 @@ def list_jobs(
     state: State,
     job_state: Annotated[JobState | None, Query(alias="state")] = None,
     scene_id: SceneFilter = None,
-    limit: Annotated[int, Query(ge=1, le=500)] = 50,
+    limit: Annotated[int, Query(ge=1, le=PAGE_LIMIT)] = 50,
     cursor: JobCursor = None,
 ) -> JobList:
     items, next_cursor = state.jobs.list(
@@ -311,7 +311,7 @@ def list_batch_jobs(
     batch_id: str,
     tenant: Tenant,
     state: State,
-    limit: Annotated[int, Query(ge=1, le=500)] = 100,
+    limit: Annotated[int, Query(ge=1, le=PAGE_LIMIT)] = 100,
     cursor: PositionCursor = None,
 ) -> JobList:
     batch = state.service.batch(tenant, batch_id)

@@ -84,7 +84,8 @@ ERRORS: dict[int | str, dict[str, Any]] = {
     422: {"model": Problem, "description": "A field is invalid (named in `detail` and `errors`)"},
     503: {
         "model": Problem,
-        "description": "A backend (Redis, the queue, the bucket) is unavailable; retry after `Retry-After` s",
+        "description": "A backend (the records database, Redis, the queue, the bucket) is unavailable; "
+        "retry after `Retry-After` s",
         "headers": {"Retry-After": {"schema": {"type": "integer"}, "description": "Seconds to wait"}},
     },
 }

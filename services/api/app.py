@@ -22,8 +22,8 @@ from redis.retry import Retry
 from bayesian_fields_service.api.bulk_lane import BulkLane, settle_child
 from bayesian_fields_service.api.edge import Utf8Guard, install_handlers
 from bayesian_fields_service.api.json_body import add_body_schemas
-from bayesian_fields_service.api.routes import events, health, jobs, scenes, ui, usage
-from bayesian_fields_service.api.routes.health import metrics_registry
+from bayesian_fields_service.api.routes import events, health, jobs, metrics, scenes, ui, usage
+from bayesian_fields_service.api.routes.metrics import metrics_registry
 from bayesian_fields_service.api.schemas import BatchRequest
 from bayesian_fields_service.api.state import AppState
 from bayesian_fields_service.api.sweeper import Sweeper
@@ -45,8 +45,11 @@ refused with 422 naming the field, in bodies, query strings and the Idempotency-
 headers). Tasks must not contain control characters (whitespace is collapsed to single spaces)
 or bidirectional controls (U+202A-U+202E, U+2066-U+2069, U+200E/F, U+061C): refused, not
 silently changed. Every numeric parameter is finite and bounded (see `PipelineParams` in the
-job schema); NaN and Infinity are refused. When Redis or the bucket is down the API answers 503
-with `Retry-After` within about a second; a refused submission leaves no job behind.
+job schema); NaN and Infinity are refused. Query values are checked too: filters and cursors are
+the service's own ids or positions (ASCII digits), usage days fall in 2000..2999, no value holds a
+NUL; anything else is a 422 naming the parameter. When the records database (PostgreSQL), Redis or
+the bucket is down the API answers 503 with `Retry-After`, never 500; a refused submission leaves
+no job behind.
 Every error body is a `Problem`: `detail` is a string, request validation adds `errors`.
 """
 
@@ -115,7 +118,7 @@ def create_app(settings: ServiceSettings | None = None) -> FastAPI:
     )
     app.state.bf = state
     app.state.key_ring = state.key_ring
-    for module in (scenes, jobs, health, ui, events, usage):
+    for module in (scenes, jobs, health, metrics, ui, events, usage):
         app.include_router(module.router)
     add_body_schemas(app, [BatchRequest])  # the bodies routes parse themselves (json_body.py)
     install_handlers(app, settings.retry_after_s)

@@ -9,8 +9,9 @@ are decoded by `bayesian_fields_service.api.multipart` with replacement, so they
 
 The handlers give every 4xx/5xx the `Problem` body: ``detail`` is always a string; request
 validation adds ``errors`` (one entry per field). The domain's refusals (`jobs.refusals`, the
-scenes' exceptions) are answered here, so a route only calls the domain and shapes the answer. Backend outages (Redis, the broker, the bucket)
-become 503 with ``Retry-After`` and no internal detail (that goes to the log).
+scenes' exceptions) are answered here, so a route only calls the domain and shapes the answer.
+Backend outages (Redis, the broker, the bucket, the records database: `records_outage`) become
+503 with ``Retry-After`` and no internal detail (that goes to the log).
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from bayesian_fields_service.api.bulk_lane import LaneUnavailable
+from bayesian_fields_service.api.records_outage import install_records_outage
 from bayesian_fields_service.common.sanitize import redact_locations, scrub_text
 from bayesian_fields_service.common.scenes import SceneBusy, SceneGone, SceneNotReady, SceneNotUploading
 from bayesian_fields_service.jobs.refusals import Busy, Conflict, Invalid, Missing, OverQuota, Refused
@@ -102,15 +104,23 @@ def _not_utf8(loc: list[str | int], what: str) -> JSONResponse:
 
 
 def _check_query(raw: bytes) -> JSONResponse | None:
+    """Every query parameter's name and value are UTF-8 without a NUL (which no text column of
+    PostgreSQL holds, and no parameter of the API needs)."""
     for pair in raw.split(b"&"):
         name, _, value = pair.partition(b"=")
         for part, is_name in ((name, True), (value, False)):
             try:
-                unquote_to_bytes(part.replace(b"+", b" ")).decode("utf-8")
+                decoded = unquote_to_bytes(part.replace(b"+", b" ")).decode("utf-8")
             except UnicodeDecodeError:
                 label = unquote_to_bytes(name).decode("utf-8", "replace")
                 return _not_utf8(
                     ["query", label], "parameter name is not UTF-8" if is_name else "is not UTF-8"
+                )
+            if "\x00" in decoded:
+                label = scrub_text(unquote_to_bytes(name).decode("utf-8", "replace"))
+                msg = "must not contain a NUL character"
+                return problem(
+                    422, f"query.{label}: {msg}", [{"loc": ["query", label], "msg": msg, "type": "nul"}]
                 )
     return None
 
@@ -260,3 +270,4 @@ def install_handlers(app: FastAPI, retry_after_s: int) -> None:
 
     for kind in (redis.ConnectionError, redis.TimeoutError, OperationalError, StorageError):
         app.add_exception_handler(kind, _outage)
+    install_records_outage(app, retry_after_s)

@@ -230,4 +230,6 @@ class BatchStatus(BaseModel):
 
 class Health(BaseModel):
     status: Literal["ok", "degraded"]
-    checks: dict[str, str] = Field(default_factory=dict, examples=[{"redis": "ok", "storage": "ok"}])
+    checks: dict[str, str] = Field(
+        default_factory=dict, examples=[{"postgresql": "ok", "redis": "ok", "storage": "ok"}]
+    )

@@ -98,6 +98,22 @@ def new_id(prefix: str) -> str:
     return f"{prefix}{int(time.time() * 1000):012x}{secrets.token_hex(5)}"
 
 
+#: What follows an id's prefix ("s_", "j_", "b_"): the 22 lower-case hex digits `new_id` writes.
+ID_DIGITS = "[0-9a-f]{22}"
+
+
+def id_pattern(prefix: str) -> str:
+    """The anchored pattern of the ids `new_id(prefix)` makes, for a FastAPI `Query(pattern=...)`
+    (pydantic's regex engine: ``$`` is the end of the text, not before a final newline)."""
+    return f"^{re.escape(prefix)}{ID_DIGITS}$"
+
+
+def is_id(ident: str, prefix: str) -> bool:
+    """Whether `ident` is an id `new_id(prefix)` could have made: the one check every id meets
+    before it reaches the records (a NUL, a stray byte or a huge value never does)."""
+    return re.fullmatch(re.escape(prefix) + ID_DIGITS, ident) is not None
+
+
 def id_age_s(ident: str) -> float:
     """Seconds since `new_id` made `ident` (0 for an id not in that form)."""
     try:
@@ -590,7 +606,7 @@ class JobStore:
         Keyset over the (tenant, id) order of the rows (ids begin with their creation time). The
         live overlay can move a queued row to running, so a running filter reads queued rows too
         and keeps those Redis says run; every other filter is the row's own."""
-        if scene_id is not None and not re.fullmatch(r"s_[0-9a-f]{22}", scene_id):
+        if scene_id is not None and not is_id(scene_id, "s_"):
             return [], None  # not an id the service issues: no scene, no jobs
         query = select(jobs).where(jobs.c.tenant == tenant)
         if state == JobState.running:

@@ -118,6 +118,23 @@ class ServiceSettings(BaseSettings):
         "('#' starts a comment). Re-read on each lookup, so keys rotate without a restart.",
     )
 
+    # ---- metrics (GET /metrics) -------------------------------------------------------------------
+    metrics_token: SecretStr | None = Field(
+        None,
+        description="Bearer token GET /metrics requires (`Authorization: Bearer <token>`; not an API "
+        "key). Unset, /metrics answers 404 unless metrics_anonymous is true.",
+    )
+    metrics_anonymous: bool = Field(
+        False,
+        description="Serve GET /metrics without a token: only where no client of the API can reach it "
+        "(a port or network of the operator's own).",
+    )
+    metrics_per_tenant: bool = Field(
+        False,
+        description="Label the waiting-jobs gauge and the queue-wait histogram per tenant (the tenants' "
+        "names and loads, to whoever holds the metrics token); false: one series over all tenants.",
+    )
+
     # ---- input limits (checked at the edge, before any work is queued) ---------------------------
     max_upload_bytes: int = Field(4 * GiB, gt=0, description="Largest single upload (scene archive).")
     max_archive_members: int = Field(50_000, gt=0, description="Most files a scene archive may contain.")

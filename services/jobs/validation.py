@@ -18,7 +18,7 @@ from bayesian_fields_core.job.task_list import normalise_tasks
 from bayesian_fields_core.params import PipelineParams
 from bayesian_fields_service.common.callbacks import check_callback_url
 from bayesian_fields_service.common.job_queue import Priority
-from bayesian_fields_service.common.jobs import JobRecord, new_id
+from bayesian_fields_service.common.jobs import JobRecord, is_id, new_id
 from bayesian_fields_service.common.scenes import SceneRecord, SceneStore
 from bayesian_fields_service.common.settings import ServiceSettings
 from bayesian_fields_service.jobs.refusals import Conflict, Invalid, Missing
@@ -43,7 +43,7 @@ class JobAsk:
 def check_id(kind: str, ident: str, prefix: str) -> None:
     """Ids are the service's own (`prefix` + 22 hex digits): anything else cannot exist, so it is
     `Missing` before any lookup (a NUL or a stray byte never reaches the database)."""
-    if not (ident.startswith(prefix) and len(ident) == 24 and all(c in "0123456789abcdef" for c in ident[2:])):
+    if not is_id(ident, prefix):
         raise Missing(f"{kind} {ident!r} not found")
 
 

@@ -17,16 +17,29 @@ from alembic.config import Config
 from alembic.runtime.migration import MigrationContext
 from alembic.script import ScriptDirectory
 from sqlalchemy import Engine, create_engine, text
+from sqlalchemy.engine import make_url
 
 MIGRATIONS = Path(__file__).resolve().parent / "migrations"
 MIGRATION_LOCK = 0x62666965_6C647331  # "bfields1": the advisory lock key every migrator takes
 """The key of the advisory lock that serialises migrations (any fixed 64-bit integer)."""
 
 
+#: Seconds a new connection may take (libpq's ``connect_timeout``; a ``?connect_timeout=N`` in
+#: the URL wins). Short, so an unreachable database is an error in seconds (the API answers 503)
+#: rather than a request hanging on the operating system's TCP timeout.
+CONNECT_TIMEOUT_S = 3
+
+
 @lru_cache(maxsize=8)
 def engine(url: str) -> Engine:
-    """One pooled engine per database URL per process (`postgresql+psycopg://...`)."""
-    created = create_engine(url, pool_pre_ping=True, pool_size=10, max_overflow=10, future=True)
+    """One pooled engine per database URL per process (`postgresql+psycopg://...`).
+
+    Every checkout pre-pings its connection, so connections a database restart broke are
+    replaced on their next use, and the process recovers by itself once the database is back."""
+    connect_args = {} if "connect_timeout" in make_url(url).query else {"connect_timeout": CONNECT_TIMEOUT_S}
+    created = create_engine(
+        url, pool_pre_ping=True, pool_size=10, max_overflow=10, connect_args=connect_args, future=True
+    )
     _ENGINES.append(created)
     return created
 

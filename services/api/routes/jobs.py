@@ -19,6 +19,7 @@ from fastapi.responses import FileResponse, StreamingResponse
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.job.store import ArtifactNotFound, LocalStore, get_json, validate_key
 from bayesian_fields_service.api.json_body import openapi_body, parse_body
+from bayesian_fields_service.api.query import PAGE_LIMIT, JobCursor, PositionCursor, SceneFilter
 from bayesian_fields_service.api.result_zip import zip_stream
 from bayesian_fields_service.api.schemas import (
     Artifact,
@@ -92,12 +93,9 @@ def list_jobs(
     tenant: Tenant,
     state: State,
     job_state: Annotated[JobState | None, Query(alias="state")] = None,
-    scene_id: str | None = None,
-    limit: Annotated[int, Query(ge=1, le=500)] = 50,
-    cursor: Annotated[
-        str | None,
-        Query(pattern=r"^j_[0-9a-f]{22}$", description="next_cursor of the previous page (a job id)"),
-    ] = None,
+    scene_id: SceneFilter = None,
+    limit: Annotated[int, Query(ge=1, le=PAGE_LIMIT)] = 50,
+    cursor: JobCursor = None,
 ) -> JobList:
     items, next_cursor = state.jobs.list(
         tenant, state=job_state, scene_id=scene_id, limit=limit, cursor=cursor
@@ -313,14 +311,10 @@ def list_batch_jobs(
     batch_id: str,
     tenant: Tenant,
     state: State,
-    limit: Annotated[int, Query(ge=1, le=500)] = 100,
-    cursor: Annotated[
-        str | None, Query(max_length=20, description="next_cursor of the previous page")
-    ] = None,
+    limit: Annotated[int, Query(ge=1, le=PAGE_LIMIT)] = 100,
+    cursor: PositionCursor = None,
 ) -> JobList:
     batch = state.service.batch(tenant, batch_id)
-    if cursor is not None and not cursor.isdigit():
-        raise HTTPException(422, f"cursor {cursor!r} is not one this route returned")
     rows = state.jobs.batch_jobs(batch, start=int(cursor or 0), limit=limit + 1)
     nxt = str(rows[limit][0]) if len(rows) > limit else None
     return JobList(items=[j for _, j in rows[:limit]], next_cursor=nxt)

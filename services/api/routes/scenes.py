@@ -14,6 +14,7 @@ from bayesian_fields_core.job.store import ArtifactNotFound, PrefixedStore
 from bayesian_fields_core.scene.formats.registry import upload_description
 from bayesian_fields_service.api.archives import ArchiveLimits
 from bayesian_fields_service.api.multipart import clean_filename, receive_multipart
+from bayesian_fields_service.api.query import PAGE_LIMIT, SceneCursor
 from bayesian_fields_service.api.scene_intake import (
     UploadedFile,
     alignment_wanted,
@@ -359,11 +360,8 @@ def get_scene(scene_id: str, tenant: Tenant, state: State) -> SceneRecord:
 def list_scenes(
     tenant: Tenant,
     state: State,
-    limit: Annotated[int, Query(ge=1, le=500)] = 50,
-    cursor: Annotated[
-        str | None,
-        Query(pattern=r"^s_[0-9a-f]{22}$", description="next_cursor of the previous page (a scene id)"),
-    ] = None,
+    limit: Annotated[int, Query(ge=1, le=PAGE_LIMIT)] = 50,
+    cursor: SceneCursor = None,
 ) -> SceneList:
     items, next_cursor = state.scenes.list(tenant, limit, cursor)
     return SceneList(items=items, next_cursor=next_cursor)

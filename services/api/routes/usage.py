@@ -13,6 +13,7 @@ from typing import Annotated
 from fastapi import APIRouter, HTTPException, Query
 from pydantic import BaseModel, Field
 
+from bayesian_fields_service.api.query import Day
 from bayesian_fields_service.api.state import ERRORS, State, Tenant
 from bayesian_fields_service.common.usage import tenant_usage
 
@@ -59,12 +60,10 @@ def get_usage(
     tenant: Tenant,
     state: State,
     start: Annotated[
-        date | None,
+        Day,
         Query(alias="from", description="First day (UTC, inclusive); default: the 1st of `to`'s month"),
     ] = None,
-    end: Annotated[
-        date | None, Query(alias="to", description="Last day (UTC, inclusive); default: today")
-    ] = None,
+    end: Annotated[Day, Query(alias="to", description="Last day (UTC, inclusive); default: today")] = None,
 ) -> UsageReport:
     end = end or datetime.now(UTC).date()
     start = start or end.replace(day=1)

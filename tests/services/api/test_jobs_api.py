@@ -169,8 +169,9 @@ def test_openapi_health_and_metrics(api: ApiServer) -> None:
     assert "multipart/form-data" in spec["paths"]["/v1/scenes"]["post"]["requestBody"]["content"]
     assert spec["components"]["schemas"]["JobRequest"]["examples"]
     ready = httpx.get(f"{api.base_url}/readyz")
-    assert ready.status_code == 200 and ready.json()["checks"] == {"redis": "ok", "storage": "ok"}
-    metrics = httpx.get(f"{api.base_url}/metrics").text
+    assert ready.status_code == 200
+    assert ready.json()["checks"] == {"postgresql": "ok", "redis": "ok", "storage": "ok"}
+    metrics = api.metrics()
     assert 'bfields_queue_depth{queue="gpu"}' in metrics and "bfields_jobs_active" in metrics
 
 

@@ -44,7 +44,10 @@ TERMINAL = ("succeeded", "failed", "cancelled")
 
 def _defaults_env() -> dict[str, str]:
     """The service tests' env with the admission and dispatch settings left at their defaults."""
-    return {k: v for k, v in SERVICE_ENV.items() if k != "BFIELDS_MAX_ACTIVE_JOBS_PER_TENANT"}
+    return {
+        **{k: v for k, v in SERVICE_ENV.items() if k != "BFIELDS_MAX_ACTIVE_JOBS_PER_TENANT"},
+        "BFIELDS_METRICS_PER_TENANT": "true",  # the fleet tests read the per-tenant series
+    }
 
 
 @pytest.fixture(scope="module")
@@ -91,7 +94,7 @@ def test_a_batch_of_1000_is_accepted_with_defaults_paged_retried_and_cancelled(
         assert last["queue_position"] == 998, last
         first = client.get(f"/v1/jobs/{ids[0]}").json()
         assert first["queue_position"] is None  # dispatched
-        metrics = httpx.get(f"{idle.api.base_url}/metrics").text
+        metrics = idle.api.metrics()
         assert 'bfields_jobs_waiting{tenant="tenant-a"} 998.0' in metrics
         assert 'bfields_queue_wait_seconds_count{tenant="tenant-a"} 2.0' in metrics
 

@@ -115,7 +115,7 @@ def test_end_to_end_over_http_matches_in_process(
     second = wait_job(client_a, again.json()["id"])
     assert second["state"] == "succeeded", second
     assert second["stage_reports"]["perceive"]["frames_cached"] == 4
-    metrics = httpx.get(f"{api.base_url}/metrics").text
+    metrics = api.metrics()
     assert 'bfields_stage_seconds_count{stage="cluster"}' in metrics
     assert 'bfields_job_seconds_count{outcome="succeeded"}' in metrics
 

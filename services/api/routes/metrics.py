@@ -1,0 +1,148 @@
+"""``GET /metrics``: Prometheus metrics, for the operator's scraper only.
+
+Why a token of its own: the metrics describe every tenant's work (and, per tenant, who the
+tenants are and how much each has waiting), so an API key, which any tenant holds, must not
+open them, and neither may no key at all. The route answers only to ``Authorization: Bearer
+<metrics_token>``, or to anyone where the operator says the port is theirs alone
+(`metrics_anonymous`); with neither set it does not exist (404). Per-tenant series are an
+operator's choice too (`metrics_per_tenant`); by default each series sums over the tenants.
+"""
+
+from __future__ import annotations
+
+import hmac
+from collections.abc import Iterator
+
+import redis
+from fastapi import APIRouter, Depends, HTTPException, Request, Response, status
+from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, generate_latest
+from prometheus_client.core import GaugeMetricFamily, HistogramMetricFamily
+from prometheus_client.registry import Collector
+
+from bayesian_fields_service.api.state import AppState, get_state
+from bayesian_fields_service.common.jobs import STAGES, JobState
+from bayesian_fields_service.common.metrics import (
+    JOB_KEY,
+    QUEUE_WAIT_KEY,
+    STAGE_KEY,
+    queue_wait_tenants,
+    read_histogram,
+)
+from bayesian_fields_service.common.settings import ServiceSettings
+from bayesian_fields_service.worker.dispatch import queue_length
+
+router = APIRouter(tags=["health"])
+
+Histogram = tuple[list[tuple[str, float]], float, float]
+
+
+def _summed(histograms: list[Histogram]) -> Histogram | None:
+    """One histogram over all tenants: the same buckets, their counts and sums added."""
+    if not histograms:
+        return None
+    buckets = [(bound, sum(h[0][i][1] for h in histograms)) for i, (bound, _) in enumerate(histograms[0][0])]
+    return buckets, sum(h[1] for h in histograms), sum(h[2] for h in histograms)
+
+
+class ServiceCollector(Collector):
+    """Reads queue depths and the workers' Redis histograms at scrape time."""
+
+    def __init__(self, state: AppState) -> None:
+        self.state = state
+
+    def collect(self) -> Iterator:
+        s = self.state
+        per_tenant = s.settings.metrics_per_tenant
+        tenant_label = ["tenant"] if per_tenant else []
+        depth = GaugeMetricFamily(
+            "bfields_queue_depth", "Messages waiting in a Celery queue.", labels=["queue"]
+        )
+        active = GaugeMetricFamily("bfields_jobs_active", "Jobs whose record is queued or running.")
+        stage_h = HistogramMetricFamily(
+            "bfields_stage_seconds", "Duration of finished stages.", labels=["stage"]
+        )
+        job_h = HistogramMetricFamily(
+            "bfields_job_seconds", "Duration of finished jobs by outcome.", labels=["outcome"]
+        )
+        waiting = GaugeMetricFamily(
+            "bfields_jobs_waiting",
+            "Jobs waiting in the tenants' fair-share queues, not yet dispatched to a Celery queue "
+            "(per tenant where BFIELDS_METRICS_PER_TENANT is on; autoscaling adds this to "
+            "bfields_queue_depth; see deploy/keda.yaml).",
+            labels=tenant_label,
+        )
+        wait_h = HistogramMetricFamily(
+            "bfields_queue_wait_seconds",
+            "Seconds from a job's submission to its dispatch to a worker queue "
+            "(per tenant where BFIELDS_METRICS_PER_TENANT is on).",
+            labels=tenant_label,
+        )
+        try:
+            for queue in {s.settings.gpu_queue, s.settings.cpu_queue}:
+                depth.add_metric([queue], queue_length(s.redis, queue))
+            for stage in STAGES:
+                if (h := read_histogram(s.redis, STAGE_KEY.format(stage=stage))) is not None:
+                    stage_h.add_metric([stage], h[0], h[1])
+            for outcome in (JobState.succeeded, JobState.failed, JobState.cancelled):
+                if (h := read_histogram(s.redis, JOB_KEY.format(outcome=outcome.value))) is not None:
+                    job_h.add_metric([outcome.value], h[0], h[1])
+            counts = s.jobs.queue.waiting_by_tenant()
+            waits = {
+                tenant: h
+                for tenant in queue_wait_tenants(s.redis)
+                if (h := read_histogram(s.redis, QUEUE_WAIT_KEY.format(tenant=tenant))) is not None
+            }
+        except redis.RedisError:
+            return
+        if per_tenant:
+            for tenant, n in sorted(counts.items()):
+                waiting.add_metric([tenant], n)
+            if not counts:  # a series even when nothing waits, so sum() in a query is 0, not empty
+                waiting.add_metric([""], 0)
+            for tenant, h in waits.items():
+                wait_h.add_metric([tenant], h[0], h[1])
+        else:
+            waiting.add_metric([], sum(counts.values()))
+            if (total := _summed(list(waits.values()))) is not None:
+                wait_h.add_metric([], total[0], total[1])
+        active.add_metric([], s.jobs.count_active())
+        yield from (depth, active, stage_h, job_h, waiting, wait_h)
+
+
+def metrics_registry(state: AppState) -> CollectorRegistry:
+    registry = CollectorRegistry(auto_describe=False)
+    registry.register(ServiceCollector(state))
+    return registry
+
+
+def require_metrics_access(request: Request, state: AppState = Depends(get_state)) -> None:
+    """404 where metrics are off (no token, not anonymous); 401 without the metrics token."""
+    settings: ServiceSettings = state.settings
+    if settings.metrics_anonymous:
+        return
+    if settings.metrics_token is None:
+        raise HTTPException(
+            status.HTTP_404_NOT_FOUND,
+            "metrics are off: set BFIELDS_METRICS_TOKEN (sent as Authorization: Bearer) or "
+            "BFIELDS_METRICS_ANONYMOUS=true",
+        )
+    scheme, _, presented = request.headers.get("authorization", "").partition(" ")
+    expected = settings.metrics_token.get_secret_value()
+    if scheme.lower() != "bearer" or not hmac.compare_digest(presented.strip().encode(), expected.encode()):
+        raise HTTPException(
+            status.HTTP_401_UNAUTHORIZED,
+            "GET /metrics needs the metrics token as Authorization: Bearer <token> (BFIELDS_METRICS_TOKEN; "
+            "an API key does not open it)",
+            headers={"WWW-Authenticate": "Bearer"},
+        )
+
+
+@router.get(
+    "/metrics",
+    summary="Prometheus metrics (Authorization: Bearer <BFIELDS_METRICS_TOKEN>)",
+    response_class=Response,
+    dependencies=[Depends(require_metrics_access)],
+    responses={401: {"description": "Without the metrics token"}, 404: {"description": "Metrics are off"}},
+)
+def metrics(state: AppState = Depends(get_state)) -> Response:
+    return Response(generate_latest(state.metrics_registry), media_type=CONTENT_TYPE_LATEST)

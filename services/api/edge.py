@@ -31,7 +31,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from bayesian_fields_service.api.bulk_lane import LaneUnavailable
-from bayesian_fields_service.api.records_outage import install_records_outage
+from bayesian_fields_service.api.records_outage import OUTAGES, cause
 from bayesian_fields_service.common.sanitize import redact_locations, scrub_text
 from bayesian_fields_service.common.scenes import SceneBusy, SceneGone, SceneNotReady, SceneNotUploading
 from bayesian_fields_service.jobs.refusals import Busy, Conflict, Invalid, Missing, OverQuota, Refused
@@ -268,6 +268,16 @@ def install_handlers(app: FastAPI, retry_after_s: int) -> None:
         log.warning("%s %s: %s", request.method, request.url.path, exc)
         return problem(503, str(exc), headers={"Retry-After": str(retry_after_s)})
 
+    async def _records_outage(request: Request, exc: Exception) -> JSONResponse:
+        log.warning("%s %s: records database: %s: %s", request.method, request.url.path,
+                    type(exc).__name__, str(exc).splitlines()[0] if str(exc) else "")  # fmt: skip
+        return problem(
+            503,
+            f"{cause(exc)}; retry in {retry_after_s} s (a submission with the same Idempotency-Key)",
+            headers={"Retry-After": str(retry_after_s)},
+        )
+
     for kind in (redis.ConnectionError, redis.TimeoutError, OperationalError, StorageError):
         app.add_exception_handler(kind, _outage)
-    install_records_outage(app, retry_after_s)
+    for kind in OUTAGES:  # the records database (`records_outage`)
+        app.add_exception_handler(kind, _records_outage)

@@ -76,7 +76,8 @@ def test_a_final_write_racing_a_database_outage_ends_succeeded_once(
     private_stacks: Any, private_pg: PrivatePostgres, receiver: Receiver, scene_dir: Path
 ) -> None:
     stack: PrivateStack = private_stacks(
-        "final-write", {**FLEET_ENV, "BFIELDS_DATABASE_URL": private_pg.url()}
+        "final-write",
+        {**FLEET_ENV, "BFIELDS_DATABASE_URL": private_pg.url(), "BFIELDS_TEST_PAUSE_POINTS": "true"},
     )
     stack.start()
     assert stack.pool is not None and stack.api is not None

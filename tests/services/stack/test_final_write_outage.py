@@ -97,6 +97,9 @@ def test_a_final_write_racing_a_database_outage_ends_succeeded_once(
         private_pg.start()
         job = _wait_final(client, job_id, 180)
     assert job["state"] == "succeeded", job
+    # the worker's write met the outage and was tried again until it landed
+    logs = "".join(p.read_text(errors="replace") for p in (stack.tmp / "workers").rglob("*.log"))
+    assert "the records database is unreachable" in logs and job_id in logs
     assert job["stage_runs"] == 3, job  # no stage ran again
     # This receiver answers 500 to an event's first attempt: delivered means exactly two hits of one event.
     deadline = time.monotonic() + 60

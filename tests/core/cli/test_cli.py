@@ -152,6 +152,21 @@ def test_run_rejects_a_missing_scene(
 SAMPLE = Path(__file__).resolve().parents[3] / "samples" / "tabletop"
 
 
+def test_run_refuses_a_point_cloud_in_one_line(
+    profile_yaml: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """An xyz-only point_cloud.ply (COLMAP's points3D as PLY) was told to run splat-transform on
+    it, which refuses it; the refusal says what the file is and how to train a splat."""
+    from tests.core.scene.test_point_clouds import xyz_cloud
+
+    scene = copy_scene(SAMPLE, tmp_path / "scene")
+    xyz_cloud(scene / "point_cloud.ply")
+    assert main(_run_args(scene, tmp_path, profile_yaml, "--task", "cup")) == 2
+    err = _one_line_error(capsys)
+    assert "point_cloud.ply: a point cloud" in err and "ns-train splatfacto" in err, err
+    assert "splat-transform" not in err
+
+
 @pytest.mark.slow
 def test_run_prints_the_alignment_score(
     scene_dir: Path, profile_yaml: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]

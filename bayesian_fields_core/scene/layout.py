@@ -28,7 +28,9 @@ from bayesian_fields_core.scene.files import resolve_inside
 from bayesian_fields_core.scene.formats.checkpoint import CKPT
 from bayesian_fields_core.scene.formats.common import CONVERTED_SPLAT
 from bayesian_fields_core.scene.formats.registry import accepted_names, is_splat_candidate
+from bayesian_fields_core.scene.formats.sniff import point_cloud_properties
 from bayesian_fields_core.scene.inria_output import CFG_ARGS, is_inria_output, read_cfg_args
+from bayesian_fields_core.scene.point_cloud import point_cloud_message
 from bayesian_fields_core.scene.scene_yaml import SCENE_YAML, SceneSpecFile, read_scene_yaml
 from bayesian_fields_core.scene.similarity import Similarity
 from bayesian_fields_core.scene.trainer_runs import GSPLAT_CFG, NERFSTUDIO_CFG, gsplat_run, nerfstudio_run
@@ -115,12 +117,19 @@ def _gsplat_ckpt(folder: Path) -> tuple[int, Path] | None:
 
 
 def find_splat_file(folder: Path) -> tuple[Path, str]:
-    """(splat, trainer guess) by the loader's preference order; InputError when none or ambiguous."""
+    """(splat, trainer guess) by the loader's preference order; InputError when none or ambiguous.
+
+    A PLY of plain points (`scene.point_cloud`: COLMAP's points3D, an SfM or lidar cloud, often
+    named point_cloud.ply) is never taken: a trained splat beside it is, and a folder with
+    nothing else is refused with what the file is and how to get a splat."""
     if not folder.is_dir():
         raise InputError("scene folder does not exist", source=str(folder))
+    clouds: dict[Path, set[str]] = {}
     for name in SPLAT_NAMES:
         if (folder / name).is_file():
-            return folder / name, "plain"
+            if (names := point_cloud_properties(folder / name)) is None:
+                return folder / name, "plain"
+            clouds[folder / name] = names
     if (splat := _inria_iteration(folder)) is not None:
         return splat, "inria"
     ckpt = _gsplat_ckpt(folder)
@@ -131,9 +140,15 @@ def find_splat_file(folder: Path) -> tuple[Path, str]:
     if ckpt is not None:
         return ckpt[1], "gsplat"
     inria = is_inria_output(folder)
-    plys = sorted(
-        p for p in folder.iterdir() if is_splat_candidate(p) and not (inria and p.name == INRIA_SFM_POINTS)
-    )
+    plys = []
+    for p in sorted(folder.iterdir()):
+        if not is_splat_candidate(p) or (inria and p.name == INRIA_SFM_POINTS):
+            continue
+        names = clouds.get(p) or point_cloud_properties(p)
+        if names is None:
+            plys.append(p)
+        else:
+            clouds[p] = names
     if len(plys) == 1:
         return plys[0], "plain"
     if len(plys) > 1:
@@ -142,6 +157,9 @@ def find_splat_file(folder: Path) -> tuple[Path, str]:
             " (name the splat in a scene.yaml)",
             source=str(folder),
         )
+    if clouds:
+        cloud, names = next(iter(clouds.items()))
+        raise InputError(point_cloud_message(names), source=str(cloud))
     extra = (
         " (input.ply is 3DGS's SfM point cloud, not a splat)"
         if inria and (folder / INRIA_SFM_POINTS).is_file()

@@ -40,7 +40,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from bayesian_fields_core.errors import InputError
-from bayesian_fields_core.scene.colmap import read_colmap
+from bayesian_fields_core.scene.colmap import images_file, read_colmap
 from bayesian_fields_core.scene.files import require_files, resolve_inside
 from bayesian_fields_core.scene.formats import read_splat
 from bayesian_fields_core.scene.inria import read_cameras_json
@@ -112,16 +112,43 @@ def _attach_depth(frames: list[Frame], layout: SceneLayout) -> list[Frame]:
     return frames
 
 
-def frames_of_layout(layout: SceneLayout) -> list[Frame]:
-    """The frames a layout's camera file describes, checked against the files they reference."""
+def read_layout_frames(layout: SceneLayout) -> list[Frame]:
+    """The frames a layout's camera file describes, as read (no file they name is checked yet)."""
     kind, path = layout.camera_kind, layout.camera_path
     if kind == "transforms":
-        frames = read_transforms(path)
-    elif kind == "colmap":
-        frames = read_colmap(path, layout.images_dir)
-    else:
-        frames = read_cameras_json(path, layout.images_dir)
-    require_files((f.image_path for f in frames), what="image files", source=str(path))
+        return read_transforms(path)
+    if kind == "colmap":
+        return read_colmap(path, layout.images_dir)
+    return read_cameras_json(path, layout.images_dir)
+
+
+def frames_file(layout: SceneLayout) -> Path:
+    """The file that lists the layout's frames: transforms.json, cameras.json, or the COLMAP
+    model's images.bin / images.txt (not the model's folder, which is `camera_path`)."""
+    return images_file(layout.camera_path) if layout.camera_kind == "colmap" else layout.camera_path
+
+
+def shown_path(layout: SceneLayout, path: Path) -> str:
+    """`path` relative to the scene folder, as the user sees the folder; whole when outside it
+    (a trainer's data folder)."""
+    try:
+        return path.resolve().relative_to(layout.root.resolve()).as_posix()
+    except ValueError:
+        return str(path)
+
+
+def missing_images_fix(layout: SceneLayout) -> str:
+    """What to do about frames whose image files are missing, naming the file that lists them."""
+    return f"restore those image files, or drop those frames from {shown_path(layout, frames_file(layout))}"
+
+
+def frames_of_layout(layout: SceneLayout) -> list[Frame]:
+    """The frames a layout's camera file describes, checked against the files they reference."""
+    path = layout.camera_path
+    frames = read_layout_frames(layout)
+    require_files(
+        (f.image_path for f in frames), what="image files", source=str(path), fix=missing_images_fix(layout)
+    )
     if layout.rescale_intrinsics:
         frames = rescale_to_images(frames, source=str(path))
     if layout.depth_dir is not None:

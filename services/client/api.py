@@ -25,6 +25,7 @@ from typing import Any
 import httpx
 
 from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.job.atomic import atomic_temp
 from bayesian_fields_core.scene.trainer_transforms import SPLAT_TRANSFORM
 
 ProgressFn = Callable[[int], None]  # called with bytes just sent/received
@@ -319,7 +320,7 @@ class BFieldsClient:
 @contextmanager
 def _download(client: httpx.Client, url: str, dest: Path, on_bytes: ProgressFn | None) -> Iterator[int]:
     """Stream `url` into `dest` atomically; yields the byte count."""
-    fd, tmp = tempfile.mkstemp(dir=dest.parent, prefix=".part-")
+    fd, tmp = atomic_temp(dest.parent, prefix=".part-")
     size = 0
     try:
         with os.fdopen(fd, "wb") as fh, _streamed(client, url, dest) as resp:

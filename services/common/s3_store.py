@@ -19,7 +19,6 @@ import functools
 import logging
 import os
 import random
-import tempfile
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -34,6 +33,7 @@ from boto3.s3.transfer import TransferConfig
 from botocore.config import Config
 
 from bayesian_fields_core.errors import BayesianFieldsError, InputError
+from bayesian_fields_core.job.atomic import atomic_temp
 from bayesian_fields_core.job.store import ArtifactNotFound, validate_key
 
 if TYPE_CHECKING:
@@ -319,11 +319,12 @@ class S3Store:
         _key(key)
         dest = Path(path)
         dest.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=dest.parent, prefix=".tmp-")
+        fd, tmp = atomic_temp(dest.parent)
         os.close(fd)
         try:
             self._retry(
-                lambda: self.client.download_file(self.bucket, key, tmp, Config=self.transfer_config), key
+                lambda: self.client.download_file(self.bucket, key, str(tmp), Config=self.transfer_config),
+                key,
             )
             os.replace(tmp, dest)
         finally:

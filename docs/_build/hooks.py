@@ -6,7 +6,9 @@
 `<!-- bfields params --markdown -->` on a line of its own is replaced by what that command prints:
 the table of every pipeline parameter, generated from `PipelineParams`, so the page cannot drift
 from the model. `<!-- splat formats -->` is replaced by the splat format table, generated from
-`scene/formats/registry.py` (`markdown_table`), the table the loader and the upload check read. The command is found through the `bfields` console script declared in
+`scene/formats/registry.py` (`markdown_table`), the table the loader and the upload check read;
+`<!-- camera formats -->` and `<!-- trainer layouts -->` likewise by the camera format and trainer
+layout tables (`scene/camera_formats.py`, `scene/trainers.py`). The command is found through the `bfields` console script declared in
 `pyproject.toml` and run in this process, with this checkout first on the import path, so the
 build needs no reinstall after modules move.
 """
@@ -31,6 +33,8 @@ COMMANDS = {
 # Marker -> the `module:function` (no arguments, returns Markdown) whose result replaces it.
 FUNCTIONS = {
     "<!-- splat formats -->": "bayesian_fields_core.scene.formats.registry:markdown_table",
+    "<!-- camera formats -->": "bayesian_fields_core.scene.camera_formats:markdown_table",
+    "<!-- trainer layouts -->": "bayesian_fields_core.scene.trainers:markdown_table",
 }
 
 

@@ -1,8 +1,8 @@
 """The stage tasks: one Celery task per pipeline stage, each idempotent and resumable.
 
-A task (tenant, job id) loads the job manifest, skips a stage whose ``stages/<name>.json`` marker
-exists, otherwise holds a per-(job, stage) Redis lock while it runs `run_stage`, reporting progress
-to Redis and the outcome to the manifest. Failure handling:
+A task (tenant, job id) loads the job's record (its PostgreSQL row), skips a stage whose
+``stages/<name>.json`` marker exists, otherwise holds a per-(job, stage) Redis lock while it runs
+`run_stage`, reporting progress to Redis and the outcome to the job's row. Failure handling:
 - `InputError` (bad scene, bad parameter): the job fails with the message; no retry;
 - `CancelledError` (the cancel flag, checked between frames): the job is cancelled;
 - connection / storage errors: retried with exponential backoff, at most ``job_max_retries``;
@@ -260,7 +260,7 @@ def execute_stage(task: Task, stage: str, tenant: str, job_id: str, lock_waits: 
     rt = runtime()
     record = rt.jobs.load(tenant, job_id)
     if record is None:
-        log.warning("job %s/%s has no manifest; dropping %s", tenant, job_id, stage)
+        log.warning("job %s/%s has no record; dropping %s", tenant, job_id, stage)
         return "missing"
     if record.state.terminal:
         return f"already {record.state.value}"

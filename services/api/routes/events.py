@@ -1,9 +1,9 @@
 """``GET /v1/batches/{id}/events``: a server-sent-events stream of a batch's job states.
 
 Why polling Redis rather than pub/sub: the stream must be right after a reconnect, a missed
-message or an API restart, so each round reads the jobs' live hashes (``bf:job:*``, one pipelined
-HGETALL per round for the whole batch; the manifest only for a job Redis no longer knows) and
-sends what changed since the last round. Events:
+message or an API restart, so each round reads the batch's job rows (one query) and the live
+progress hashes of its active jobs (``bf:job:*``, one pipelined round trip; `JobStore.batch_jobs`)
+and sends what changed since the last round. Events:
 - ``job``: ``{"id", "state", "stage", "progress"}`` for a job whose state, stage or whole percent
   changed (every job in the first round, so a client starts from a full picture);
 - ``counts``: ``{"counts": {state: n}, "total", "progress", "finished"}`` after each round with

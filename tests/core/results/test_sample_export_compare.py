@@ -138,13 +138,19 @@ def test_exported_mug_reads_back_in_splat_transform_and_gsply(
 
 
 @pytest.mark.slow
-def test_all_tasks_writes_each_answered_task(runs: dict[str, Path], tmp_path: Path) -> None:
+def test_all_tasks_writes_each_answered_task_and_names_the_others(
+    runs: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     result = read_result(runs["eight"])
     assert main(["export", str(runs["eight"]), "--all-tasks", "--format", "ply", "--out", str(tmp_path)]) == 0
     ids = np.asarray(result.object_ids)
     written = sorted(tmp_path.iterdir())
     answered = [t for t in result.tasks if result.selections[t]]
     assert len(written) == len(answered) == 7  # the red lamp is "not found"
+    out, err = capsys.readouterr()
+    assert out.splitlines() == [str(p) for p in written]  # stdout: the files, nothing else
+    lamp = result.not_found["pick up the red lamp"]
+    assert err.splitlines() == [f'"pick up the red lamp": not found, no file written ({lamp.reason})']
     for path, task in zip(written, answered, strict=True):
         chosen = [o.object_id for o in result.selections[task]]
         assert len(read_ply(path)) == int(np.isin(ids, chosen).sum()), task

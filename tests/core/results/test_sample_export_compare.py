@@ -5,6 +5,7 @@ files read back by splat-transform and gsply hold the object's Gaussians, and ob
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -151,6 +152,16 @@ def test_all_tasks_writes_each_answered_task_and_names_the_others(
     assert out.splitlines() == [str(p) for p in written]  # stdout: the files, nothing else
     lamp = result.not_found["pick up the red lamp"]
     assert err.splitlines() == [f'"pick up the red lamp": not found, no file written ({lamp.reason})']
+    # said as what the number means (issue 45, item 12), not "has peak 0.632 < 0.640806"
+    assert re.fullmatch(
+        rf"best object {lamp.object_id} scored {lamp.score:.3f}, below the not-found threshold "
+        rf"{lamp.threshold:.3f} \(its best view's match to the task: 1 = as well as a typical relevant "
+        r"view, 0 = as a typical irrelevant one\)",
+        lamp.reason,
+    ), lamp.reason
+    summary = json.loads((runs["eight"] / "result" / "summary.json").read_text())
+    objects = [o for s in summary["selections"] for o in s["objects"]]
+    assert objects and all(o["best_view_score"] == o["peak"] for o in objects)
     for path, task in zip(written, answered, strict=True):
         chosen = [o.object_id for o in result.selections[task]]
         assert len(read_ply(path)) == int(np.isin(ids, chosen).sum()), task

@@ -18,7 +18,6 @@ from pathlib import Path
 from typing import Any
 
 import yaml
-from rich.console import Console
 from rich.progress import (
     BarColumn,
     DownloadColumn,
@@ -30,12 +29,13 @@ from rich.progress import (
 )
 
 from bayesian_fields_core.cli.job_options import parameter_overrides, resolve_tasks, validate_parameters
+from bayesian_fields_core.cli.output import message_console
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.job.task_list import load_tasks, normalise_tasks
 from bayesian_fields_service.client.api import BFieldsClient, ClientError
 from bayesian_fields_service.client.defaults import DEFAULT_SERVER
 
-console = Console(stderr=True)
+console = message_console(stderr=True)
 
 
 def _client(server: str | None, api_key: str | None) -> BFieldsClient:

@@ -59,6 +59,15 @@ async function initIndex() {
   setInterval(() => { if (key()) refreshJobs().catch(() => {}); }, POLL_MS);
 }
 
+// The stage column: a running job's stage; a finished job's outcome ("done", "failed in fuse"),
+// never its last stage as if it were still at it (a succeeded job said "stage: cluster").
+const FINISHED = ["succeeded", "failed", "cancelled"];
+function stageText(j) {
+  if (j.state === "succeeded") return "done";
+  if (FINISHED.includes(j.state)) return j.stage ? `${j.state} in ${j.stage}` : j.state;
+  return j.stage || "";
+}
+
 async function refresh() { await Promise.all([refreshScenes(), refreshJobs()]); }
 
 async function refreshScenes() {
@@ -77,7 +86,7 @@ async function refreshJobs() {
   rows.replaceChildren(...body.items.map((j) => el("tr", { "data-job": j.id, "data-state": j.state },
     el("td", {}, el("a", { href: `/ui/job?id=${encodeURIComponent(j.id)}`, text: j.id })),
     el("td", { text: j.scene_id }), el("td", { text: j.tasks.join("; ") }),
-    el("td", { class: `state-${j.state}`, text: j.state }), el("td", { text: j.stage || "" }),
+    el("td", { class: `state-${j.state}`, text: j.state }), el("td", { text: stageText(j) }),
     el("td", {}, bar(j.state === "succeeded" ? 100 : j.progress), ` ${Math.round(j.progress)}%`),
     el("td", { text: when(j.updated_at) }))));
   $("jobs-updated").textContent = `(updated ${new Date().toLocaleTimeString()})`;
@@ -137,14 +146,14 @@ async function initJob() {
     catch (e) { $("job-error").textContent = e.message; return; }
     $("job-state").textContent = job.state; $("job-state").className = `state-${job.state}`;
     document.body.dataset.state = job.state;
-    $("job-stage").textContent = job.stage || "";
+    $("job-stage").textContent = stageText(job);
     const p = job.state === "succeeded" ? 100 : job.progress;
     $("job-bar").style.width = `${p}%`; $("job-progress").textContent = `${Math.round(p)}%`;
     $("job-tasks").textContent = job.tasks.join("; ");
     $("job-timings").textContent = timings(job.timings);
     $("job-error").textContent = job.error || "";
     if (job.state === "succeeded" && !shown) { shown = true; await showResult(id); }
-    if (!["succeeded", "failed", "cancelled"].includes(job.state)) setTimeout(tick, POLL_MS);
+    if (!FINISHED.includes(job.state)) setTimeout(tick, POLL_MS);
   };
   tick();
 }
@@ -267,9 +276,9 @@ async function initBatch() {
     row.tr.dataset.state = j.state;
     row.cells.state.className = `state-${j.state}`;
     row.cells.state.textContent = j.state;
-    row.cells.stage.textContent = j.stage || "";
+    row.cells.stage.textContent = stageText(j);
     row.cells.progress.replaceChildren(bar(j.state === "succeeded" ? 100 : j.progress));
-    if (["succeeded", "failed", "cancelled"].includes(j.state) && was !== j.state) finished(j.id, j.state).catch(() => {});
+    if (FINISHED.includes(j.state) && was !== j.state) finished(j.id, j.state).catch(() => {});
   }
   async function finished(jobId, state) {
     const detail = await api(`/v1/jobs/${encodeURIComponent(jobId)}`);

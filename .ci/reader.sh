@@ -19,13 +19,18 @@ step() {
 }
 fail() { echo "reader stage: $*" >&2; exit 1; }
 
-# The install lines, as the page gives them (with this checkout for /path/to/bayesian-fields).
+# The install lines, as the page gives them (a copy of this checkout for /path/to/bayesian-fields).
 install_lines=("pip install --no-deps /path/to/bayesian-fields" "pip install 'numpy>=1.26'")
 for line in "${install_lines[@]}"; do
   grep -qF -- "$line" "$page" || fail "$page no longer says '$line': update this script with the page"
 done
+# pip builds in the source folder (build/, *.egg-info): build from a copy of the checkout's files
+# (tracked and new, not ignored) so the checkout is left as it was and nothing stale gets in.
+mkdir "$work/src"
+(cd "$repo" && git ls-files -z --cached --others --exclude-standard | tar --null -T - --ignore-failed-read -cf -) \
+  | tar -xf - -C "$work/src"
 step python3 -m venv "$work/robot"
-step "$work/robot/bin/pip" install -q --no-deps "$repo"
+step "$work/robot/bin/pip" install -q --no-deps "$work/src"
 step "$work/robot/bin/pip" install -q 'numpy>=1.26'
 echo "+ robot venv holds: $("$work/robot/bin/pip" list --format=freeze 2>/dev/null | grep -v '^pip==' | tr '\n' ' ')"
 if "$work/robot/bin/python" -c 'import torch' 2>/dev/null; then

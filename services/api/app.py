@@ -21,6 +21,7 @@ from redis.retry import Retry
 
 from bayesian_fields_service.api.body_deadline import BodyDeadline
 from bayesian_fields_service.api.bulk_lane import BulkLane, settle_child
+from bayesian_fields_service.api.docs_page import install_docs
 from bayesian_fields_service.api.edge import Utf8Guard, install_handlers
 from bayesian_fields_service.api.json_body import add_body_schemas
 from bayesian_fields_service.api.routes import events, health, jobs, metrics, scenes, ui, usage
@@ -115,8 +116,14 @@ def create_app(settings: ServiceSettings | None = None) -> FastAPI:
     )
     state.metrics_registry = metrics_registry(state)
     app = FastAPI(
-        title="Bayesian Fields API", version="1.0.0", description=DESCRIPTION, lifespan=_lifespan(state)
+        title="Bayesian Fields API",
+        version="1.0.0",
+        description=DESCRIPTION,
+        lifespan=_lifespan(state),
+        docs_url=None,  # served from local assets by install_docs (docs_page.py says why)
+        redoc_url=None,
     )
+    install_docs(app, app.title)
     app.state.bf = state
     app.state.key_ring = state.key_ring
     for module in (scenes, jobs, health, metrics, ui, events, usage):

@@ -4,6 +4,7 @@ queued, and are cancelled at the end so later worker tests skip them)."""
 from __future__ import annotations
 
 import json
+import re
 import uuid
 
 import httpx
@@ -238,6 +239,22 @@ def test_openapi_health_and_metrics(api: ApiServer) -> None:
     assert ready.json()["checks"] == {"postgresql": "ok", "redis": "ok", "storage": "ok"}
     metrics = api.metrics()
     assert 'bfields_queue_depth{queue="gpu"}' in metrics and "bfields_jobs_active" in metrics
+
+
+def test_the_docs_page_names_no_other_host_and_its_assets_are_served(api: ApiServer) -> None:
+    """/docs works offline (issue 41): FastAPI's page loaded Swagger UI from a CDN and its favicon
+    from fastapi.tiangolo.com; the API serves them itself now."""
+    page = httpx.get(f"{api.base_url}/docs")
+    assert page.status_code == 200 and "text/html" in page.headers["content-type"]
+    assert re.findall(r"(?:https?:)?//[A-Za-z0-9.-]+", page.text) == [], "the page names another host"
+    assets = re.findall(r"""(?:src|href)=['"]([^'"]+)['"]|url: ['"]([^'"]+)['"]""", page.text)
+    urls = sorted({a or b for a, b in assets})
+    assert "/openapi.json" in urls and any(u.endswith("swagger-ui-bundle.js") for u in urls), urls
+    for url in urls:
+        resp = httpx.get(f"{api.base_url}{url}")
+        assert resp.status_code == 200 and resp.content, url
+    assert "SwaggerUIBundle" in httpx.get(f"{api.base_url}/docs/assets/swagger-ui-bundle.js").text
+    assert httpx.get(f"{api.base_url}/redoc").status_code == 404  # CDN-only; /openapi.json instead
 
 
 def test_cli_batch_submits_scenes_x_task_lists(

@@ -10,8 +10,8 @@ PostgreSQL database of its own, one uvicorn API with its bulk lane and the contr
 workers: every job waits), uploads one tiny scene, submits one batch of `--size` jobs as tenant A,
 then runs tenant B's probe (bench/latency_probe.py, a process of its own) for `--idle-s` with
 nothing else going on, and for `--poll-s` while `--threads` threads of A poll the batch without a
-pause. It prints B's p50 / p99 idle and during the polling, their ratio (goal: p99 within 2x), and
-A's polls per second and median poll time.
+pause (or `--pause-s` between polls, as a client's poll interval). It prints B's p50 / p99 idle and
+during the polling, their ratio (goal: p99 within 2x), and A's polls per second and median poll time.
 
 `--list-jobs` measures the old behaviour for comparison: the bound raised to the batch's size and
 A polling with `jobs=true` (every job in every answer).
@@ -35,12 +35,14 @@ from typing import Any
 from bench.bench_batch_ops import _client, _ok, _pct, _start_probe, batch_stack
 
 
-def _poll(stack: Any, batch_id: str, params: dict[str, str], until: float, took: list[float]) -> None:
+def _poll(stack: Any, batch_id: str, params: dict[str, str], until: float, pause_s: float,
+          took: list[float]) -> None:  # fmt: skip
     with _client(stack, "tenant-a", 600) as client:
         while time.monotonic() < until:
             t0 = time.monotonic()
             _ok(client.get(f"/v1/batches/{batch_id}", params=params))
             took.append(time.monotonic() - t0)
+            time.sleep(pause_s)
 
 
 def measure(stack: Any, batch_id: str, args: argparse.Namespace) -> dict[str, Any]:
@@ -53,7 +55,7 @@ def measure(stack: Any, batch_id: str, args: argparse.Namespace) -> dict[str, An
         time.sleep(args.idle_s)
         busy_from = time.monotonic()
         until = busy_from + args.poll_s
-        threads = [threading.Thread(target=_poll, args=(stack, batch_id, params, until, polls))
+        threads = [threading.Thread(target=_poll, args=(stack, batch_id, params, until, args.pause_s, polls))
                    for _ in range(args.threads)]  # fmt: skip
         for t in threads:
             t.start()
@@ -81,6 +83,8 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=20, help="tenant A's polling threads")
     parser.add_argument("--idle-s", type=float, default=15.0)
     parser.add_argument("--poll-s", type=float, default=30.0)
+    parser.add_argument("--pause-s", type=float, default=0.0,
+                        help="each thread's pause between polls (0: back to back; `bfields batch` waits 2 s)")  # fmt: skip
     parser.add_argument("--list-jobs", action="store_true",
                         help="the old behaviour: jobs=true with the bound raised to --size")  # fmt: skip
     parser.add_argument("--json", type=Path, help="write the figures here")
@@ -108,7 +112,7 @@ def main() -> None:
         with _client(stack, "tenant-a", 600) as client:
             _ok(client.post(f"/v1/batches/{batch['id']}/cancel"))
     mode = "jobs=true (old default)" if args.list_jobs else "aggregate (default)"
-    print(f"tenant A: {args.threads} threads polling GET /v1/batches/{{id}} of {args.size} jobs, {mode}: "
+    print(f"tenant A: {args.threads} threads (pause {args.pause_s:g} s) polling GET /v1/batches/{{id}} of {args.size} jobs, {mode}: "
           f"{figures['answer_bytes']:,} bytes per answer, {figures['polls_per_s']:.1f} polls/s, "
           f"median {figures['poll_median_s']:.3f} s")  # fmt: skip
     print(f"tenant B GET /v1/jobs   idle: p50 {figures['idle_p50_s']:.3f} s  p99 {figures['idle_p99_s']:.3f} s "

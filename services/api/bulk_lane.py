@@ -170,7 +170,7 @@ class BulkLane:
             await self._http().get("/healthz", timeout=self.wait_s)
         except (httpx.ConnectError, FileNotFoundError):
             await asyncio.sleep(min(1.0, self.wait_s))
-            return True
+            return not _stopped(self.pid)  # frozen before it listened: not starting, stopped
         except httpx.TransportError:
             return False
         return True
@@ -198,6 +198,18 @@ class BulkLane:
                     "the batch intake stopped while serving this batch; retry with the same "
                     "Idempotency-Key to get the batch if it was stored, or a new one if not"
                 ) from None
+
+
+def _stopped(pid: int | None) -> bool:
+    """True when process `pid` is stopped (SIGSTOP, a debugger): its state in /proc is T or t.
+    False where /proc is not there to say."""
+    if pid is None:
+        return False
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return False
+    return stat.rsplit(")", 1)[-1].split()[:1] in (["T"], ["t"])
 
 
 def settle_child() -> None:

@@ -93,6 +93,20 @@ def _refuses(path: Path, timeout_s: float) -> bool:
     return False
 
 
+def _listens(path: Path, timeout_s: float) -> bool:
+    """True once the Unix socket `path` accepts connections (the lane has started)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as probe:
+            try:
+                probe.connect(str(path))
+                return True
+            except OSError:
+                pass
+        time.sleep(0.1)
+    return False
+
+
 @pytest.fixture
 def lane_api(tmp_path: Path, private_redis: RedisServer) -> Iterator[ApiServer]:
     s3 = S3Server(tmp_path / "s3").start()
@@ -117,6 +131,7 @@ def test_batches_go_through_the_lane_which_restarts_after_a_crash_and_ends_with_
         scene_id = upload.json()["id"]
         body = {"scene_ids": [scene_id], "task_lists": [["held one"], ["held two"]]}
         lane = _lane_pid(api_pid)
+        assert _listens(_lane_socket(api, api_pid), 60), "the bulk lane never listened"
 
         # frozen lane: the batch is answered 503 + Retry-After after BFIELDS_API_BULK_LANE_WAIT_S
         # (issue 41: it waited as long as the lane was frozen, bounded only by the 600 s answer

@@ -19,7 +19,9 @@ from fastapi import FastAPI
 from redis.backoff import ConstantBackoff
 from redis.retry import Retry
 
+from bayesian_fields_service.api.body_deadline import BodyDeadline
 from bayesian_fields_service.api.bulk_lane import BulkLane, settle_child
+from bayesian_fields_service.api.docs_page import install_docs
 from bayesian_fields_service.api.edge import Utf8Guard, install_handlers
 from bayesian_fields_service.api.json_body import add_body_schemas
 from bayesian_fields_service.api.routes import events, health, jobs, metrics, scenes, ui, usage
@@ -75,7 +77,7 @@ def _lifespan(state: AppState) -> Callable[[FastAPI], contextlib.AbstractAsyncCo
     async def run(_: FastAPI) -> AsyncIterator[None]:
         sweeper = Sweeper(settings.orphan_max_age_s, settings.orphan_sweep_interval_s)
         sweeper.start()
-        lane = BulkLane() if settings.api_bulk_lane else None
+        lane = BulkLane(wait_s=settings.api_bulk_lane_wait_s) if settings.api_bulk_lane else None
         if lane is not None:
             lane.start()
         state.bulk_lane = lane
@@ -114,8 +116,14 @@ def create_app(settings: ServiceSettings | None = None) -> FastAPI:
     )
     state.metrics_registry = metrics_registry(state)
     app = FastAPI(
-        title="Bayesian Fields API", version="1.0.0", description=DESCRIPTION, lifespan=_lifespan(state)
+        title="Bayesian Fields API",
+        version="1.0.0",
+        description=DESCRIPTION,
+        lifespan=_lifespan(state),
+        docs_url=None,  # served from local assets by install_docs (docs_page.py says why)
+        redoc_url=None,
     )
+    install_docs(app, app.title)
     app.state.bf = state
     app.state.key_ring = state.key_ring
     for module in (scenes, jobs, health, metrics, ui, events, usage):
@@ -123,6 +131,11 @@ def create_app(settings: ServiceSettings | None = None) -> FastAPI:
     add_body_schemas(app, [BatchRequest])  # the bodies routes parse themselves (json_body.py)
     install_handlers(app, settings.retry_after_s)
     app.add_middleware(Utf8Guard)
+    # added last, so it is the outermost of the app's middlewares: every read of a body, the
+    # UTF-8 check's included, has its deadline (body_deadline.py says why)
+    app.add_middleware(
+        BodyDeadline, timeout_s=settings.api_body_timeout_s, min_rate_bytes=settings.api_body_min_rate_bytes
+    )
     return app
 
 

@@ -296,8 +296,12 @@ class BFieldsClient:
         headers = {"Idempotency-Key": idempotency_key} if idempotency_key else None
         return self._call("POST", "/v1/batches", json=body, headers=headers)
 
-    def batch(self, batch_id: str, *, jobs: bool = True) -> dict[str, Any]:
-        return self._call("GET", f"/v1/batches/{batch_id}", params={"jobs": str(jobs).lower()})
+    def batch(self, batch_id: str, *, jobs: bool = False) -> dict[str, Any]:
+        """A batch's counts and progress; `jobs=True` lists its jobs too, which the server answers
+        for a batch of at most its `BFIELDS_BATCH_JOBS_INLINE_MAX` jobs only (422 past it): read
+        any batch's jobs with `batch_jobs`."""
+        params = {"jobs": "true"} if jobs else None
+        return self._call("GET", f"/v1/batches/{batch_id}", params=params)
 
     def batch_jobs(self, batch_id: str, *, page: int = 500) -> Iterator[dict[str, Any]]:
         """Every job record of a batch, a page at a time."""

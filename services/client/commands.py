@@ -163,7 +163,7 @@ def _counts(state: dict[str, Any]) -> str:
 
 def _follow(client: BFieldsClient, state: dict[str, Any], poll_s: float) -> dict[str, Any]:
     """A progress bar of finished jobs out of the batch, with per-state counts and an ETA."""
-    total = state["total"] or len(state["jobs"])
+    total = state["total"]
     with Progress(TextColumn(f"batch {state['id']}"), BarColumn(), MofNCompleteColumn(),
                   TextColumn("{task.fields[counts]}"), TimeRemainingColumn(), console=console) as bar:  # fmt: skip
         task = bar.add_task("batch", total=total, counts="")
@@ -173,7 +173,7 @@ def _follow(client: BFieldsClient, state: dict[str, Any], poll_s: float) -> dict
             if state["finished"]:
                 return state
             time.sleep(poll_s)
-            state = client.batch(state["id"], jobs=False)
+            state = client.batch(state["id"])
 
 
 def batch(manifest: str | Path, *, server: str | None = None, api_key: str | None = None, wait: bool = True,

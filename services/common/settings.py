@@ -154,6 +154,37 @@ class ServiceSettings(BaseSettings):
         "(api/bulk_lane.py), so parsing and storing a fleet-sized batch never holds the interpreter "
         "that answers other tenants' requests; false handles batches in the API process itself.",
     )
+    api_bulk_lane_wait_s: float = Field(
+        10.0,
+        gt=0,
+        le=600,
+        description="How long a batch submission waits for the bulk lane to take it (a free slot) or "
+        "to show it is alive (it answers a ping) before it is answered 503 + Retry-After: a frozen or "
+        "overloaded lane is answered in about this long, while a lane that is alive may take as long "
+        "as a fleet-sized batch needs.",
+    )
+    batch_jobs_inline_max: int = Field(
+        1000,
+        ge=0,
+        description="Most jobs GET /v1/batches/{id}?jobs=true lists in its answer; a larger batch is "
+        "refused with 422 (read its jobs a page at a time from GET /v1/batches/{id}/jobs). Without "
+        "jobs=true the answer is the batch's counts and progress only, whatever its size.",
+    )
+    api_body_timeout_s: float = Field(
+        30.0,
+        gt=0,
+        le=3600,
+        description="Request bodies: the longest wait for the next chunk of a body, and the time a "
+        "body may take in all, plus one second for each api_body_min_rate_bytes of it. A client "
+        "slower than that gets 408 and a closed connection, so dripped bodies cannot hold "
+        "connections.",
+    )
+    api_body_min_rate_bytes: int = Field(
+        64 * 1024,
+        gt=0,
+        description="Bytes per second a large body is allowed on top of api_body_timeout_s (a 4 GiB "
+        "upload at this rate: 30 s + 65,536 s).",
+    )
 
     # ---- jobs ------------------------------------------------------------------------------------
     model_profile: Path | None = Field(

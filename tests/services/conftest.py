@@ -35,6 +35,8 @@ SERVICE_ENV = {
     # Below the defaults (256 / 200) so the tests prove the configured limits are the ones applied.
     "BFIELDS_MAX_TASKS": "20",
     "BFIELDS_MAX_TASK_CHARS": "60",
+    # Below the default (1,000) so a batch past the bound of GET /v1/batches/{id}?jobs=true is small.
+    "BFIELDS_BATCH_JOBS_INLINE_MAX": "50",
     # Lets the race tests hold a scene route at a named point (inert unless a test arms one).
     "BFIELDS_TEST_PAUSE_POINTS": "true",
 }

@@ -279,8 +279,15 @@ async function initBatch() {
   const names = {};
   const rows = {};
   const summary = (c) => `${Math.round(c.progress)}% - ` + Object.entries(c.counts).map(([k, v]) => `${v} ${k}`).join(", ");
+  // The batch's counts, then its jobs a page at a time (GET /v1/batches/{id} lists no jobs).
   const b = await api(`/v1/batches/${encodeURIComponent(id)}`);
-  for (const j of b.jobs) {
+  const jobs = [];
+  for (let cursor = null; ;) {
+    const page = await api(`/v1/batches/${encodeURIComponent(id)}/jobs?limit=500` + (cursor ? `&cursor=${cursor}` : ""));
+    jobs.push(...page.items);
+    if (!(cursor = page.next_cursor)) break;
+  }
+  for (const j of jobs) {
     if (!(j.scene_id in names)) {
       try { names[j.scene_id] = (await api(`/v1/scenes/${encodeURIComponent(j.scene_id)}`)).name || j.scene_id; }
       catch (e) { names[j.scene_id] = j.scene_id; }

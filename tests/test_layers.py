@@ -49,6 +49,7 @@ SERVICE_LAYERS: list[set[str]] = [
     {"jobs"},
     {"common"},
     {"records"},
+    {"config"},
     {"__init__"},
 ]
 """The service's packages, top down: the control process sends stages through the worker's Celery

@@ -26,8 +26,8 @@ from bayesian_fields_service.common.scenes import (
     SceneRecord,
     SceneStore,
 )
-from bayesian_fields_service.common.settings import ServiceSettings
 from bayesian_fields_service.common.storage import TenantTransfers, direct_transfers, tenant_store
+from bayesian_fields_service.config.settings import ServiceSettings
 from bayesian_fields_service.jobs.service import JobService
 
 

@@ -61,7 +61,7 @@ from bayesian_fields_service.common.callback_destinations import (
     check_destination,
     parse_destination,
 )
-from bayesian_fields_service.common.settings import ServiceSettings
+from bayesian_fields_service.config.settings import ServiceSettings
 from bayesian_fields_service.records.tables import callback_outbox
 
 log = logging.getLogger(__name__)

@@ -28,8 +28,8 @@ from pydantic import ValidationError
 from bayesian_fields_core.job.store import ArtifactNotFound, Store
 from bayesian_fields_service.common.sanitize import scrub
 from bayesian_fields_service.common.scenes import SceneRecord, SceneStore
-from bayesian_fields_service.common.settings import ServiceSettings
 from bayesian_fields_service.common.storage import TENANTS_ROOT, build_store
+from bayesian_fields_service.config.settings import ServiceSettings
 from bayesian_fields_service.records.database import open_records
 
 RECORD_NAME = "scene.json"

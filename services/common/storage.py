@@ -13,7 +13,7 @@ from typing import Any, Protocol
 
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.job.store import LocalStore, PrefixedStore, Store, validate_key
-from bayesian_fields_service.common.settings import TENANT_PATTERN, ServiceSettings
+from bayesian_fields_service.config.settings import TENANT_PATTERN, ServiceSettings
 
 TENANTS_ROOT = "tenants"
 

@@ -37,8 +37,8 @@ from sqlalchemy import text
 from bayesian_fields_service.common.callbacks import CallbackSender
 from bayesian_fields_service.common.jobs import JobStore
 from bayesian_fields_service.common.scenes import SceneStore
-from bayesian_fields_service.common.settings import ServiceSettings, apply_log_level, get_settings
 from bayesian_fields_service.common.storage import build_store, direct_transfers
+from bayesian_fields_service.config.settings import ServiceSettings, apply_log_level, get_settings
 from bayesian_fields_service.control.bucket_sweep import sweep_bucket
 from bayesian_fields_service.control.dispatcher import Dispatcher
 from bayesian_fields_service.control.leadership import Leadership

@@ -20,7 +20,7 @@ from bayesian_fields_service.common.callbacks import check_callback_url
 from bayesian_fields_service.common.job_queue import Priority
 from bayesian_fields_service.common.jobs import JobRecord, is_id, new_id
 from bayesian_fields_service.common.scenes import SceneRecord, SceneStore
-from bayesian_fields_service.common.settings import ServiceSettings
+from bayesian_fields_service.config.settings import ServiceSettings
 from bayesian_fields_service.jobs.refusals import Conflict, Invalid, Missing
 
 #: Model profiles a job may name. The workers map "default" to BFIELDS_MODEL_PROFILE.

@@ -50,8 +50,8 @@ from bayesian_fields_service.common.jobs import JobRecord, JobState, JobStore
 from bayesian_fields_service.common.metrics import observe_stage
 from bayesian_fields_service.common.pause_points import pause
 from bayesian_fields_service.common.redis_text import text
-from bayesian_fields_service.common.settings import ServiceSettings
 from bayesian_fields_service.common.storage import build_store, tenant_store
+from bayesian_fields_service.config.settings import ServiceSettings
 from bayesian_fields_service.jobs import lifecycle
 from bayesian_fields_service.records.database import open_records
 from bayesian_fields_service.worker.accounting import StageMeter, account_stage

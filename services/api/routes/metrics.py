@@ -28,7 +28,7 @@ from bayesian_fields_service.common.metrics import (
     queue_wait_tenants,
     read_histogram,
 )
-from bayesian_fields_service.common.settings import ServiceSettings
+from bayesian_fields_service.config.settings import ServiceSettings
 from bayesian_fields_service.worker.dispatch import queue_length
 
 router = APIRouter(tags=["health"])

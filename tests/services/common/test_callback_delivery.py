@@ -17,7 +17,7 @@ import pytest
 from sqlalchemy import Engine, select
 
 from bayesian_fields_service.common import callbacks
-from bayesian_fields_service.common.settings import ServiceSettings
+from bayesian_fields_service.config.settings import ServiceSettings
 from bayesian_fields_service.records.database import dispose_all, engine, migrate
 from bayesian_fields_service.records.tables import callback_outbox
 from tests.integration.fixtures.postgres import create_database, drop_database

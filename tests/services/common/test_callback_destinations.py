@@ -18,7 +18,7 @@ from bayesian_fields_service.common.callback_destinations import (
     parse_destination,
 )
 from bayesian_fields_service.common.callbacks import check_callback_url
-from bayesian_fields_service.common.settings import ServiceSettings
+from bayesian_fields_service.config.settings import ServiceSettings
 from tests.integration.fixtures.services import ApiServer
 
 SECRET = "test-callback-secret"

@@ -48,6 +48,7 @@ SERVICE_LAYERS: list[set[str]] = [
     {"worker"},
     {"jobs"},
     {"common"},
+    {"webhooks", "live", "storage", "security", "sanitize"},
     {"records"},
     {"config"},
     {"__init__"},

@@ -211,7 +211,7 @@ def install_handlers(app: FastAPI, retry_after_s: int) -> None:
     from bayesian_fields_core.errors import InputError
 
     try:
-        from bayesian_fields_service.common.s3_store import StorageError
+        from bayesian_fields_service.storage.s3_store import StorageError
     except ImportError:  # pragma: no cover - local-store deployments without boto3
         StorageError = OSError  # type: ignore[misc,assignment]  # noqa: N806
 

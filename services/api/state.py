@@ -26,9 +26,9 @@ from bayesian_fields_service.common.scenes import (
     SceneRecord,
     SceneStore,
 )
-from bayesian_fields_service.common.storage import TenantTransfers, direct_transfers, tenant_store
 from bayesian_fields_service.config.settings import ServiceSettings
 from bayesian_fields_service.jobs.service import JobService
+from bayesian_fields_service.storage.stores import TenantTransfers, direct_transfers, tenant_store
 
 
 @dataclass

@@ -49,10 +49,10 @@ from bayesian_fields_service.common.job_queue import JobQueue, Priority, admit
 from bayesian_fields_service.common.redis_text import text
 from bayesian_fields_service.common.sanitize import redact_locations, scrub
 from bayesian_fields_service.common.scenes import lock_ready
-from bayesian_fields_service.common.storage import tenant_store
 from bayesian_fields_service.common.usage import JobUsage
 from bayesian_fields_service.records.leases import Fence
 from bayesian_fields_service.records.tables import idempotency_keys, jobs
+from bayesian_fields_service.storage.stores import tenant_store
 
 log = logging.getLogger(__name__)
 

@@ -37,13 +37,13 @@ from sqlalchemy import text
 from bayesian_fields_service.common.callbacks import CallbackSender
 from bayesian_fields_service.common.jobs import JobStore
 from bayesian_fields_service.common.scenes import SceneStore
-from bayesian_fields_service.common.storage import build_store, direct_transfers
 from bayesian_fields_service.config.settings import ServiceSettings, apply_log_level, get_settings
 from bayesian_fields_service.control.bucket_sweep import sweep_bucket
 from bayesian_fields_service.control.dispatcher import Dispatcher
 from bayesian_fields_service.control.leadership import Leadership
 from bayesian_fields_service.control.recovery import Recovery
 from bayesian_fields_service.records.database import open_records
+from bayesian_fields_service.storage.stores import build_store, direct_transfers
 from bayesian_fields_service.worker.celery_app import make_celery
 
 log = logging.getLogger(__name__)

@@ -50,10 +50,10 @@ from bayesian_fields_service.common.jobs import JobRecord, JobState, JobStore
 from bayesian_fields_service.common.metrics import observe_stage
 from bayesian_fields_service.common.pause_points import pause
 from bayesian_fields_service.common.redis_text import text
-from bayesian_fields_service.common.storage import build_store, tenant_store
 from bayesian_fields_service.config.settings import ServiceSettings
 from bayesian_fields_service.jobs import lifecycle
 from bayesian_fields_service.records.database import open_records
+from bayesian_fields_service.storage.stores import build_store, tenant_store
 from bayesian_fields_service.worker.accounting import StageMeter, account_stage
 from bayesian_fields_service.worker.celery_app import app
 from bayesian_fields_service.worker.scene_cache import SceneCache
@@ -69,7 +69,7 @@ TRANSIENT: tuple[type[Exception], ...] = (
     TimeoutError,
 )
 try:  # storage errors only exist when boto3 is installed
-    from bayesian_fields_service.common.s3_store import StorageError
+    from bayesian_fields_service.storage.s3_store import StorageError
 
     TRANSIENT = (*TRANSIENT, StorageError)
 except ImportError:  # pragma: no cover - local-store deployments

@@ -44,7 +44,6 @@ from bayesian_fields_core.job.stage_table import STAGE_TABLE, STAGES
 from bayesian_fields_core.job.store import Store
 from bayesian_fields_service.common import batch_records, redis_keys, usage
 from bayesian_fields_service.common.batch_records import BatchRecord
-from bayesian_fields_service.common.callbacks import on_batch_finished, on_job_terminal
 from bayesian_fields_service.common.job_queue import JobQueue, Priority, admit
 from bayesian_fields_service.common.redis_text import text
 from bayesian_fields_service.common.sanitize import redact_locations, scrub
@@ -53,6 +52,7 @@ from bayesian_fields_service.common.usage import JobUsage
 from bayesian_fields_service.records.leases import Fence
 from bayesian_fields_service.records.tables import idempotency_keys, jobs
 from bayesian_fields_service.storage.stores import tenant_store
+from bayesian_fields_service.webhooks.callbacks import on_batch_finished, on_job_terminal
 
 log = logging.getLogger(__name__)
 

@@ -30,10 +30,10 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from bayesian_fields_service.api.bulk_lane import LaneUnavailable
 from bayesian_fields_service.api.records_outage import OUTAGES, cause
-from bayesian_fields_service.common.sanitize import redact_locations, scrub_text
 from bayesian_fields_service.common.scenes import SceneBusy, SceneGone, SceneNotReady, SceneNotUploading
 from bayesian_fields_service.jobs.refusals import Busy, Conflict, Invalid, Missing, OverQuota, Refused
 from bayesian_fields_service.live.broker import BROKER_ERRORS
+from bayesian_fields_service.sanitize.text import redact_locations, scrub_text
 
 #: The HTTP status of each kind of the jobs domain's refusals.
 REFUSAL_STATUS: dict[type[Refused], int] = {

@@ -26,10 +26,10 @@ from dataclasses import dataclass, field
 from pydantic import ValidationError
 
 from bayesian_fields_core.job.store import ArtifactNotFound, Store
-from bayesian_fields_service.common.sanitize import scrub
 from bayesian_fields_service.common.scenes import SceneRecord, SceneStore
 from bayesian_fields_service.config.settings import ServiceSettings
 from bayesian_fields_service.records.database import open_records
+from bayesian_fields_service.sanitize.text import scrub
 from bayesian_fields_service.storage.stores import TENANTS_ROOT, build_store
 
 RECORD_NAME = "scene.json"

@@ -29,11 +29,11 @@ from bayesian_fields_service.api.routes.metrics import metrics_registry
 from bayesian_fields_service.api.schemas import BatchRequest
 from bayesian_fields_service.api.state import AppState
 from bayesian_fields_service.api.sweeper import Sweeper
-from bayesian_fields_service.common.api_keys import ApiKeyRing
 from bayesian_fields_service.common.jobs import JobStore
-from bayesian_fields_service.common.settings import ServiceSettings, apply_log_level, get_settings
-from bayesian_fields_service.common.storage import build_store
+from bayesian_fields_service.config.settings import ServiceSettings, apply_log_level, get_settings
 from bayesian_fields_service.records.database import open_records
+from bayesian_fields_service.security.api_keys import ApiKeyRing
+from bayesian_fields_service.storage.stores import build_store
 
 DESCRIPTION = """
 Bayesian Fields as a batch service: upload a scene (Gaussian splat + posed images), submit task

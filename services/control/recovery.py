@@ -29,10 +29,10 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from bayesian_fields_service.common.jobs import JobStore
-from bayesian_fields_service.common.redis_keys import stage_lock_pattern
-from bayesian_fields_service.common.settings import ServiceSettings
+from bayesian_fields_service.config.settings import ServiceSettings
+from bayesian_fields_service.live.broker import jobs_with_queued_messages
+from bayesian_fields_service.live.redis_keys import stage_lock_pattern
 from bayesian_fields_service.records.leases import Fence, LeaseLost
-from bayesian_fields_service.worker.dispatch import jobs_with_queued_messages
 
 log = logging.getLogger(__name__)
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from bayesian_fields_service.common.settings import ServiceSettings
+from bayesian_fields_service.config.settings import ServiceSettings
 
 REPO = Path(__file__).resolve().parents[2]
 ENV_EXAMPLE = (REPO / ".env.example").read_text(encoding="utf-8")
@@ -22,13 +22,13 @@ def _compose_only() -> str:
 
 
 def test_every_bfields_name_is_a_setting_or_set_in_the_compose_block() -> None:
-    compose_only = set(re.findall(r"^(BFIELDS_[A-Z0-9_]+)=", _compose_only(), re.MULTILINE))
+    compose_only = set(re.findall(r"^#?(BFIELDS_[A-Z0-9_]+)=", _compose_only(), re.MULTILINE))
     unknown = sorted(set(NAME.findall(ENV_EXAMPLE)) - SETTINGS - compose_only)
     assert unknown == [], f".env.example names variables no process reads: {unknown}"
 
 
 def test_the_compose_only_names_are_read_by_compose_and_are_no_settings() -> None:
-    names = set(re.findall(r"^(BFIELDS_[A-Z0-9_]+)=", _compose_only(), re.MULTILINE))
+    names = set(re.findall(r"^#?(BFIELDS_[A-Z0-9_]+)=", _compose_only(), re.MULTILINE))
     assert names, "the compose-only block lost its variables"
     assert names.isdisjoint(SETTINGS), names & SETTINGS
     missing = sorted(n for n in names if "${" + n not in COMPOSE)

@@ -387,7 +387,7 @@ def test_kustomization_lists_every_manifest() -> None:
 
 
 def test_configmap_keys_are_settings() -> None:
-    from bayesian_fields_service.common.settings import ServiceSettings
+    from bayesian_fields_service.config.settings import ServiceSettings
 
     data = documents(DEPLOY / "configmap.yaml")[0]["data"]
     fields = {f"BFIELDS_{n.upper()}" for n in ServiceSettings.model_fields}

@@ -4,7 +4,7 @@ exercise. The fixtures are in `stack_fixtures.py` (registered by the root confte
 fuzz tests share them); the limits and the upload form stay here, where the tests import them.
 
 A PostgreSQL database of a test's own (`tests.integration.fixtures.postgres`) is here too: the
-records tests (tests/services/records) and the tests of the common and control modules that keep
+records tests (tests/services/records) and the tests of the common, webhooks and control modules that keep
 their rows there (scenes, usage, the callback outbox, the scene import) ask for one; each test
 that needs an empty schema gets a fresh database, dropped after it."""
 

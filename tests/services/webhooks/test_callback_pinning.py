@@ -23,9 +23,9 @@ from cryptography.x509.oid import NameOID
 from sqlalchemy import Engine, func, insert, select
 
 from bayesian_fields_core.errors import InputError
-from bayesian_fields_service.common import callbacks
-from bayesian_fields_service.common.settings import ServiceSettings
+from bayesian_fields_service.config.settings import ServiceSettings
 from bayesian_fields_service.records.tables import callback_outbox
+from bayesian_fields_service.webhooks import callbacks
 from tests.integration.fixtures.postgres import records_database
 from tests.services.support.callback_receivers import Receiver
 

@@ -16,10 +16,10 @@ from collections.abc import Callable, Iterator
 import pytest
 from sqlalchemy import Engine, select
 
-from bayesian_fields_service.common import callbacks
-from bayesian_fields_service.common.settings import ServiceSettings
+from bayesian_fields_service.config.settings import ServiceSettings
 from bayesian_fields_service.records.database import dispose_all, engine, migrate
 from bayesian_fields_service.records.tables import callback_outbox
+from bayesian_fields_service.webhooks import callbacks
 from tests.integration.fixtures.postgres import create_database, drop_database
 from tests.integration.fixtures.services import ControlServer
 from tests.services.support.callback_receivers import Receiver, RssSampler, overlapping

@@ -22,7 +22,7 @@ def cancel_flag(tenant: str, job_id: str) -> str:
 
 
 def stage_lock(tenant: str, job_id: str, stage: str) -> str:
-    """The heartbeat lock of one stage execution (`common.heartbeat_lock`)."""
+    """The heartbeat lock of one stage execution (`live.heartbeat_lock`)."""
     return f"bf:lock:{tenant}:{job_id}:{stage}"
 
 

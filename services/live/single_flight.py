@@ -21,8 +21,8 @@ from collections.abc import Callable, Iterator
 
 import redis
 
-from bayesian_fields_service.common import redis_keys
-from bayesian_fields_service.common.heartbeat_lock import HeartbeatLock
+from bayesian_fields_service.live import redis_keys
+from bayesian_fields_service.live.heartbeat_lock import HeartbeatLock
 
 log = logging.getLogger(__name__)
 

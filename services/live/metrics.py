@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import redis
 
-from bayesian_fields_service.common import redis_keys
-from bayesian_fields_service.common.redis_text import text
+from bayesian_fields_service.live import redis_keys
+from bayesian_fields_service.live.redis_text import text
 
 #: Upper bounds (seconds) of the duration histograms.
 BUCKETS: tuple[float, ...] = (1, 5, 15, 30, 60, 120, 300, 600, 1800, 3600, 7200, 14400)

@@ -27,7 +27,7 @@ from urllib.parse import urlsplit
 import idna
 
 from bayesian_fields_core.errors import InputError
-from bayesian_fields_service.common.settings import ServiceSettings
+from bayesian_fields_service.config.settings import ServiceSettings
 
 IPAddress = ipaddress.IPv4Address | ipaddress.IPv6Address
 #: Resolves a host name to address strings (the default is `system_resolve`); injectable so tests

@@ -16,7 +16,7 @@ import threading
 from pathlib import Path
 
 from bayesian_fields_core.errors import InputError
-from bayesian_fields_service.common.settings import TENANT_PATTERN, ServiceSettings
+from bayesian_fields_service.config.settings import TENANT_PATTERN, ServiceSettings
 
 _HASH_PREFIX = "sha256:"
 

@@ -8,8 +8,8 @@ import time
 
 import redis
 
-from bayesian_fields_service.common import heartbeat_lock
-from bayesian_fields_service.common.heartbeat_lock import HeartbeatLock
+from bayesian_fields_service.live import heartbeat_lock
+from bayesian_fields_service.live.heartbeat_lock import HeartbeatLock
 from tests.integration.fixtures.redis_server import RedisServer
 
 TTL_S = 0.6

@@ -210,7 +210,7 @@ class S3Store:
 
     @classmethod
     def from_settings(cls, settings: Any, **tuning: Any) -> S3Store:
-        """Build from `bayesian_fields_service.common.settings.ServiceSettings` (`tuning` overrides the retry and
+        """Build from `bayesian_fields_service.config.settings.ServiceSettings` (`tuning` overrides the retry and
         timeout parameters, e.g. the API's short request-path budget)."""
         creds = None
         if settings.s3_access_key_id and settings.s3_secret_access_key is not None:

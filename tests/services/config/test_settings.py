@@ -12,8 +12,8 @@ import pytest
 from pydantic import ValidationError
 
 from bayesian_fields_core.errors import InputError
-from bayesian_fields_service.common.api_keys import ApiKeyRing, hash_api_key
-from bayesian_fields_service.common.settings import ServiceSettings, get_settings
+from bayesian_fields_service.config.settings import ServiceSettings, get_settings
+from bayesian_fields_service.security.api_keys import ApiKeyRing, hash_api_key
 
 
 @pytest.fixture

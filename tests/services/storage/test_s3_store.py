@@ -15,7 +15,7 @@ import pytest
 
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.job.store import ArtifactNotFound, PrefixedStore, get_arrays, put_arrays
-from bayesian_fields_service.common.s3_store import (
+from bayesian_fields_service.storage.s3_store import (
     MIN_PART_BYTES,
     S3Credentials,
     S3Store,
@@ -23,7 +23,7 @@ from bayesian_fields_service.common.s3_store import (
     StorageError,
     plan_parts,
 )
-from bayesian_fields_service.common.storage import tenant_store
+from bayesian_fields_service.storage.stores import tenant_store
 from tests.integration.fixtures.processes import free_port
 from tests.integration.fixtures.s3_server import S3Server
 

@@ -17,8 +17,14 @@ from collections.abc import Iterable, Sequence
 
 import redis
 from celery import Celery, chain
+from kombu.exceptions import OperationalError
 
 from bayesian_fields_core.job.stage_table import stage as stage_spec
+
+#: What an unreachable broker raises: the broker is Redis (Celery's Redis transport), reached
+#: directly (a queue's length) or through kombu (sending a stage). The API answers these 503
+#: (`api.edge`), so no module outside this package needs to know kombu's exception classes.
+BROKER_ERRORS: tuple[type[Exception], ...] = (redis.ConnectionError, redis.TimeoutError, OperationalError)
 
 
 def queue_for(stage: str, gpu_queue: str, cpu_queue: str) -> str:

@@ -1,5 +1,5 @@
 """One Redis lock with a heartbeat, for work whose holder may die without a word: a stage's
-execution (`worker.tasks.StageLock`) and a cache fill (`worker.single_flight`).
+execution (`worker.tasks.StageLock`) and a cache fill (`live.single_flight`).
 
 The lock is a key holding its owner's token, set with a TTL; a heartbeat thread renews it every
 `ttl / beats` seconds while the holder lives, and puts it back if Redis lost it (a restart without

@@ -12,13 +12,13 @@ import httpx
 import pytest
 
 from bayesian_fields_core.errors import InputError
-from bayesian_fields_service.common.callback_destinations import (
+from bayesian_fields_service.config.settings import ServiceSettings
+from bayesian_fields_service.webhooks.callback_destinations import (
     address_refusal,
     embedded_ipv4,
     parse_destination,
 )
-from bayesian_fields_service.common.callbacks import check_callback_url
-from bayesian_fields_service.common.settings import ServiceSettings
+from bayesian_fields_service.webhooks.callbacks import check_callback_url
 from tests.integration.fixtures.services import ApiServer
 
 SECRET = "test-callback-secret"

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import httpcore
 import httpx
 
-from bayesian_fields_service.common.callback_destinations import Destination, IPAddress
+from bayesian_fields_service.webhooks.callback_destinations import Destination, IPAddress
 
 #: The failures of one attempt (httpcore has no common base class for them).
 TRANSPORT_ERRORS: tuple[type[Exception], ...] = (

@@ -1,6 +1,6 @@
 """API-key authentication for the HTTP API: a FastAPI dependency that yields the caller's tenant.
 
-Keys are resolved by `bayesian_fields_service.common.api_keys.ApiKeyRing` (inline settings or a secret file,
+Keys are resolved by `bayesian_fields_service.security.api_keys.ApiKeyRing` (inline settings or a secret file,
 compared as sha256 digests in constant time). Every route takes the tenant from here and every
 storage key it builds goes through `tenant_store(store, tenant)`, so one tenant can never name
 another tenant's objects: a foreign id simply does not exist in its namespace (404).
@@ -11,7 +11,7 @@ from __future__ import annotations
 from fastapi import Depends, HTTPException, Request, status
 from fastapi.security import APIKeyHeader, HTTPAuthorizationCredentials, HTTPBearer
 
-from bayesian_fields_service.common.api_keys import ApiKeyRing
+from bayesian_fields_service.security.api_keys import ApiKeyRing
 
 API_KEY_HEADER = "X-API-Key"
 

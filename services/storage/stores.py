@@ -13,7 +13,7 @@ from typing import Any, Protocol
 
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.job.store import LocalStore, PrefixedStore, Store, validate_key
-from bayesian_fields_service.common.settings import TENANT_PATTERN, ServiceSettings
+from bayesian_fields_service.config.settings import TENANT_PATTERN, ServiceSettings
 
 TENANTS_ROOT = "tenants"
 
@@ -24,7 +24,7 @@ def build_store(settings: ServiceSettings, *, request_path: bool = False) -> Sto
     `request_path` (the API): few attempts and short timeouts, so an outage is answered 503
     within about a second instead of after the workers' patient retries."""
     if settings.storage_backend == "s3":
-        from bayesian_fields_service.common.s3_store import S3Store  # boto3 is only needed by S3 deployments
+        from bayesian_fields_service.storage.s3_store import S3Store  # boto3 is only needed by S3 deployments
 
         if request_path:
             t = settings.api_backend_timeout_s
@@ -62,7 +62,7 @@ class DirectTransfers(Protocol):
 def direct_transfers(store: Store) -> DirectTransfers | None:
     """The bucket's direct transfers, or None for a backend without them (a local folder)."""
     try:
-        from bayesian_fields_service.common.s3_store import S3Store
+        from bayesian_fields_service.storage.s3_store import S3Store
     except ImportError:  # boto3 is only installed where S3 is used
         return None
     return store if isinstance(store, S3Store) else None

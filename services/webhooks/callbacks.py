@@ -55,14 +55,14 @@ from sqlalchemy.dialects.postgresql import insert as pg_insert
 from sqlalchemy.exc import DBAPIError
 
 from bayesian_fields_core.errors import InputError
-from bayesian_fields_service.common.callback_delivery import TRANSPORT_ERRORS, post
-from bayesian_fields_service.common.callback_destinations import (
+from bayesian_fields_service.config.settings import ServiceSettings
+from bayesian_fields_service.records.tables import callback_outbox
+from bayesian_fields_service.webhooks.callback_delivery import TRANSPORT_ERRORS, post
+from bayesian_fields_service.webhooks.callback_destinations import (
     Resolver,
     check_destination,
     parse_destination,
 )
-from bayesian_fields_service.common.settings import ServiceSettings
-from bayesian_fields_service.records.tables import callback_outbox
 
 log = logging.getLogger(__name__)
 

@@ -26,6 +26,28 @@ class InputError(BayesianFieldsError, ValueError):
         super().__init__(f"{source}: {message}" if source else message)
 
 
+class InputErrors(InputError):
+    """Several input problems found by one check of a run's inputs, each an InputError naming
+    its file and its fix.
+
+    Why one exception: a user should meet every problem of a run at once (not "no tasks given",
+    then on the next run "no cameras found"). It is an InputError, so the API answers it with the
+    same 4xx; the CLI prints one line per problem (`errors`).
+    """
+
+    def __init__(self, errors: list[InputError]) -> None:
+        self.errors = list(errors)
+        super().__init__(f"{len(self.errors)} problems: " + "; ".join(str(e) for e in self.errors))
+
+
+def raise_input_errors(errors: list[InputError]) -> None:
+    """Raise nothing for no problem, the InputError itself for one, `InputErrors` for several."""
+    if len(errors) == 1:
+        raise errors[0]
+    if errors:
+        raise InputErrors(errors)
+
+
 class InvariantError(BayesianFieldsError, AssertionError):
     """An internal invariant broke: arrays one stage hands another disagree in shape or range.
 

@@ -42,6 +42,10 @@ class ReadBy:
     read only through `scene.scale.SceneLengths` (`length`; tests/core/test_param_readers.py).
 
     stage: the stage that reads it (module docstring of `Reader`).
+    also: the other stages that read it (`prior`: the cluster stage's per-view conditionals;
+        the likelihood's `mu0`, `mu1`, `s`, `s_eps`: its answer threshold; `fusion`: whether
+        it counts views). Every stage that reads a field must be named here or in `stage`:
+        tests/core/job/test_param_readers_by_behaviour.py runs the stages and records who reads what.
     why: what the stage reads it for, in two or three words (shown in `bfields params`).
     keys: the caches whose content key the value enters (it changes what they hold: a change
         must miss them); a field that keys no cache must not change any cache entry.
@@ -53,6 +57,12 @@ class ReadBy:
     why: str
     keys: tuple[CacheName, ...] = ()
     length: bool = False
+    also: tuple[Reader, ...] = ()
+
+    @property
+    def stages(self) -> tuple[Reader, ...]:
+        """Every stage that reads the field: `stage` first, then `also`."""
+        return (self.stage, *self.also)
 
 
 class PipelineParams(BaseModel):
@@ -107,28 +117,28 @@ class PipelineParams(BaseModel):
     )
 
     # --- likelihood (METHOD step 3); None means: take it from the model's calibration ------------
-    mu0: Annotated[float | None, ReadBy("fuse", "fusion update")] = Field(
+    mu0: Annotated[float | None, ReadBy("fuse", "fusion update", also=("cluster",))] = Field(
         None,
         ge=-1,
         le=1,
         description=f"Mean cosine score of irrelevant segments; None: the model's calibration, else the paper's {PAPER_MU0:.2f}.",
     )
-    mu1: Annotated[float | None, ReadBy("fuse", "fusion update")] = Field(
+    mu1: Annotated[float | None, ReadBy("fuse", "fusion update", also=("cluster",))] = Field(
         None,
         ge=-1,
         le=1,
         description=f"Mean cosine score of relevant segments; None: the model's calibration, else the paper's {PAPER_MU1:.2f}.",
     )
-    s: Annotated[float | None, ReadBy("fuse", "fusion update")] = Field(
+    s: Annotated[float | None, ReadBy("fuse", "fusion update", also=("cluster",))] = Field(
         None,
         gt=0,
         le=1,
         description=f"Std of both likelihoods; None: the model's calibration, else the paper's {PAPER_S}.",
     )
-    s_eps: Annotated[float, ReadBy("fuse", "fusion update")] = Field(
+    s_eps: Annotated[float, ReadBy("fuse", "fusion update", also=("cluster",))] = Field(
         0.0, ge=0, le=1, description="Extra measurement noise std added in quadrature to s."
     )
-    prior: Annotated[float, ReadBy("fuse", "fusion update")] = Field(
+    prior: Annotated[float, ReadBy("fuse", "fusion update", also=("cluster",))] = Field(
         0.05, gt=0, lt=1, description="Prior probability that a Gaussian is relevant to a task."
     )
 
@@ -152,8 +162,11 @@ class PipelineParams(BaseModel):
     )
 
     # --- fusion (steps 4-5) ----------------------------------------------------------------------
-    fusion: Annotated[Literal["bayes", "average"], ReadBy("fuse", "fusion update")] = Field(
-        "bayes", description="'bayes' = the method; 'average' = ablation averaging cosine scores then Eq. 3."
+    fusion: Annotated[Literal["bayes", "average"], ReadBy("fuse", "fusion update", also=("cluster",))] = (
+        Field(
+            "bayes",
+            description="'bayes' = the method; 'average' = ablation averaging cosine scores then Eq. 3.",
+        )
     )
     outlier_rejection: Annotated[bool, ReadBy("fuse", "fusion update")] = Field(
         True, description="OR-phi: skip masks that would lower every task's probability."

@@ -52,10 +52,12 @@ PAGE = 100
 
 @contextmanager
 def batch_stack(
-    workdir: Path, max_batch: int, api_processes: int = 1, bulk_lane: bool = True
-) -> Iterator[Any]:
+    workdir: Path, max_batch: int, api_processes: int = 1, bulk_lane: bool = True,
+    env: dict[str, str] | None = None,
+) -> Iterator[Any]:  # fmt: skip
     """Redis + S3 + PostgreSQL database + one API (and its control process), no workers (jobs only
-    wait); with `api_processes` 2, a second API process on the same records (`stack.other_api`)."""
+    wait); with `api_processes` 2, a second API process on the same records (`stack.other_api`);
+    `env`: more settings of the stack's processes."""
     from tests.integration.fixtures.s3_server import S3Server
     from tests.integration.fixtures.services import ApiServer
     from tests.services.support.private_stack import PrivateStack
@@ -64,6 +66,7 @@ def batch_stack(
         "BFIELDS_MAX_BATCH_JOBS": str(max_batch),
         "BFIELDS_MAX_WAITING_JOBS_PER_TENANT": str(4 * max_batch),
         "BFIELDS_API_BULK_LANE": "true" if bulk_lane else "false",
+        **(env or {}),
     }
     s3 = S3Server(workdir / "s3").start()
     stack = PrivateStack(workdir, s3.env(), dict(KEYS), extra)

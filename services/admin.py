@@ -56,7 +56,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from sqlalchemy.exc import OperationalError
 
-    from bayesian_fields_service.common.settings import get_settings
+    from bayesian_fields_service.config.settings import get_settings
     from bayesian_fields_service.records.database import current_revision, head_revision
     from bayesian_fields_service.records.database import migrate as run
 

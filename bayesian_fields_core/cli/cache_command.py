@@ -1,8 +1,12 @@
-"""`bfields cache ls | prune`: see and bound the local perception/visibility cache.
+"""`bfields cache ls | prune`: see and bound the local cache folder, all of it.
 
 The cache lives in ``--cache-dir`` (default ``$XDG_CACHE_HOME/bfields``, else ``~/.cache/bfields``):
 ``perception/<models>/<image digest>.npz``, ``visibility/<models>/<digest>.npz`` and ``index/``, one
-JSON per scene + profile (see `cache_index`).
+JSON per scene + profile (see `cache_index`), and ``view/<job id>/``, the results `bfields view
+--job` downloaded (see `cache_folder`). `ls` reports the folder's whole size on disk; `prune`
+applies its limits to both kinds: `--older-than` to each entry and download alike, `--max-size`
+to their sum, removing downloads (least recently viewed first; a view downloads them again) before
+frames (which cost perception to compute again).
 """
 
 from __future__ import annotations
@@ -44,16 +48,26 @@ def parse_size(text: str) -> int:
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add `cache ls | prune` to the `bfields` parser."""
-    cache = sub.add_parser("cache", help="list or prune the local perception/visibility cache")
+    cache = sub.add_parser(
+        "cache", help="list or prune the local cache (perception/visibility frames, view downloads)"
+    )
     cache_sub = cache.add_subparsers(dest="cache_command", required=True)
-    ls = cache_sub.add_parser("ls", help="entries (scene + profile) with size and last use")
-    ls.add_argument("--json", action="store_true", help="print the entries as JSON")
-    prune_parser = cache_sub.add_parser("prune", help="drop entries least recently used first")
+    ls = cache_sub.add_parser(
+        "ls", help="entries (scene + profile) and `view --job` downloads, with size and last use"
+    )
+    ls.add_argument("--json", action="store_true", help="print the listing as JSON")
+    prune_parser = cache_sub.add_parser("prune", help="drop entries and downloads least recently used first")
     prune_parser.add_argument(
-        "--older-than", type=parse_duration, metavar="DUR", help="drop entries unused for DUR (30m, 12h, 7d)"
+        "--older-than",
+        type=parse_duration,
+        metavar="DUR",
+        help="drop entries and view downloads unused for DUR (30m, 12h, 7d)",
     )
     prune_parser.add_argument(
-        "--max-size", type=parse_size, metavar="SIZE", help="then keep at most SIZE (500M, 2G), LRU first"
+        "--max-size",
+        type=parse_size,
+        metavar="SIZE",
+        help="then keep at most SIZE (500M, 2G): view downloads go first, then entries, LRU first",
     )
     for p in (ls, prune_parser):
         p.add_argument("--cache-dir", help=f"the cache folder (default {DEFAULT_CACHE_DIR})")
@@ -96,33 +110,53 @@ def _store(cache_dir: Path) -> LocalStore:
 
 
 def cache_ls(cache_dir: Path, *, json_output: bool = False) -> str:
-    """The listing `bfields cache ls` prints: one line per scene + profile, most recent first."""
+    """The listing `bfields cache ls` prints: the folder's size on disk (every file in it), one
+    line per scene + profile and one per `view --job` download, most recent first."""
     import json
 
-    from bayesian_fields_core.job.cache_index import data_keys, list_entries
+    from bayesian_fields_core.cli.cache_folder import disk_usage, view_downloads
+    from bayesian_fields_core.job.cache_index import list_entries
 
     store = _store(cache_dir)
     entries = list_entries(store)
+    downloads = view_downloads(cache_dir)
+    total = disk_usage(cache_dir)
     now = time.time()
     if json_output:
         return json.dumps(
-            [
-                {
-                    "scene": e.scene,
-                    "scene_id": e.scene_id,
-                    "profile": e.profile,
-                    "fingerprint": e.fingerprint,
-                    "frames": e.frames,
-                    "files": len(e.keys),
-                    "bytes": e.size,
-                    "last_used_s_ago": round(now - e.last_used, 1),
-                }
-                for e in entries
-            ],
+            {
+                "cache_dir": str(store.root),
+                "bytes_on_disk": total,
+                "entries": [
+                    {
+                        "scene": e.scene,
+                        "scene_id": e.scene_id,
+                        "profile": e.profile,
+                        "fingerprint": e.fingerprint,
+                        "frames": e.frames,
+                        "files": len(e.keys),
+                        "bytes": e.size,
+                        "last_used_s_ago": round(now - e.last_used, 1),
+                    }
+                    for e in entries
+                ],
+                "view_downloads": [
+                    {
+                        "job": d.job,
+                        "path": str(d.path),
+                        "files": d.files,
+                        "bytes": d.size,
+                        "last_used_s_ago": round(now - d.last_used, 1),
+                    }
+                    for d in downloads
+                ],
+            },
             indent=2,
         )
-    total = sum(store.size(k) for k in data_keys(store))
-    lines = [f"cache {store.root}: {len(entries)} entries, {human_size(total)} on disk"]
+    lines = [
+        f"cache {store.root}: {len(entries)} entries, {len(downloads)} view downloads, "
+        f"{human_size(total)} on disk"
+    ]
     if entries:
         lines.append(
             f"{'last used':>10}  {'size':>10}  {'files':>5}  {'scene id':<16}  profile (models)  scene"
@@ -132,16 +166,41 @@ def cache_ls(cache_dir: Path, *, json_output: bool = False) -> str:
             f"{human_age(now - e.last_used) + ' ago':>10}  {human_size(e.size):>10}  {len(e.keys):>5}  "
             f"{e.scene_id:<16}  {e.profile} ({e.fingerprint})  {e.scene}"
         )
+    if downloads:
+        lines.append(f"view downloads (bfields view --job), {human_size(sum(d.size for d in downloads))}:")
+        lines.append(f"{'last used':>10}  {'size':>10}  {'files':>5}  job")
+    for d in downloads:
+        lines.append(
+            f"{human_age(now - d.last_used) + ' ago':>10}  {human_size(d.size):>10}  {d.files:>5}  {d.job}"
+        )
     return "\n".join(lines)
 
 
 def cache_prune(cache_dir: Path, *, older_than_s: float | None, max_size: int | None) -> str:
-    """Prune and describe what was removed."""
+    """Prune entries and view downloads (the rule is the module's) and describe what was removed."""
+    from bayesian_fields_core.cli.cache_folder import disk_usage, remove_download, view_downloads
     from bayesian_fields_core.job.cache_index import prune
 
     store = _store(cache_dir)
-    report = prune(store, older_than_s=older_than_s, max_size=max_size)
+    now = time.time()
+    kept = view_downloads(cache_dir)  # most recently viewed first
+    dropped = [d for d in kept if older_than_s is not None and now - d.last_used > older_than_s]
+    kept = [d for d in kept if d not in dropped]
+    report = prune(store, older_than_s=older_than_s, now=now)
+    entries, files, freed = report.entries_removed, report.files_removed, report.bytes_freed
+    if max_size is not None:
+        while kept and report.bytes_left + sum(d.size for d in kept) > max_size:
+            dropped.append(kept.pop())  # the least recently viewed
+        report = prune(store, max_size=max(max_size - sum(d.size for d in kept), 0), now=now)
+        entries, files, freed = (
+            entries + report.entries_removed,
+            files + report.files_removed,
+            freed + report.bytes_freed,
+        )
+    for d in dropped:
+        remove_download(d)
     return (
-        f"removed {report.entries_removed} entries and {report.files_removed} files "
-        f"({human_size(report.bytes_freed)}); {human_size(report.bytes_left)} left in {store.root}"
+        f"removed {entries} entries and {files} files ({human_size(freed)}), "
+        f"{len(dropped)} view downloads ({human_size(sum(d.size for d in dropped))}); "
+        f"{human_size(disk_usage(cache_dir))} left in {store.root}"
     )

@@ -43,6 +43,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     """Fit, write, and print the fitted values and the 'not found' trade-off."""
     from bayesian_fields_core.eval.calibration.fit import CalibrationRequest, calibrate
+    from bayesian_fields_core.objects.not_found import SCORE_MEANING
 
     request = CalibrationRequest(
         out=args.out,
@@ -63,7 +64,8 @@ def run(args: argparse.Namespace) -> int:
     fit = cal.not_found_fit
     if fit is not None and cal.answer_min_peak is not None:
         print(
-            f"'not found' threshold answer_min_peak = {cal.answer_min_peak:.4f}: {100 * fit.absent_not_found:.0f}% "
+            f"'not found' threshold answer_min_peak = {cal.answer_min_peak:.4f} (the best-view score a task's "
+            f"best object needs; {SCORE_MEANING}): {100 * fit.absent_not_found:.0f}% "
             f"of {fit.absent_tasks} absent tasks not found, {100 * fit.present_lost:.1f}% of "
             f"{fit.present_tasks} present tasks lost (at most {100 * fit.max_present_loss:.0f}% allowed)"
         )

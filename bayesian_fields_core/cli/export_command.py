@@ -5,6 +5,8 @@ task. The work is `results.splat_export`; this module only parses and prints."""
 from __future__ import annotations
 
 import argparse
+import json
+import sys
 from pathlib import Path
 
 from bayesian_fields_core.cli.arguments import int_at_least
@@ -45,7 +47,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Export, then print each file written (one per line: the output pipes into other tools)."""
+    """Export, then print each file written (one per line on stdout: the output pipes into other
+    tools); with --all-tasks, each task with no answer gets a line on stderr saying why."""
     from bayesian_fields_core.errors import InputError
     from bayesian_fields_core.results.splat_export import export_all_tasks, export_objects
     from bayesian_fields_core.scene.formats.write import check_format
@@ -56,11 +59,13 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(
                 "--all-tasks exports every task's answers; drop --task / --object", source="bfields export"
             )
-        written = export_all_tasks(
+        exports = export_all_tasks(
             args.result, args.out, rank=args.rank, fmt=args.format, scene_dir=args.scene
         )
-        for path in written.values():
+        for path in exports.written.values():
             print(path)
+        for task, why in exports.unanswered.items():  # stderr: stdout stays a list of files
+            print(f"{json.dumps(task)}: not found, no file written ({why})", file=sys.stderr)
         return 0
     path = export_objects(
         args.result,

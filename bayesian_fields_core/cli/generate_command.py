@@ -21,7 +21,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         epilog_fn=_generator_options,
     )
     parser.add_argument("out")
-    parser.add_argument("--seed", type=int, default=0)
+    # --seed is the generator's option (listed once, under its options; its default is the
+    # SceneSpec's, or the --suite scene's). Accepted before OUT too, as it always was.
+    parser.add_argument("--seed", type=int, default=None, help=argparse.SUPPRESS)
     parser.add_argument("extra", nargs=argparse.REMAINDER, help="options passed to the generator")
     parser.set_defaults(func=run)
 
@@ -30,7 +32,8 @@ def run(args: argparse.Namespace) -> int:
     """Generate the scene through the generator's own command line."""
     from bayesian_fields_core.eval.synthetic import main as synthetic_main
 
-    return synthetic_main([args.out, "--seed", str(args.seed), *args.extra])
+    seed = [] if args.seed is None else ["--seed", str(args.seed)]
+    return synthetic_main([args.out, *seed, *args.extra])
 
 
 __all__ = ["register", "run"]

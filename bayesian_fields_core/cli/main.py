@@ -28,7 +28,7 @@ from bayesian_fields_core.cli import (
     view_command,
 )
 from bayesian_fields_core.cli.job_options import BfieldsParser
-from bayesian_fields_core.errors import BayesianFieldsError, InputError, InvariantError
+from bayesian_fields_core.errors import BayesianFieldsError, InputError, InputErrors, InvariantError
 
 CLI_PLUGIN_GROUP = "bayesian_fields.cli"
 """Entry points here are called with the subparsers and may add verbs."""
@@ -79,7 +79,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args.func(args) or 0)
     except InputError as exc:
-        print(f"bfields: error: {_one_line(exc)}", file=sys.stderr)
+        for problem in exc.errors if isinstance(exc, InputErrors) else [exc]:  # one line each
+            print(f"bfields: error: {_one_line(problem)}", file=sys.stderr)
         return 2
     except InvariantError as exc:  # not the input's fault: say so, do not blame the user
         print(f"bfields: internal error (a bug, please report it): {_one_line(exc)}", file=sys.stderr)

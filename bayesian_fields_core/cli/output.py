@@ -53,11 +53,21 @@ THIRD_PARTY_LOGGERS = (
 )
 
 
+def message_console(*, stderr: bool = True) -> Console:
+    """A console for messages: on a terminal, rich's own (the terminal's width); otherwise (a pipe,
+    a file, a CI log) soft-wrapped, so a line is never broken at rich's default 80 columns: a
+    script greps it, a log reader reflows it. Every CLI message console is made here."""
+    console = Console(stderr=stderr)
+    if not console.is_terminal:
+        console.soft_wrap = True
+    return console
+
+
 def stderr_console() -> Console:
     """The one stderr console of the process: log lines and progress bars must share it."""
     global _CONSOLE
     if _CONSOLE is None:
-        _CONSOLE = Console(stderr=True)
+        _CONSOLE = message_console(stderr=True)
     return _CONSOLE
 
 

@@ -51,9 +51,10 @@ def default_text(value: Any) -> str:
 
 
 def reader_text(reader: ReadBy) -> str:
-    """`fuse: visibility; keys the visibility cache`: the stage, what for, and the caches it keys."""
+    """`fuse: visibility; keys the visibility cache`: the stages, what for, and the caches it keys
+    (`fuse, cluster: fusion update` for a field more than one stage reads)."""
     keys = f"; keys the {' and '.join(reader.keys)} cache" if reader.keys else ""
-    return f"{reader.stage}: {reader.why}{keys}"
+    return f"{', '.join(reader.stages)}: {reader.why}{keys}"
 
 
 def rows() -> list[ParamRow]:

@@ -139,13 +139,8 @@ def run(args: argparse.Namespace) -> int:
     if scene is None:
         raise InputError("give a scene folder (or --config FILE of an earlier run)", source="bfields run")
     scene_dir = _scene_folder(scene)
-    tasks = resolve_tasks(args.task, args.tasks, scene_dir, fallback=base.tasks if base else None)
-    raw = {**(base.parameters if base else {}), **parameter_overrides(args.params, args.param)}
-    params = validate_parameters(raw)
+    tasks, params, transform = _check_inputs(args, base, scene_dir)
     profile = Path(args.profile) if args.profile else (base.profile if base else None)
-    transform = (
-        Path(args.splat_transform) if args.splat_transform else (base.splat_transform if base else None)
-    )
     out, chosen = output_folder(args.out, scene_dir)
     if chosen:
         print(f"output folder: {out}", file=sys.stderr)
@@ -157,6 +152,34 @@ def run(args: argparse.Namespace) -> int:
         splat_transform=transform,
     )
     return _execute(args, config, params, out)
+
+
+def _check_inputs(
+    args: argparse.Namespace, base: RunConfig | None, scene_dir: Path
+) -> tuple[list[str], PipelineParams, Path | None]:
+    """(tasks, parameters, splat transform) of the run, after every input it needs was checked
+    at once, before the models load and before the alignment check renders: the tasks, the
+    parameters and the scene (`checks.inputs`). All problems are raised together."""
+    from bayesian_fields_core.checks.inputs import check_run_inputs
+
+    problems: list[InputError] = []
+    tasks: list[str] = []
+    params: PipelineParams | None = None
+    try:
+        tasks = resolve_tasks(args.task, args.tasks, scene_dir, fallback=base.tasks if base else None)
+    except InputError as exc:
+        problems.append(exc)
+    try:
+        raw = {**(base.parameters if base else {}), **parameter_overrides(args.params, args.param)}
+        params = validate_parameters(raw)
+    except InputError as exc:
+        problems.append(exc)
+    transform = (
+        Path(args.splat_transform) if args.splat_transform else (base.splat_transform if base else None)
+    )
+    check_run_inputs(scene_dir, found=problems, allow_source_path=True, splat_transform=transform)
+    assert params is not None  # a parameter problem was raised above
+    return tasks, params, transform
 
 
 def _execute(args: argparse.Namespace, config: RunConfig, params: PipelineParams, out: Path) -> int:

@@ -13,6 +13,7 @@ from pathlib import Path
 
 from bayesian_fields_core.cli.arguments import int_at_least
 from bayesian_fields_core.cli.cache_command import DEFAULT_CACHE_DIR
+from bayesian_fields_core.cli.cache_folder import VIEW_DIR
 from bayesian_fields_core.errors import InputError
 
 JOB_DOWNLOAD_GROUP = "bayesian_fields.job_download"
@@ -46,7 +47,7 @@ def _fetch_job(args: argparse.Namespace) -> Path:
     downloaders = list(entry_points(group=JOB_DOWNLOAD_GROUP))
     if not downloaders:
         raise InputError("--job needs the service client (install the project with its 'api' extra)")
-    out = Path(args.download_dir) if args.download_dir else DEFAULT_CACHE_DIR / "view" / args.job
+    out = Path(args.download_dir) if args.download_dir else DEFAULT_CACHE_DIR / VIEW_DIR / args.job
     server = args.server or os.environ.get("BFIELDS_SERVER", "http://127.0.0.1:8000")
     api_key = args.api_key or os.environ.get("BFIELDS_API_KEY")
     downloaders[0].load()(args.job, out, server=server, api_key=api_key)

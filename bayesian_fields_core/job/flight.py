@@ -6,7 +6,7 @@ runner's `Flight` to *hold* a key naming the cache entries it is about to fill (
 never a path) before computing them: the first holder computes, the others wait for it, then
 look at the cache again and find the frames there. The library defines only the seam: the CLI
 runs alone (`NoFlight`), the service's workers hold a Redis lock with a heartbeat
-(`bayesian_fields_service.worker.single_flight`), so a crashed holder's lock expires and a waiter
+(`bayesian_fields_service.live.single_flight`), so a crashed holder's lock expires and a waiter
 takes over, and a waiter gives up waiting after a timeout and computes itself (never a deadlock;
 at worst the work the flight would have saved).
 

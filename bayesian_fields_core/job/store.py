@@ -23,6 +23,7 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 
 from bayesian_fields_core.errors import InputError, InvariantError
+from bayesian_fields_core.job.atomic import atomic_temp
 
 
 class ArtifactNotFound(KeyError):
@@ -88,7 +89,7 @@ class LocalStore:
     def put_bytes(self, key: str, data: bytes) -> None:
         path = self._path(key)
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-")
+        fd, tmp = atomic_temp(path.parent)
         try:
             with os.fdopen(fd, "wb") as fh:
                 fh.write(data)
@@ -116,7 +117,7 @@ class LocalStore:
     def put_file(self, key: str, path: Path) -> None:
         dest = self._path(key)
         dest.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=dest.parent, prefix=".tmp-")
+        fd, tmp = atomic_temp(dest.parent)
         os.close(fd)
         try:
             shutil.copyfile(path, tmp)
@@ -295,10 +296,12 @@ def put_array_blocks(
     if isinstance(store, LocalStore):
         dest = store.local_path(key)
         dest.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=dest.parent, prefix=".tmp-")
+        fd, tmp = atomic_temp(dest.parent)
     else:
         dest = None
-        fd, tmp = tempfile.mkstemp(prefix="bfields-npz-", suffix=".npz")
+        # a private scratch file in the system's temp folder, uploaded by `put_file`, never published
+        fd, tmp_name = tempfile.mkstemp(prefix="bfields-npz-", suffix=".npz")
+        tmp = Path(tmp_name)
     try:
         with os.fdopen(fd, "wb") as fh, zipfile.ZipFile(fh, "w", compression=mode, allowZip64=True) as zf:
             for name, array in arrays.items():
@@ -312,7 +315,7 @@ def put_array_blocks(
         if dest is not None:
             os.replace(tmp, dest)
         else:
-            store.put_file(key, Path(tmp))
+            store.put_file(key, tmp)
     finally:
         Path(tmp).unlink(missing_ok=True)
 

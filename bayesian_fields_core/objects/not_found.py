@@ -4,9 +4,10 @@ Selection (Eq. 7) always returns the top-k objects, so a task that names somethi
 does not hold ("pick up the red lamp") still gets a confident-looking answer, which a robot would
 act on. The rule: a task is answered only when its best candidate's score reaches
 `answer_min_peak`; otherwise its selection is empty and the result says why (`NotFound`,
-format 1.3). The score is the best object's *peak*: the strongest single view any accepted mask
-gave it for the task, as a margin `(phi - mu0) / (mu1 - mu0)` of the calibrated likelihoods
-(`fusion.peak` says why the fused probability cannot serve: it saturates on look-alikes). The
+format 1.3). The score is the best object's *best-view score* (`peak` in the code, and in
+summary.json before format 1.6): the strongest single view any accepted mask gave it for the
+task, as a margin `(phi - mu0) / (mu1 - mu0)` of the calibrated likelihoods (`fusion.peak` says
+why the fused probability cannot serve: it saturates on look-alikes). The
 README's "Not found answers" section shows how the threshold was chosen from the synthetic
 suite's present and absent tasks.
 """
@@ -23,9 +24,16 @@ from bayesian_fields_core.errors import InputError
 if TYPE_CHECKING:  # the record is read by the light result reader: no torch / scipy at import
     from bayesian_fields_core.fusion.likelihood import LikelihoodParams
 
-RULE = "peak"
+RULE = "best_view_score"
 """The score the rule thresholds: the best object's best single view for the task, as a margin
 between the calibrated likelihood means (`fusion.peak`, `SelectedObject.peak`)."""
+
+LEGACY_RULES = {"peak": RULE}
+"""Older names of a rule (summary.json formats 1.3-1.5 wrote "peak"), read as today's."""
+
+SCORE_MEANING = "1 = as well as a typical relevant view, 0 = as a typical irrelevant one"
+"""What a best-view score means, said wherever one is printed (a bare number beside
+probabilities reads like a broken probability: it can exceed 1)."""
 
 
 @dataclass
@@ -57,13 +65,17 @@ class NotFound:
             raise InputError("result summary: not_found must be an object")
         try:
             score, object_id, threshold = data.get("score"), data.get("object_id"), data["threshold"]
-            return cls(
+            found = cls(
                 reason=str(data["reason"]),
-                rule=str(data["rule"]),
+                rule=LEGACY_RULES.get(str(data["rule"]), str(data["rule"])),
                 threshold=None if threshold is None else float(threshold),
                 score=None if score is None else float(score),
                 object_id=None if object_id is None else int(object_id),
             )
+            if str(data["rule"]) in LEGACY_RULES and None not in (score, object_id, threshold):
+                # an older result's reason ("has peak 0.632 < 0.640806"), said as today's
+                found.reason = not_found_reason(found.object_id, found.score, found.threshold).reason
+            return found
         except KeyError as exc:
             raise InputError(f"result summary: not_found missing field {exc.args[0]!r}") from None
         except (TypeError, ValueError) as exc:
@@ -110,7 +122,10 @@ def not_found_reason(
     if score is None or not is_not_found(score, threshold):
         return None
     return NotFound(
-        reason=f"best object {object_id} has {rule} {score:.3f} < {threshold:g}",
+        reason=(
+            f"best object {object_id} scored {score:.3f}, below the not-found threshold {threshold:.3f} "
+            f"(its best view's match to the task: {SCORE_MEANING})"
+        ),
         rule=rule,
         threshold=threshold,
         score=float(score),

@@ -26,7 +26,7 @@ from bayesian_fields_core.objects.scores import task_scores
 from bayesian_fields_core.results.keys import object_keys
 
 FORMAT_NAME = "bayesian-fields-result"
-FORMAT_VERSION = "1.5"
+FORMAT_VERSION = "1.6"
 """MAJOR.MINOR. A reader accepts any MINOR of its MAJOR (minors only add optional fields and files);
 a new MAJOR (a changed meaning, dtype rule or layout) is refused with a clear error."""
 
@@ -41,6 +41,11 @@ TASK_EXPORT_DIR = "exports/tasks/"
 
 ID_DTYPES = (np.dtype("<u1"), np.dtype("<u2"), np.dtype("<u4"))
 CODECS = ("raw", "zlib", "lzma")
+BEST_VIEW_SCORE_KEY = "best_view_score"
+"""summary.json key of an object's best-view score (format 1.6; `SelectedObject.peak` in Python)."""
+LEGACY_PEAK_KEY = "peak"
+"""The same number's key in formats 1.3-1.5. Format 1.6 writes both keys (so 1.3-1.5 readers keep
+reading it) and readers take either; the next format version writes only `best_view_score`."""
 NULL_TASK = "<null>"
 """Name of the last probability column: relevant to none of the tasks."""
 
@@ -52,10 +57,11 @@ class SelectedObject:
     gave; `export` is the key of its `.ply` (relative to the result prefix) when one was written.
     `capture_centroid` / `capture_box` (format 1.2): the same in the cameras' (capture) frame, set
     only when the loader mapped the splat into that frame (nerfstudio, gsplat, a scene.yaml
-    transform); None when both frames are one. `peak` (format 1.3): the object's best single view
-    for the task, as a margin between the calibrated likelihood means (0 = the irrelevant mean,
-    1 = the relevant mean; `fusion.peak`), the score the "not found" rule thresholds; None when
-    the run did not record it. `score` (format 1.4): the number the task's objects are ranked by
+    transform); None when both frames are one. `peak` (format 1.3; in summary.json
+    `best_view_score` since 1.6, `peak` before): the object's best single view for the task, as a
+    margin between the calibrated likelihood means (0 = a typical irrelevant view, 1 = a typical
+    relevant one, above 1 for a view better than typical; `fusion.peak`), the score the "not
+    found" rule thresholds; None when the run did not record it. `score` (format 1.4): the number the task's objects are ranked by
     (`Result.ranked_by` names it; for 'evidence' the mean log-odds of the object's
     Gaussians), so ranks follow it even where `probability` saturates; None before 1.4.
     `world_centroid` / `world_box` (format 1.4): the same in the data's own world frame (COLMAP's,
@@ -77,6 +83,11 @@ class SelectedObject:
     world_box: OrientedBox | None = None
     key: str | None = None
 
+    @property
+    def best_view_score(self) -> float | None:
+        """`peak` by its user-facing name (the summary.json key since format 1.6)."""
+        return self.peak
+
     def to_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {
             "object_id": int(self.object_id),
@@ -89,7 +100,8 @@ class SelectedObject:
         if self.key is not None:
             out["key"] = self.key
         if self.peak is not None:
-            out["peak"] = float(self.peak)
+            out[BEST_VIEW_SCORE_KEY] = float(self.peak)
+            out[LEGACY_PEAK_KEY] = float(self.peak)  # for 1.3-1.5 readers, this format version only
         if self.score is not None:
             out["score"] = float(self.score)
         if self.capture_centroid is not None and self.capture_box is not None:
@@ -121,7 +133,7 @@ class SelectedObject:
                 export=data.get("export"),
                 capture_centroid=capture_centroid,
                 capture_box=capture_box,
-                peak=None if data.get("peak") is None else float(data["peak"]),
+                peak=_best_view_score(data),
                 score=None if data.get("score") is None else float(data["score"]),
                 world_centroid=world_centroid,
                 world_box=world_box,
@@ -129,6 +141,12 @@ class SelectedObject:
             )
         except KeyError as exc:
             raise InputError(f"result summary: selected object missing field {exc.args[0]!r}") from None
+
+
+def _best_view_score(data: dict[str, Any]) -> float | None:
+    """An object's best-view score from either key (`best_view_score`, or 1.3-1.5's `peak`)."""
+    value = data.get(BEST_VIEW_SCORE_KEY, data.get(LEGACY_PEAK_KEY))
+    return None if value is None else float(value)
 
 
 def _framed(block: Any, name: str) -> tuple[np.ndarray | None, OrientedBox | None]:

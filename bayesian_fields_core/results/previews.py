@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import io
 import math
+import textwrap
 from dataclasses import dataclass
 from typing import Any
 
@@ -127,11 +128,14 @@ def _legend(
     image: Image.Image, task: str, rows: list[tuple[int, int, float]], empty: str = "no object selected"
 ) -> Image.Image:
     """The image with a legend strip below: the task, then one line per (rank, object, p), or
-    `empty` (why nothing is shown) when the task has no object."""
+    `empty` (why nothing is shown, wrapped to the strip's width) when the task has no object."""
     width = max(image.width, 320)
     line = 16
     font, title_font = _font(12), _font(14)
-    lines = max(len(rows), 1)
+    sample = "best object 37 scored 0.632, below the not-found threshold"
+    chars = max(int((width - 16) * len(sample) / max(font.getlength(sample), 1)), 20)
+    empty_lines = textwrap.wrap(empty, chars) or [""]
+    lines = len(rows) if rows else len(empty_lines)
     strip = 8 + 18 + line * lines + 6
     out = Image.new("RGB", (width, image.height + strip), (24, 24, 28))
     out.paste(image, ((width - image.width) // 2, 0))
@@ -140,7 +144,7 @@ def _legend(
     draw.text((8, y), task, fill=(240, 240, 240), font=title_font)
     y += 20
     if not rows:
-        draw.text((8, y), empty, fill=(180, 180, 180), font=font)
+        draw.text((8, y), "\n".join(empty_lines), fill=(180, 180, 180), font=font, spacing=line - 12)
     for rank, object_id, p in rows:
         colour = tuple(int(c * 255) for c in rank_colour(rank))
         draw.rectangle((8, y + 2, 20, y + 13), fill=colour)

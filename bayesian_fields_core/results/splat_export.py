@@ -179,6 +179,27 @@ def export_objects(
     return write_splat(target, gaussians, fmt)
 
 
+@dataclass(frozen=True)
+class TaskExports:
+    """What `export_all_tasks` did: `written` {task: file} for each answered task, and
+    `unanswered` {task: why} for each task with no answer, so the caller can say which tasks
+    have no file instead of leaving the user to count files."""
+
+    written: dict[str, Path]
+    unanswered: dict[str, str]
+
+
+def unanswered_tasks(result: Result) -> dict[str, str]:
+    """{task: why it has no answer} for every task of `result` with an empty selection, in the
+    result's task order; the reason is the result's "not found" reason when it recorded one."""
+    out = {}
+    for task in result.tasks:
+        if not result.selections.get(task):
+            missing = result.not_found.get(task)
+            out[task] = missing.reason if missing else "no object selected"
+    return out
+
+
 def export_all_tasks(
     result_folder: str | Path,
     out_dir: str | Path | None = None,
@@ -186,17 +207,21 @@ def export_all_tasks(
     rank: int | None = None,
     fmt: str = "ply",
     scene_dir: str | Path | None = None,
-) -> dict[str, Path]:
+) -> TaskExports:
     """One file per answered task (its answers, or its answer at `rank`) in `out_dir` (default
-    `<result_folder>/exported/`), named `task_<index>_<task>.<suffix>`; tasks with no answer are
-    skipped. Returns {task: file}. The scene is loaded once for all tasks."""
+    `<result_folder>/exported/`), named `task_<index>_<task>.<suffix>`; tasks with no answer get
+    no file and are listed with their reason. The scene is loaded once for all tasks."""
     check_format(fmt)
     folder = Path(result_folder)
     result = read_result(folder)
     target = Path(out_dir) if out_dir is not None else folder / EXPORT_DIR
-    answered = [t for t in result.tasks if result.selections.get(t)]
+    unanswered = unanswered_tasks(result)
+    answered = [t for t in result.tasks if t not in unanswered]
     if not answered:
-        raise InputError("no task of this result has an answer: nothing to export", source=str(folder))
+        why = "; ".join(f"{t!r}: {r}" for t, r in unanswered.items())
+        raise InputError(
+            f"no task of this result has an answer ({why}): nothing to export", source=str(folder)
+        )
     picks = {t: pick_objects(result, task=t, rank=rank) for t in answered}
     union = sorted({o for p in picks.values() for o in p.object_ids})
     gaussians, owners = result_gaussians(folder, result, union, Path(scene_dir) if scene_dir else None)
@@ -207,4 +232,4 @@ def export_all_tasks(
             continue
         path = target / f"task_{index:02d}_{slug(task)}{SUFFIXES[fmt]}"
         written[task] = write_splat(path, gaussians.subset(np.isin(owners, picks[task].object_ids)), fmt)
-    return written
+    return TaskExports(written=written, unanswered=unanswered)

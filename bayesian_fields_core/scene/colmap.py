@@ -216,6 +216,12 @@ def _model_files(sparse_dir: Path) -> tuple[Path, Path, bool]:
     )
 
 
+def images_file(sparse_dir: Path) -> Path:
+    """The file of a COLMAP model that lists its images (`images.bin`, else `images.txt`): where a
+    frame is dropped from the model."""
+    return _model_files(sparse_dir)[1]
+
+
 def _default_images_dir(sparse_dir: Path) -> Path:
     """`<scene>/images` for the usual `<scene>/sparse/0` or `<scene>/sparse` layouts, and for
     ns-process-data's `<scene>/colmap/sparse/0`."""

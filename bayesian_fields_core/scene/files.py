@@ -25,13 +25,17 @@ def load_json(path: Path) -> Any:
         raise InputError(f"not valid JSON ({describe_failure(exc)})", source=str(path)) from exc
 
 
-def require_files(paths: Iterable[Path | None], *, what: str, source: str, shown: int = 5) -> None:
-    """InputError listing (the first few of) the paths that are not existing files."""
+def require_files(
+    paths: Iterable[Path | None], *, what: str, source: str, fix: str = "", shown: int = 5
+) -> None:
+    """InputError listing (the first few of) the paths that are not existing files, then `fix`
+    (what the user can do about it), when given."""
     missing = [str(p) for p in paths if p is None or not Path(p).is_file()]
     if missing:
         more = f" and {len(missing) - shown} more" if len(missing) > shown else ""
         raise InputError(
-            f"{len(missing)} {what} referenced by the cameras do not exist: {', '.join(missing[:shown])}{more}",
+            f"{len(missing)} {what} referenced by the cameras do not exist: {', '.join(missing[:shown])}{more}"
+            + (f"; {fix}" if fix else ""),
             source=source,
         )
 

@@ -113,6 +113,18 @@ def _open(path: Path, what: str) -> Image.Image:
     return img
 
 
+def image_size(path: Path) -> tuple[int, int]:
+    """(width, height) from the image's header, nothing decoded: the cheap size check a run does
+    on every frame before any expensive work (the full decode comes with perception)."""
+    try:
+        with Image.open(path) as img:
+            return img.size
+    except FileNotFoundError as exc:
+        raise InputError("image not found", source=str(path)) from exc
+    except (OSError, SyntaxError, ValueError, Image.DecompressionBombError, MemoryError, EOFError) as exc:
+        raise InputError(f"cannot read image ({describe_failure(exc)})", source=str(path)) from exc
+
+
 def _check_size(path: Path, frame: Frame, width: int, height: int, what: str) -> None:
     if (width, height) != (frame.width, frame.height):
         raise InputError(

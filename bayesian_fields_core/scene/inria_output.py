@@ -27,6 +27,7 @@ from PIL import Image
 
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.geometry.transforms import intrinsics
+from bayesian_fields_core.scene.files import resolve_inside
 from bayesian_fields_core.scene.types import Frame
 
 CFG_ARGS = "cfg_args"
@@ -139,3 +140,40 @@ def is_inria_output(folder: Path) -> bool:
     return (folder / "cameras.json").is_file() and (
         (folder / CFG_ARGS).is_file() or (folder / "point_cloud").is_dir()
     )
+
+
+def inria_images(
+    folder: Path, camera_path: Path, *, allow_source_path: bool
+) -> tuple[Path | None, Path | None]:
+    """(images_dir, root) for a cameras.json (`camera_formats` row 'inria', its `images`):
+    `images/` beside it, else what cfg_args names.
+
+    cfg_args' `images` (default 'images') is tried inside the scene folder first; its absolute
+    `source_path` (where 3DGS read the dataset) is followed only with `allow_source_path` (the
+    CLI), because an upload must never make the service open a host folder.
+    """
+    beside = camera_path.parent / "images"
+    cfg = folder / CFG_ARGS
+    if beside.is_dir() or not cfg.is_file():
+        return None, None
+    args = read_cfg_args(cfg)
+    images = args.get("images") or "images"
+    if not isinstance(images, str):
+        raise InputError(f"images must be a string, got {images!r}", source=str(cfg))
+    inside = resolve_inside(folder, images, what="images folder", source=str(cfg))
+    if inside.is_dir():
+        return inside, folder
+    source = args.get("source_path")
+    if not isinstance(source, str) or not source:
+        return None, None
+    source_dir = Path(source)
+    if not source_dir.is_absolute():
+        source_dir = folder / source_dir
+    source_dir = source_dir.resolve()
+    if not source_dir.is_relative_to(folder.resolve()) and not allow_source_path:
+        raise InputError(
+            f"the images are not in the scene folder and cfg_args names source_path {source!r} outside it; "
+            f"copy {images}/ into the scene folder (the CLI may follow source_path, the service never does)",
+            source=str(cfg),
+        )
+    return resolve_inside(source_dir, images, what="images folder", source=str(cfg)), source_dir

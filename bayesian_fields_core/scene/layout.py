@@ -24,11 +24,15 @@ from pathlib import Path
 import numpy as np
 
 from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.scene.camera_formats import camera_format_named, camera_locations, find_in_folder
+from bayesian_fields_core.scene.camera_formats import detect as detect_camera_format
 from bayesian_fields_core.scene.files import resolve_inside
 from bayesian_fields_core.scene.formats.checkpoint import CKPT
 from bayesian_fields_core.scene.formats.common import CONVERTED_SPLAT
 from bayesian_fields_core.scene.formats.registry import accepted_names, is_splat_candidate
-from bayesian_fields_core.scene.inria_output import CFG_ARGS, is_inria_output, read_cfg_args
+from bayesian_fields_core.scene.formats.sniff import point_cloud_properties
+from bayesian_fields_core.scene.inria_output import is_inria_output
+from bayesian_fields_core.scene.point_cloud import point_cloud_message
 from bayesian_fields_core.scene.scene_yaml import SCENE_YAML, SceneSpecFile, read_scene_yaml
 from bayesian_fields_core.scene.similarity import Similarity
 from bayesian_fields_core.scene.trainer_runs import GSPLAT_CFG, NERFSTUDIO_CFG, gsplat_run, nerfstudio_run
@@ -38,10 +42,11 @@ from bayesian_fields_core.scene.trainer_transforms import (
     nerfstudio_to_transforms_frame,
     read_transform_file,
 )
+from bayesian_fields_core.scene.trainers import layout_row, run_config_names
 
 SPLAT_NAMES = (CONVERTED_SPLAT, "splat.ply")
-CAMERA_SOURCES = ("transforms.json", "sparse/0", "sparse", "colmap/sparse/0", "cameras.json")
-"""`colmap/sparse/0` is where nerfstudio's ns-process-data leaves the COLMAP model."""
+CAMERA_SOURCES = camera_locations()
+"""Where cameras are looked for, in order (`camera_formats.CAMERA_FORMATS`)."""
 INRIA_SFM_POINTS = "input.ply"
 """3DGS copies the SfM points here: never a splat in a 3DGS output folder."""
 _ITERATION = re.compile(r"iteration_(\d+)$")
@@ -52,8 +57,9 @@ _GSPLAT_PLY = re.compile(r"point_cloud_(\d+)\.ply$")
 class SceneLayout:
     """Where a scene's parts are.
 
-    trainer: 'inria', 'nerfstudio', 'gsplat', 'scene.yaml', 'matrix' (a generic transform file)
-    or 'plain'. camera_kind: 'transforms', 'colmap' or 'inria'. images_dir: where image names
+    trainer: a row of `trainers.TRAINER_LAYOUTS` ('inria', 'nerfstudio', 'gsplat', 'scene.yaml',
+    'matrix' (a generic transform file) or 'plain'). camera_kind: a row of
+    `camera_formats.CAMERA_FORMATS` ('transforms', 'colmap' or 'inria'). images_dir: where image names
     resolve for COLMAP / cameras.json (None: the reader's default). image_root: the folder those
     names must stay inside. splat_to_capture: the similarity applied to the Gaussians (None: the
     splat is already in the cameras' frame). rescale_intrinsics: cameras.json sizes may differ
@@ -115,12 +121,19 @@ def _gsplat_ckpt(folder: Path) -> tuple[int, Path] | None:
 
 
 def find_splat_file(folder: Path) -> tuple[Path, str]:
-    """(splat, trainer guess) by the loader's preference order; InputError when none or ambiguous."""
+    """(splat, trainer guess) by the loader's preference order; InputError when none or ambiguous.
+
+    A PLY of plain points (`scene.point_cloud`: COLMAP's points3D, an SfM or lidar cloud, often
+    named point_cloud.ply) is never taken: a trained splat beside it is, and a folder with
+    nothing else is refused with what the file is and how to get a splat."""
     if not folder.is_dir():
         raise InputError("scene folder does not exist", source=str(folder))
+    clouds: dict[Path, set[str]] = {}
     for name in SPLAT_NAMES:
         if (folder / name).is_file():
-            return folder / name, "plain"
+            if (names := point_cloud_properties(folder / name)) is None:
+                return folder / name, "plain"
+            clouds[folder / name] = names
     if (splat := _inria_iteration(folder)) is not None:
         return splat, "inria"
     ckpt = _gsplat_ckpt(folder)
@@ -131,9 +144,15 @@ def find_splat_file(folder: Path) -> tuple[Path, str]:
     if ckpt is not None:
         return ckpt[1], "gsplat"
     inria = is_inria_output(folder)
-    plys = sorted(
-        p for p in folder.iterdir() if is_splat_candidate(p) and not (inria and p.name == INRIA_SFM_POINTS)
-    )
+    plys = []
+    for p in sorted(folder.iterdir()):
+        if not is_splat_candidate(p) or (inria and p.name == INRIA_SFM_POINTS):
+            continue
+        names = clouds.get(p) or point_cloud_properties(p)
+        if names is None:
+            plys.append(p)
+        else:
+            clouds[p] = names
     if len(plys) == 1:
         return plys[0], "plain"
     if len(plys) > 1:
@@ -142,6 +161,9 @@ def find_splat_file(folder: Path) -> tuple[Path, str]:
             " (name the splat in a scene.yaml)",
             source=str(folder),
         )
+    if clouds:
+        cloud, names = next(iter(clouds.items()))
+        raise InputError(point_cloud_message(names), source=str(cloud))
     extra = (
         " (input.ply is 3DGS's SfM point cloud, not a splat)"
         if inria and (folder / INRIA_SFM_POINTS).is_file()
@@ -156,40 +178,21 @@ def find_splat_file(folder: Path) -> tuple[Path, str]:
 
 
 def find_camera_file(folder: Path) -> tuple[str, Path]:
-    """(kind, path) of the cameras: transforms.json, then sparse/0, sparse (COLMAP), cameras.json."""
-    for source in CAMERA_SOURCES:
-        path = folder / source
-        if source.endswith(".json"):
-            if path.is_file():
-                return ("transforms" if source == "transforms.json" else "inria"), path
-        elif any((path / f"images{ext}").is_file() for ext in (".bin", ".txt")):
-            return "colmap", path
-    raise InputError(
-        "no cameras found (transforms.json, sparse/0/, sparse/ or colmap/sparse/0/ with a COLMAP model, "
-        "cameras.json, or scene.yaml)",
-        source=str(folder),
-    )
+    """(kind, path) of the cameras: the first location of `CAMERA_FORMATS` present, in table
+    order (transforms.json, then sparse/0, sparse, colmap/sparse/0 (COLMAP), cameras.json)."""
+    fmt, path = find_in_folder(folder)
+    return fmt.name, path
 
 
 def camera_kind_of(path: Path) -> str:
-    """The reader for a camera path named in a scene.yaml."""
-    if path.is_dir():
-        if any((path / f"images{ext}").is_file() for ext in (".bin", ".txt")):
-            return "colmap"
-        raise InputError("camera folder has no COLMAP model (images.bin / images.txt)", source=str(path))
-    if path.name == "cameras.json":
-        return "inria"
-    if path.suffix == ".json":
-        return "transforms"
-    raise InputError(
-        "cameras must be a transforms.json, a cameras.json or a COLMAP model folder", source=str(path)
-    )
+    """The reader for a camera path named in a scene.yaml (`camera_formats.detect`)."""
+    return detect_camera_format(path).name
 
 
 def _capture_transform(transform_file: Path, camera_kind: str, camera_path: Path) -> tuple[Similarity, str]:
     """Splat -> cameras' frame from a transform file, for the camera file actually read."""
     to_original, kind = read_transform_file(transform_file)
-    if kind == "nerfstudio" and camera_kind == "transforms":
+    if kind == "nerfstudio" and camera_format_named(camera_kind).applied_transform:
         applied, applied_scale = nerfstudio_to_transforms_frame(camera_path)
         pre = Similarity(applied_scale, np.eye(3), np.zeros(3))
         return pre.then(to_original).then(applied), kind
@@ -207,42 +210,6 @@ def _default_transform_file(folder: Path, splat: Path) -> Path | None:
     return None
 
 
-def _inria_images(
-    folder: Path, camera_path: Path, *, allow_source_path: bool
-) -> tuple[Path | None, Path | None]:
-    """(images_dir, root) for a cameras.json: `images/` beside it, else what cfg_args names.
-
-    cfg_args' `images` (default 'images') is tried inside the scene folder first; its absolute
-    `source_path` (where 3DGS read the dataset) is followed only with `allow_source_path` (the
-    CLI), because an upload must never make the service open a host folder.
-    """
-    beside = camera_path.parent / "images"
-    cfg = folder / CFG_ARGS
-    if beside.is_dir() or not cfg.is_file():
-        return None, None
-    args = read_cfg_args(cfg)
-    images = args.get("images") or "images"
-    if not isinstance(images, str):
-        raise InputError(f"images must be a string, got {images!r}", source=str(cfg))
-    inside = resolve_inside(folder, images, what="images folder", source=str(cfg))
-    if inside.is_dir():
-        return inside, folder
-    source = args.get("source_path")
-    if not isinstance(source, str) or not source:
-        return None, None
-    source_dir = Path(source)
-    if not source_dir.is_absolute():
-        source_dir = folder / source_dir
-    source_dir = source_dir.resolve()
-    if not source_dir.is_relative_to(folder.resolve()) and not allow_source_path:
-        raise InputError(
-            f"the images are not in the scene folder and cfg_args names source_path {source!r} outside it; "
-            f"copy {images}/ into the scene folder (the CLI may follow source_path, the service never does)",
-            source=str(cfg),
-        )
-    return resolve_inside(source_dir, images, what="images folder", source=str(cfg)), source_dir
-
-
 def _from_scene_yaml(folder: Path, spec: SceneSpecFile, source: str) -> SceneLayout:
     splat = resolve_inside(folder, spec.splat, what="splat", source=source)
     if not splat.is_file():
@@ -250,16 +217,18 @@ def _from_scene_yaml(folder: Path, spec: SceneSpecFile, source: str) -> SceneLay
     cameras = resolve_inside(folder, spec.cameras, what="cameras", source=source)
     if not cameras.exists():
         raise InputError(f"cameras {spec.cameras!r} do not exist", source=source)
-    kind = camera_kind_of(cameras)
+    fmt = detect_camera_format(cameras)
+    kind = fmt.name
     images_dir = None
     if spec.images is not None:
-        if kind == "transforms":
+        if not fmt.images_folder:
             raise InputError(
-                "images: not used with a transforms.json (its file_path entries are relative to its folder); remove it",
+                f"images: not used with a {fmt.locations[0]} (its file_path entries are relative to its "
+                "folder); remove it",
                 source=source,
             )
         images_dir = resolve_inside(folder, spec.images, what="images folder", source=source)
-    elif kind != "transforms":
+    elif fmt.images_folder:
         images_dir = resolve_inside(folder, "images", what="images folder", source=source)
     depth_dir = resolve_inside(folder, spec.depth, what="depth folder", source=source) if spec.depth else None
     layout = SceneLayout(
@@ -272,7 +241,7 @@ def _from_scene_yaml(folder: Path, spec: SceneSpecFile, source: str) -> SceneLay
         image_root=folder,
         depth_dir=depth_dir,
         depth_scale=spec.depth_scale,
-        rescale_intrinsics=kind == "inria",
+        rescale_intrinsics=fmt.rescale_intrinsics,
         metric=spec.metric,
     )
     if spec.splat_to_camera is not None:
@@ -308,40 +277,71 @@ def _nerfstudio_export(run: Path) -> Path:
     )
 
 
-def _trainer_run(folder: Path, allow_source_path: bool) -> SceneLayout | None:
-    """The layout of a gsplat result_dir (cfg.yml) or a nerfstudio run folder (config.yml with
-    dataparser_transforms.json), or None for any other folder (`scene.trainer_runs`)."""
-    if (folder / GSPLAT_CFG).is_file():
-        info = gsplat_run(folder, allow_outside=allow_source_path)
-        splat, _ = find_splat_file(folder)
-        return SceneLayout(
-            root=folder,
-            trainer="gsplat",
-            splat=splat,
-            camera_kind="colmap",
-            camera_path=info["sparse"],
-            images_dir=info["images"],
-            image_root=info["images"].parent,
-            splat_to_capture=info["splat_to_world"],
-            transform_source=folder / GSPLAT_CFG if info["splat_to_world"] is not None else None,
-            rescale_intrinsics=info["rescale"],
+def scene_yaml_layout(folder: Path, *, allow_source_path: bool) -> SceneLayout:
+    """The layout a folder's scene.yaml declares (`trainers` row 'scene.yaml'); it never leaves
+    the folder, whatever `allow_source_path` says."""
+    spec_path = folder / SCENE_YAML
+    return _from_scene_yaml(folder, read_scene_yaml(spec_path), str(spec_path))
+
+
+def gsplat_layout(folder: Path, *, allow_source_path: bool) -> SceneLayout:
+    """The layout of a gsplat result_dir (cfg.yml; `trainers` row 'gsplat', `scene.trainer_runs`)."""
+    info = gsplat_run(folder, allow_outside=allow_source_path)
+    splat, _ = find_splat_file(folder)
+    return SceneLayout(
+        root=folder,
+        trainer="gsplat",
+        splat=splat,
+        camera_kind="colmap",
+        camera_path=info["sparse"],
+        images_dir=info["images"],
+        image_root=info["images"].parent,
+        splat_to_capture=info["splat_to_world"],
+        transform_source=folder / GSPLAT_CFG if info["splat_to_world"] is not None else None,
+        rescale_intrinsics=info["rescale"],
+    )
+
+
+def nerfstudio_layout(folder: Path, *, allow_source_path: bool) -> SceneLayout:
+    """The layout of a nerfstudio run folder (config.yml with dataparser_transforms.json;
+    `trainers` row 'nerfstudio', `scene.trainer_runs`)."""
+    info = nerfstudio_run(folder, allow_outside=allow_source_path)
+    layout = SceneLayout(
+        root=folder,
+        trainer="nerfstudio",
+        splat=_nerfstudio_export(folder),
+        camera_kind=info["camera_kind"],
+        camera_path=info["camera_path"],
+    )
+    if camera_format_named(info["camera_kind"]).images_folder:
+        layout.images_dir, layout.image_root = info["data"] / "images", info["data"]
+    transform = folder / DATAPARSER_TRANSFORMS
+    layout.splat_to_capture, _ = _capture_transform(transform, layout.camera_kind, layout.camera_path)
+    layout.transform_source = transform
+    return layout
+
+
+def capture_layout(folder: Path, *, allow_source_path: bool) -> SceneLayout:
+    """Any other folder (`trainers` row 'plain'): the splat rules, the camera table, then a
+    transform file if one lies there. A camera format that is a trainer's output names the
+    layout (cameras.json: 'inria') and resolves its images its own way."""
+    splat, trainer = find_splat_file(folder)
+    fmt, camera_path = find_in_folder(folder)
+    layout = SceneLayout(
+        root=folder, trainer=trainer, splat=splat, camera_kind=fmt.name, camera_path=camera_path
+    )
+    if fmt.trainer is not None:
+        layout.trainer = fmt.trainer
+    layout.rescale_intrinsics = fmt.rescale_intrinsics
+    if fmt.images is not None:
+        layout.images_dir, layout.image_root = fmt.resolve_images(
+            folder, camera_path, allow_source_path=allow_source_path
         )
-    if (folder / NERFSTUDIO_CFG).is_file() and (folder / DATAPARSER_TRANSFORMS).is_file():
-        info = nerfstudio_run(folder, allow_outside=allow_source_path)
-        layout = SceneLayout(
-            root=folder,
-            trainer="nerfstudio",
-            splat=_nerfstudio_export(folder),
-            camera_kind=info["camera_kind"],
-            camera_path=info["camera_path"],
-        )
-        if info["camera_kind"] == "colmap":
-            layout.images_dir, layout.image_root = info["data"] / "images", info["data"]
-        transform = folder / DATAPARSER_TRANSFORMS
-        layout.splat_to_capture, _ = _capture_transform(transform, layout.camera_kind, layout.camera_path)
-        layout.transform_source = transform
-        return layout
-    return None
+    transform_file = _default_transform_file(folder, splat)
+    if transform_file is not None:
+        layout.splat_to_capture, layout.trainer = _capture_transform(transform_file, fmt.name, camera_path)
+        layout.transform_source = transform_file
+    return layout
 
 
 def resolve_layout(
@@ -357,31 +357,11 @@ def resolve_layout(
     dropped (no "capture frame" copy of the results then).
     """
     folder = Path(folder)
-    if folder.is_file() and folder.name in (NERFSTUDIO_CFG, GSPLAT_CFG):
+    if folder.is_file() and folder.name in run_config_names():
         folder = folder.parent  # `bfields run .../config.yml`: the run folder
     if not folder.is_dir():
         raise InputError("scene folder does not exist", source=str(folder))
-    spec_path = folder / SCENE_YAML
-    if spec_path.is_file():
-        layout = _from_scene_yaml(folder, read_scene_yaml(spec_path), str(spec_path))
-    elif (run_layout := _trainer_run(folder, allow_source_path)) is not None:
-        layout = run_layout
-    else:
-        splat, trainer = find_splat_file(folder)
-        kind, camera_path = find_camera_file(folder)
-        layout = SceneLayout(
-            root=folder, trainer=trainer, splat=splat, camera_kind=kind, camera_path=camera_path
-        )
-        if kind == "inria":
-            layout.trainer = "inria"
-            layout.rescale_intrinsics = True
-            layout.images_dir, layout.image_root = _inria_images(
-                folder, camera_path, allow_source_path=allow_source_path
-            )
-        transform_file = _default_transform_file(folder, splat)
-        if transform_file is not None:
-            layout.splat_to_capture, layout.trainer = _capture_transform(transform_file, kind, camera_path)
-            layout.transform_source = transform_file
+    layout: SceneLayout = layout_row(folder).resolver()(folder, allow_source_path=allow_source_path)
     if isinstance(splat_transform, Similarity):
         layout.splat_to_capture, layout.transform_source = splat_transform, None
     elif splat_transform is not None:
@@ -399,7 +379,7 @@ def resolve_layout(
 def _capture_to_world(layout: SceneLayout) -> Similarity | None:
     """Undo a transforms.json's `applied_transform` (results are reported in the data's world
     too); None when there is none to undo."""
-    if layout.camera_kind != "transforms":
+    if not camera_format_named(layout.camera_kind).applied_transform:
         return None
     applied, _ = nerfstudio_to_transforms_frame(layout.camera_path)
     return None if applied.is_identity else applied.inverse()

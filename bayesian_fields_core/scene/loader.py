@@ -15,9 +15,11 @@ Splat:
   5. the only splat file at the top (any name a row of `scene/formats/registry.py` matches)
      (several -> error listing them). In a 3DGS output folder
      (cameras.json with cfg_args or point_cloud/), `input.ply` (the SfM points) never counts.
-Cameras:
+Trainer layouts are the rows of `scene/trainers.py` (scene.yaml, gsplat, nerfstudio, then the
+capture folder rules below), tried in table order.
+Cameras, the rows of `scene/camera_formats.py` in table order:
   1. `transforms.json` (nerfstudio / Instant-NGP / Blender),
-  2. `sparse/0/` then `sparse/` (COLMAP, binary or text),
+  2. `sparse/0/`, `sparse/`, then `colmap/sparse/0/` (COLMAP, binary or text),
   3. `cameras.json` (INRIA 3DGS output). Its images: `images/` beside it, else the `images`
      folder named by `cfg_args` inside the scene folder, else (only with `allow_source_path`,
      which the CLI sets and the service never does) that folder under cfg_args' `source_path`.
@@ -40,10 +42,9 @@ from __future__ import annotations
 from pathlib import Path
 
 from bayesian_fields_core.errors import InputError
-from bayesian_fields_core.scene.colmap import read_colmap
+from bayesian_fields_core.scene.camera_formats import camera_format_named
 from bayesian_fields_core.scene.files import require_files, resolve_inside
 from bayesian_fields_core.scene.formats import read_splat
-from bayesian_fields_core.scene.inria import read_cameras_json
 from bayesian_fields_core.scene.inria_output import rescale_to_images
 from bayesian_fields_core.scene.layout import (
     CAMERA_SOURCES,
@@ -53,7 +54,6 @@ from bayesian_fields_core.scene.layout import (
     find_splat_file,
     resolve_layout,
 )
-from bayesian_fields_core.scene.nerfstudio import read_transforms
 from bayesian_fields_core.scene.ply import DEFAULT_MAX_GAUSSIANS
 from bayesian_fields_core.scene.similarity import Similarity
 from bayesian_fields_core.scene.types import Frame, Scene
@@ -81,7 +81,8 @@ def find_splat(folder: str | Path) -> Path:
 
 
 def find_cameras(folder: str | Path) -> tuple[str, Path]:
-    """(kind, path) of the camera file: kind is 'transforms', 'colmap' or 'inria'."""
+    """(kind, path) of the camera file: kind is a `camera_formats.CAMERA_FORMATS` row's name
+    ('transforms', 'colmap' or 'inria')."""
     folder = Path(folder)
     if (folder / "scene.yaml").is_file():
         layout = resolve_layout(folder)
@@ -112,16 +113,38 @@ def _attach_depth(frames: list[Frame], layout: SceneLayout) -> list[Frame]:
     return frames
 
 
+def read_layout_frames(layout: SceneLayout) -> list[Frame]:
+    """The frames a layout's camera file describes, as read (no file they name is checked yet)."""
+    return camera_format_named(layout.camera_kind).read(layout.camera_path, layout.images_dir)
+
+
+def frames_file(layout: SceneLayout) -> Path:
+    """The file that lists the layout's frames: transforms.json, cameras.json, or the COLMAP
+    model's images.bin / images.txt (not the model's folder, which is `camera_path`)."""
+    return camera_format_named(layout.camera_kind).frames_file(layout.camera_path)
+
+
+def shown_path(layout: SceneLayout, path: Path) -> str:
+    """`path` relative to the scene folder, as the user sees the folder; whole when outside it
+    (a trainer's data folder)."""
+    try:
+        return path.resolve().relative_to(layout.root.resolve()).as_posix()
+    except ValueError:
+        return str(path)
+
+
+def missing_images_fix(layout: SceneLayout) -> str:
+    """What to do about frames whose image files are missing, naming the file that lists them."""
+    return f"restore those image files, or drop those frames from {shown_path(layout, frames_file(layout))}"
+
+
 def frames_of_layout(layout: SceneLayout) -> list[Frame]:
     """The frames a layout's camera file describes, checked against the files they reference."""
-    kind, path = layout.camera_kind, layout.camera_path
-    if kind == "transforms":
-        frames = read_transforms(path)
-    elif kind == "colmap":
-        frames = read_colmap(path, layout.images_dir)
-    else:
-        frames = read_cameras_json(path, layout.images_dir)
-    require_files((f.image_path for f in frames), what="image files", source=str(path))
+    path = layout.camera_path
+    frames = read_layout_frames(layout)
+    require_files(
+        (f.image_path for f in frames), what="image files", source=str(path), fix=missing_images_fix(layout)
+    )
     if layout.rescale_intrinsics:
         frames = rescale_to_images(frames, source=str(path))
     if layout.depth_dir is not None:

@@ -23,6 +23,7 @@ import numpy as np
 from numpy.lib import recfunctions
 
 from bayesian_fields_core.errors import InputError, describe_failure, input_boundary
+from bayesian_fields_core.scene.point_cloud import is_point_cloud, point_cloud_message
 from bayesian_fields_core.scene.sanity import check_splat
 from bayesian_fields_core.scene.types import Gaussians, sh_coefficient_count
 
@@ -217,6 +218,8 @@ def _read_ply_header(path: Path, max_gaussians: int) -> PlyHeader:
     if dupes:
         raise _fail(path, f"duplicate vertex properties: {', '.join(dupes)}")
     missing = [n for n in REQUIRED if n not in prop_names]
+    if missing and is_point_cloud(set(prop_names)):
+        raise _fail(path, point_cloud_message(set(prop_names)))
     if missing:
         raise _fail(
             path,

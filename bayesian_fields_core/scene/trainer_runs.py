@@ -27,6 +27,7 @@ import numpy as np
 import yaml
 
 from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.scene.camera_formats import camera_format_named
 from bayesian_fields_core.scene.colmap import read_colmap, read_colmap_points
 from bayesian_fields_core.scene.gsplat_normalise import gsplat_world_to_splat
 
@@ -87,11 +88,15 @@ def data_folder(run: Path, named: str, *, source: Path, allow_outside: bool) -> 
 
 
 def _colmap_dir(data: Path, source: Path) -> Path:
-    for rel in ("sparse/0", "sparse", "colmap/sparse/0"):
-        if any((data / rel / f"images{ext}").is_file() for ext in (".bin", ".txt")):
+    """The COLMAP model of a data folder, at the camera table's COLMAP locations in order."""
+    colmap = camera_format_named("colmap")
+    for rel in colmap.locations:
+        if colmap.present(data / rel):
             return data / rel
+    first, *rest = colmap.locations
     raise InputError(
-        f"no COLMAP model in {data.name}/sparse/0, sparse or colmap/sparse/0", source=str(source)
+        f"no {colmap.model_name} in {data.name}/{', '.join([first, *rest[:-1]])} or {rest[-1]}",
+        source=str(source),
     )
 
 
@@ -147,6 +152,8 @@ def nerfstudio_run(run: Path, *, allow_outside: bool) -> dict[str, Any]:
     if named is None:
         raise InputError("config.yml names no data folder", source=str(cfg_path))
     data = data_folder(run, named, source=cfg_path, allow_outside=allow_outside)
-    if (data / "transforms.json").is_file():
-        return {"data": data, "camera_kind": "transforms", "camera_path": data / "transforms.json"}
+    transforms = camera_format_named("transforms")
+    for location in transforms.locations:
+        if transforms.present(data / location):
+            return {"data": data, "camera_kind": transforms.name, "camera_path": data / location}
     return {"data": data, "camera_kind": "colmap", "camera_path": _colmap_dir(data, cfg_path)}

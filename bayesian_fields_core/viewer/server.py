@@ -36,10 +36,16 @@ FLOAT16_MAX = float(np.finfo(np.float16).max)
 
 
 def _score_text(data: ViewData, obj: Any) -> str:
-    """' evidence +12.3' when the ranks follow a score other than p (format 1.4), else ''."""
+    """'evidence +12.3' when the ranks follow a score other than p (format 1.4), else ''."""
     if obj.score is None or data.result.ranked_by in ("", "relevance"):
         return ""
-    return f" {data.result.ranked_by} {obj.score:+.2f}"
+    return f"{data.result.ranked_by} {obj.score:+.2f}"
+
+
+def _unbroken(text: str) -> str:
+    """`text` as HTML the panel never breaks inside ("(422 G)" broke before "G"): a legend row
+    wraps between its parts only."""
+    return '<span style="white-space:nowrap">' + html.escape(text) + "</span>"
 
 
 def covariances(data: ViewData, unit: float = 1.0) -> np.ndarray:
@@ -172,8 +178,9 @@ class ResultViewer:
         self.gui_boxes = gui.add_checkbox("Boxes and labels", initial_value=True)
         self.gui_cameras = gui.add_checkbox("Input cameras", initial_value=False)
         self.gui_legend = gui.add_html("")
-        self.gui_object = gui.add_number(
-            "Object id", initial_value=-1, min=-1, max=d.result.num_objects - 1, step=1
+        # A text field, empty until an object is chosen: a number field showed "-1" for "none".
+        self.gui_object = gui.add_text(
+            "Object id", initial_value="", hint=f"an id, 0 to {d.result.num_objects - 1}, or click an object"
         )
         self.gui_info = gui.add_html(
             "<p>Click an object in the scene (or type its id) to see its probabilities.</p>"
@@ -198,8 +205,7 @@ class ResultViewer:
 
         @self.gui_object.on_update
         def _(_: Any) -> None:
-            if int(self.gui_object.value) >= 0:
-                self.show_object(int(self.gui_object.value))
+            self.show_typed_object(self.gui_object.value)
 
     def select_task(self, task: str) -> None:
         if task not in self.data.tasks:
@@ -252,13 +258,35 @@ class ResultViewer:
             )
         objs = d.result.selections.get(self.task, [])
         rows = "".join(
-            f'<div><span style="background:{_hex(rank_colour(r))};display:inline-block;width:12px;height:12px"></span>'
-            f" #{r + 1} object {o.object_id}{_score_text(d, o)} p={o.probability:.3f} ({o.num_gaussians} G)</div>"
+            f'<div><span style="background:{_hex(rank_colour(r))};display:inline-block;width:12px;height:12px"></span> '
+            + " ".join(
+                _unbroken(part)
+                for part in (
+                    f"#{r + 1} object {o.object_id}",
+                    _score_text(d, o),
+                    f"p={o.probability:.3f}",
+                    f"({o.num_gaussians} G)",
+                )
+                if part
+            )
+            + "</div>"
             for r, o in enumerate(objs)
         )
         missing = d.result.not_found.get(self.task)
         empty = f"not found: {missing.reason}" if missing else "no object selected"
         return f"<p><b>{html.escape(self.task)}</b></p>{rows or f'<div>{html.escape(empty)}</div>'}"
+
+    def show_typed_object(self, text: str) -> dict[str, Any] | None:
+        """Show the object whose id was typed; an empty field shows nothing, anything but an id of
+        this result says which ids there are."""
+        text = text.strip()
+        if not text:
+            return None
+        last = self.data.result.num_objects - 1
+        if not text.isdigit() or int(text) > last:
+            self.gui_info.content = f"<p>No object {html.escape(text)}: the ids run 0 to {last}.</p>"
+            return None
+        return self.show_object(int(text))
 
     def show_object(self, object_id: int) -> dict[str, Any]:
         info = self.data.object_info(object_id)
@@ -281,7 +309,7 @@ class ResultViewer:
     def _on_scene_click(self, event: Any) -> None:
         object_id = self.data.pick(np.asarray(event.ray_origin), np.asarray(event.ray_direction))
         if object_id is not None:
-            self.gui_object.value = object_id  # type: ignore[misc]  # viser defines the setter apart from the getter; mypy sees it read-only
+            self.gui_object.value = str(object_id)  # type: ignore[misc]  # viser defines the setter apart from the getter; mypy sees it read-only
             self.show_object(object_id)
 
     @property

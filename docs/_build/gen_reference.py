@@ -18,7 +18,6 @@ import mkdocs_gen_files
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from package_layout import top_level_packages  # noqa: E402 (a sibling module, not an installed one)
 
-
 OVERVIEW = """# API reference
 
 Generated from the docstrings of the code this site was built from: one page per module, found by

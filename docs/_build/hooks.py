@@ -1,60 +1,29 @@
-"""MkDocs hooks: output of the code itself, written into pages at build time.
+"""MkDocs hooks: output of the code itself, kept in the pages.
 
 `on_config` links packages whose folder is named otherwise than their import name (see
 `package_layout.py`) where mkdocstrings looks for sources.
 
-`<!-- bfields params --markdown -->` on a line of its own is replaced by what that command prints:
-the table of every pipeline parameter, generated from `PipelineParams`, so the page cannot drift
-from the model. `<!-- splat formats -->` is replaced by the splat format table, generated from
-`scene/formats/registry.py` (`markdown_table`), the table the loader and the upload check read. The command is found through the `bfields` console script declared in
-`pyproject.toml` and run in this process, with this checkout first on the import path, so the
-build needs no reinstall after modules move.
+The tables the code generates (every pipeline parameter from `PipelineParams`, through
+`bfields params --markdown`; the splat formats from `scene/formats/registry.py`'s
+`markdown_table`) are committed into their pages between markers, so GitHub shows them too
+(`generated.py`). At build time each block is regenerated: a committed block that differs is
+reported as a warning naming the fix (`python scripts/update_docs_tables.py`), which CI's strict
+build turns into an error, and the page shows the fresh table either way.
 """
 
 from __future__ import annotations
 
-import contextlib
-import importlib
-import io
+import logging
 import re
 import sys
-import tomllib
 from pathlib import Path
 from typing import Any
 
-ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import generated  # noqa: E402 - beside this file, found through the line above
 
-# Marker -> the `bfields` arguments whose stdout replaces it.
-COMMANDS = {
-    "<!-- bfields params --markdown -->": ["params", "--markdown"],
-}
-# Marker -> the `module:function` (no arguments, returns Markdown) whose result replaces it.
-FUNCTIONS = {
-    "<!-- splat formats -->": "bayesian_fields_core.scene.formats.registry:markdown_table",
-}
-
-
-def bfields(args: list[str], root: Path = ROOT) -> str:
-    """stdout of `bfields ARGS` run in process; a failure stops the build."""
-    target = tomllib.loads((root / "pyproject.toml").read_text())["project"]["scripts"]["bfields"]
-    module_name, _, func_name = target.partition(":")
-    if str(root) not in sys.path:
-        sys.path.insert(0, str(root))
-    main = getattr(importlib.import_module(module_name), func_name)
-    out = io.StringIO()
-    with contextlib.redirect_stdout(out):
-        status = main(args)
-    if status:
-        raise RuntimeError(f"`bfields {' '.join(args)}` exited with status {status}")
-    return out.getvalue()
-
-
-def call(target: str, root: Path = ROOT) -> str:
-    """The Markdown a library function returns, imported from this checkout."""
-    if str(root) not in sys.path:
-        sys.path.insert(0, str(root))
-    module_name, _, func_name = target.partition(":")
-    return getattr(importlib.import_module(module_name), func_name)()
+ROOT = generated.ROOT
+log = logging.getLogger("mkdocs.hooks.generated")
 
 
 def code_pipes(table: str) -> str:
@@ -63,17 +32,20 @@ def code_pipes(table: str) -> str:
     return re.sub(r"`[^`\n]*`", lambda m: m.group(0).replace("\\|", "|"), table)
 
 
-def render(markdown: str, root: Path = ROOT) -> str:
-    """The page with every marker line replaced by its command's or function's output."""
-    lines = []
-    for line in markdown.splitlines(keepends=True):
-        args, target = COMMANDS.get(line.strip()), FUNCTIONS.get(line.strip())
-        if args:
-            line = code_pipes(bfields(args, root))
-        elif target:
-            line = code_pipes(call(target, root))
-        lines.append(line)
-    return "".join(lines)
+def render(markdown: str, root: Path = ROOT, where: str = "a page") -> str:
+    """The page as the site shows it: every generated block fresh from the code (a stale one
+    warned about), with the site's pipes."""
+    out, at = [], 0
+    for block in generated.blocks(markdown):
+        fresh = generated.generate(block.name, root)
+        if block.body != fresh:
+            log.warning(
+                "%s: the generated %r table is out of date with the code; run: %s",
+                where, block.name, generated.FIX,
+            )  # fmt: skip
+        out += [markdown[at : block.start], code_pipes(fresh)]
+        at = block.end
+    return "".join(out) + markdown[at:]
 
 
 def on_config(config: Any) -> Any:
@@ -85,5 +57,6 @@ def on_config(config: Any) -> Any:
     return config
 
 
-def on_page_markdown(markdown: str, **_: object) -> str:
-    return render(markdown)
+def on_page_markdown(markdown: str, page: Any = None, **_: object) -> str:
+    where = getattr(getattr(page, "file", None), "src_path", "a page")
+    return render(markdown, where=f"docs/{where}")

@@ -19,7 +19,9 @@ from fastapi import FastAPI
 from redis.backoff import ConstantBackoff
 from redis.retry import Retry
 
+from bayesian_fields_service.api.body_deadline import BodyDeadline
 from bayesian_fields_service.api.bulk_lane import BulkLane, settle_child
+from bayesian_fields_service.api.docs_page import install_docs
 from bayesian_fields_service.api.edge import Utf8Guard, install_handlers
 from bayesian_fields_service.api.json_body import add_body_schemas
 from bayesian_fields_service.api.routes import events, health, jobs, metrics, scenes, ui, usage
@@ -27,11 +29,11 @@ from bayesian_fields_service.api.routes.metrics import metrics_registry
 from bayesian_fields_service.api.schemas import BatchRequest
 from bayesian_fields_service.api.state import AppState
 from bayesian_fields_service.api.sweeper import Sweeper
-from bayesian_fields_service.common.api_keys import ApiKeyRing
 from bayesian_fields_service.common.jobs import JobStore
-from bayesian_fields_service.common.settings import ServiceSettings, apply_log_level, get_settings
-from bayesian_fields_service.common.storage import build_store
+from bayesian_fields_service.config.settings import ServiceSettings, apply_log_level, get_settings
 from bayesian_fields_service.records.database import open_records
+from bayesian_fields_service.security.api_keys import ApiKeyRing
+from bayesian_fields_service.storage.stores import build_store
 
 DESCRIPTION = """
 Bayesian Fields as a batch service: upload a scene (Gaussian splat + posed images), submit task
@@ -75,7 +77,7 @@ def _lifespan(state: AppState) -> Callable[[FastAPI], contextlib.AbstractAsyncCo
     async def run(_: FastAPI) -> AsyncIterator[None]:
         sweeper = Sweeper(settings.orphan_max_age_s, settings.orphan_sweep_interval_s)
         sweeper.start()
-        lane = BulkLane() if settings.api_bulk_lane else None
+        lane = BulkLane(wait_s=settings.api_bulk_lane_wait_s) if settings.api_bulk_lane else None
         if lane is not None:
             lane.start()
         state.bulk_lane = lane
@@ -114,8 +116,14 @@ def create_app(settings: ServiceSettings | None = None) -> FastAPI:
     )
     state.metrics_registry = metrics_registry(state)
     app = FastAPI(
-        title="Bayesian Fields API", version="1.0.0", description=DESCRIPTION, lifespan=_lifespan(state)
+        title="Bayesian Fields API",
+        version="1.0.0",
+        description=DESCRIPTION,
+        lifespan=_lifespan(state),
+        docs_url=None,  # served from local assets by install_docs (docs_page.py says why)
+        redoc_url=None,
     )
+    install_docs(app, app.title)
     app.state.bf = state
     app.state.key_ring = state.key_ring
     for module in (scenes, jobs, health, metrics, ui, events, usage):
@@ -123,6 +131,11 @@ def create_app(settings: ServiceSettings | None = None) -> FastAPI:
     add_body_schemas(app, [BatchRequest])  # the bodies routes parse themselves (json_body.py)
     install_handlers(app, settings.retry_after_s)
     app.add_middleware(Utf8Guard)
+    # added last, so it is the outermost of the app's middlewares: every read of a body, the
+    # UTF-8 check's included, has its deadline (body_deadline.py says why)
+    app.add_middleware(
+        BodyDeadline, timeout_s=settings.api_body_timeout_s, min_rate_bytes=settings.api_body_min_rate_bytes
+    )
     return app
 
 

@@ -17,6 +17,12 @@ Failure handling:
 - A child that died is started again by the next batch; a batch the child died *while* serving may
   or may not have been stored, so it is answered 503 with the advice to retry with the same
   Idempotency-Key (`bfields batch` sends one).
+- A child that is frozen (SIGSTOP, a stalled host) or too loaded to answer is found out while a
+  batch waits for it: the API process asks the child's `/healthz` beside the batch, and a ping not
+  answered within `wait_s` (`BFIELDS_API_BULK_LANE_WAIT_S`, 10 s by default) answers the batch 503
+  + Retry-After, instead of waiting `ANSWER_TIMEOUT_S`; the batch may still be stored when the
+  child runs again, so the answer says to retry with the same Idempotency-Key. A child that answers
+  its pings may take up to `ANSWER_TIMEOUT_S` with a fleet-sized batch.
 - The child watches its parent and stops when the parent is gone (a SIGKILLed API process leaves
   no lane behind). It runs at a lower CPU priority (`NICENESS`), so on a busy machine other
   tenants' requests come first.
@@ -74,8 +80,9 @@ class LaneUnavailable(Exception):
 class BulkLane:
     """One child process serving the batch route for this API process (module docstring)."""
 
-    def __init__(self, socket_path: Path | None = None) -> None:
+    def __init__(self, socket_path: Path | None = None, *, wait_s: float = 10.0) -> None:
         self.socket_path = socket_path or _socket_path()
+        self.wait_s = wait_s
         self._process: subprocess.Popen[bytes] | None = None
         self._client: httpx.AsyncClient | None = None
         self._restart = threading.Lock()
@@ -124,31 +131,85 @@ class BulkLane:
             self._client = None
 
     async def forward(self, request: Request, body: bytes) -> Response:
-        """The child's answer to `request` (with `body`, already read), or `LaneUnavailable`."""
+        """The child's answer to `request` (with `body`, already read), or `LaneUnavailable`: the
+        child could not be reached, died while serving, or stopped answering its pings."""
         headers = [(k, v) for k, v in request.headers.raw if k.decode("latin-1").lower() not in _HOP_HEADERS]
         path = request.url.path + (f"?{request.url.query}" if request.url.query else "")
+        sent = asyncio.create_task(self._send(request.method, path, headers, body))
+        probe: asyncio.Task[bool] | None = None
+        try:
+            while not sent.done():
+                probe = asyncio.create_task(self._alive())
+                await asyncio.wait({sent, probe}, return_when=asyncio.FIRST_COMPLETED)
+                if sent.done():
+                    break
+                if not probe.result():
+                    log.warning("bulk lane: child pid %s answered no ping within %g s while serving %s %s",
+                                self.pid, self.wait_s, request.method, path)  # fmt: skip
+                    raise LaneUnavailable(
+                        f"the batch intake did not answer within {self.wait_s:g} s (frozen or overloaded); "
+                        "retry with the same Idempotency-Key: you get the batch if it was stored, a new "
+                        "one if not"
+                    )
+                await asyncio.wait({sent}, timeout=min(1.0, self.wait_s))  # alive: look again soon
+            answer = sent.result()
+        finally:
+            for task in (sent, probe):
+                if task is not None and not task.done():
+                    task.cancel()
+                    with contextlib.suppress(BaseException):
+                        await task
+        kept = {k: v for k, v in answer.headers.items() if k.lower() not in _ANSWER_DROPPED}
+        return Response(answer.content, status_code=answer.status_code, headers=kept)
+
+    async def _alive(self) -> bool:
+        """False when the child accepted a ping but did not answer it within `wait_s` (frozen or
+        overloaded); True when it answered, or is not listening yet (starting: `_send` waits for
+        it, bounded by `START_TIMEOUT_S`)."""
+        try:
+            await self._http().get("/healthz", timeout=self.wait_s)
+        except (httpx.ConnectError, FileNotFoundError):
+            await asyncio.sleep(min(1.0, self.wait_s))
+            return not _stopped(self.pid)  # frozen before it listened: not starting, stopped
+        except httpx.TransportError:
+            return False
+        return True
+
+    async def _send(
+        self, method: str, path: str, headers: list[tuple[bytes, bytes]], body: bytes
+    ) -> httpx.Response:
+        """The request sent to the child, once it listens (the child started again if it died)."""
         deadline = time.monotonic() + START_TIMEOUT_S
         while True:
             if self._process is None or self._process.poll() is not None:
                 await self.aclose()  # its pooled connections went with the old child
                 await asyncio.to_thread(self.start)  # died (or never started): start it again
             try:
-                answer = await self._http().request(request.method, path, headers=headers, content=body)
-                break
+                return await self._http().request(method, path, headers=headers, content=body)
             except (httpx.ConnectError, FileNotFoundError):
                 if time.monotonic() > deadline:  # never reached the child: nothing was stored
                     raise LaneUnavailable("the batch intake did not start in time; retry") from None
                 await asyncio.sleep(0.05)
             except httpx.TransportError as exc:
                 log.warning("bulk lane: %s while serving %s %s (child pid %s, exit %s)", type(exc).__name__,
-                            request.method, path, self._process.pid if self._process else None,
+                            method, path, self._process.pid if self._process else None,
                             self._process.poll() if self._process else None)  # fmt: skip
                 raise LaneUnavailable(
                     "the batch intake stopped while serving this batch; retry with the same "
                     "Idempotency-Key to get the batch if it was stored, or a new one if not"
                 ) from None
-        kept = {k: v for k, v in answer.headers.items() if k.lower() not in _ANSWER_DROPPED}
-        return Response(answer.content, status_code=answer.status_code, headers=kept)
+
+
+def _stopped(pid: int | None) -> bool:
+    """True when process `pid` is stopped (SIGSTOP, a debugger): its state in /proc is T or t.
+    False where /proc is not there to say."""
+    if pid is None:
+        return False
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return False
+    return stat.rsplit(")", 1)[-1].split()[:1] in (["T"], ["t"])
 
 
 def settle_child() -> None:

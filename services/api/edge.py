@@ -22,19 +22,18 @@ import re
 from typing import Any
 from urllib.parse import unquote_to_bytes
 
-import redis
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse, Response
-from kombu.exceptions import OperationalError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from bayesian_fields_service.api.bulk_lane import LaneUnavailable
 from bayesian_fields_service.api.records_outage import OUTAGES, cause
-from bayesian_fields_service.common.sanitize import redact_locations, scrub_text
 from bayesian_fields_service.common.scenes import SceneBusy, SceneGone, SceneNotReady, SceneNotUploading
 from bayesian_fields_service.jobs.refusals import Busy, Conflict, Invalid, Missing, OverQuota, Refused
+from bayesian_fields_service.live.broker import BROKER_ERRORS
+from bayesian_fields_service.sanitize.text import redact_locations, scrub_text
 
 #: The HTTP status of each kind of the jobs domain's refusals.
 REFUSAL_STATUS: dict[type[Refused], int] = {
@@ -211,7 +210,7 @@ def install_handlers(app: FastAPI, retry_after_s: int) -> None:
     from bayesian_fields_core.errors import InputError
 
     try:
-        from bayesian_fields_service.common.s3_store import StorageError
+        from bayesian_fields_service.storage.s3_store import StorageError
     except ImportError:  # pragma: no cover - local-store deployments without boto3
         StorageError = OSError  # type: ignore[misc,assignment]  # noqa: N806
 
@@ -277,7 +276,7 @@ def install_handlers(app: FastAPI, retry_after_s: int) -> None:
             headers={"Retry-After": str(retry_after_s)},
         )
 
-    for kind in (redis.ConnectionError, redis.TimeoutError, OperationalError, StorageError):
+    for kind in (*BROKER_ERRORS, StorageError):
         app.add_exception_handler(kind, _outage)
     for kind in OUTAGES:  # the records database (`records_outage`)
         app.add_exception_handler(kind, _records_outage)

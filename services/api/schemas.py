@@ -224,7 +224,8 @@ class BatchStatus(BaseModel):
         "jobs it started again).",
     )
     jobs: list[BatchJob] = Field(
-        description="Every job of the batch (empty with ?jobs=false; page with /v1/batches/{id}/jobs)."
+        description="Every job of the batch with ?jobs=true (a batch of at most BFIELDS_BATCH_JOBS_INLINE_MAX "
+        "jobs); empty otherwise: page through the jobs with GET /v1/batches/{id}/jobs."
     )
 
 

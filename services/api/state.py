@@ -15,8 +15,6 @@ from fastapi import Depends, HTTPException, Request, status
 from bayesian_fields_core.job.store import PrefixedStore, Store
 from bayesian_fields_service.api.bulk_lane import BulkLane
 from bayesian_fields_service.api.schemas import Problem
-from bayesian_fields_service.common.api_keys import ApiKeyRing
-from bayesian_fields_service.common.auth import require_tenant
 from bayesian_fields_service.common.jobs import JobStore, is_id
 from bayesian_fields_service.common.scenes import (
     SceneBusy,
@@ -26,9 +24,11 @@ from bayesian_fields_service.common.scenes import (
     SceneRecord,
     SceneStore,
 )
-from bayesian_fields_service.common.settings import ServiceSettings
-from bayesian_fields_service.common.storage import TenantTransfers, direct_transfers, tenant_store
+from bayesian_fields_service.config.settings import ServiceSettings
 from bayesian_fields_service.jobs.service import JobService
+from bayesian_fields_service.security.api_keys import ApiKeyRing
+from bayesian_fields_service.security.auth import require_tenant
+from bayesian_fields_service.storage.stores import TenantTransfers, direct_transfers, tenant_store
 
 
 @dataclass

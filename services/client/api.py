@@ -25,6 +25,7 @@ from typing import Any
 import httpx
 
 from bayesian_fields_core.errors import InputError
+from bayesian_fields_core.job.atomic import atomic_temp
 from bayesian_fields_core.scene.trainer_transforms import SPLAT_TRANSFORM
 
 ProgressFn = Callable[[int], None]  # called with bytes just sent/received
@@ -295,8 +296,12 @@ class BFieldsClient:
         headers = {"Idempotency-Key": idempotency_key} if idempotency_key else None
         return self._call("POST", "/v1/batches", json=body, headers=headers)
 
-    def batch(self, batch_id: str, *, jobs: bool = True) -> dict[str, Any]:
-        return self._call("GET", f"/v1/batches/{batch_id}", params={"jobs": str(jobs).lower()})
+    def batch(self, batch_id: str, *, jobs: bool = False) -> dict[str, Any]:
+        """A batch's counts and progress; `jobs=True` lists its jobs too, which the server answers
+        for a batch of at most its `BFIELDS_BATCH_JOBS_INLINE_MAX` jobs only (422 past it): read
+        any batch's jobs with `batch_jobs`."""
+        params = {"jobs": "true"} if jobs else None
+        return self._call("GET", f"/v1/batches/{batch_id}", params=params)
 
     def batch_jobs(self, batch_id: str, *, page: int = 500) -> Iterator[dict[str, Any]]:
         """Every job record of a batch, a page at a time."""
@@ -319,7 +324,7 @@ class BFieldsClient:
 @contextmanager
 def _download(client: httpx.Client, url: str, dest: Path, on_bytes: ProgressFn | None) -> Iterator[int]:
     """Stream `url` into `dest` atomically; yields the byte count."""
-    fd, tmp = tempfile.mkstemp(dir=dest.parent, prefix=".part-")
+    fd, tmp = atomic_temp(dest.parent, prefix=".part-")
     size = 0
     try:
         with os.fdopen(fd, "wb") as fh, _streamed(client, url, dest) as resp:

@@ -18,7 +18,6 @@ from pathlib import Path
 from typing import Any
 
 import yaml
-from rich.console import Console
 from rich.progress import (
     BarColumn,
     DownloadColumn,
@@ -30,12 +29,13 @@ from rich.progress import (
 )
 
 from bayesian_fields_core.cli.job_options import parameter_overrides, resolve_tasks, validate_parameters
+from bayesian_fields_core.cli.output import message_console
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.job.task_list import load_tasks, normalise_tasks
 from bayesian_fields_service.client.api import BFieldsClient, ClientError
 from bayesian_fields_service.client.defaults import DEFAULT_SERVER
 
-console = Console(stderr=True)
+console = message_console(stderr=True)
 
 
 def _client(server: str | None, api_key: str | None) -> BFieldsClient:
@@ -163,7 +163,7 @@ def _counts(state: dict[str, Any]) -> str:
 
 def _follow(client: BFieldsClient, state: dict[str, Any], poll_s: float) -> dict[str, Any]:
     """A progress bar of finished jobs out of the batch, with per-state counts and an ETA."""
-    total = state["total"] or len(state["jobs"])
+    total = state["total"]
     with Progress(TextColumn(f"batch {state['id']}"), BarColumn(), MofNCompleteColumn(),
                   TextColumn("{task.fields[counts]}"), TimeRemainingColumn(), console=console) as bar:  # fmt: skip
         task = bar.add_task("batch", total=total, counts="")
@@ -173,7 +173,7 @@ def _follow(client: BFieldsClient, state: dict[str, Any], poll_s: float) -> dict
             if state["finished"]:
                 return state
             time.sleep(poll_s)
-            state = client.batch(state["id"], jobs=False)
+            state = client.batch(state["id"])
 
 
 def batch(manifest: str | Path, *, server: str | None = None, api_key: str | None = None, wait: bool = True,

@@ -42,17 +42,18 @@ from sqlalchemy import Connection, Engine, delete, func, insert, select, update
 
 from bayesian_fields_core.job.stage_table import STAGE_TABLE, STAGES
 from bayesian_fields_core.job.store import Store
-from bayesian_fields_service.common import batch_records, redis_keys, usage
+from bayesian_fields_service.common import batch_records, usage
 from bayesian_fields_service.common.batch_records import BatchRecord
-from bayesian_fields_service.common.callbacks import on_batch_finished, on_job_terminal
 from bayesian_fields_service.common.job_queue import JobQueue, Priority, admit
-from bayesian_fields_service.common.redis_text import text
-from bayesian_fields_service.common.sanitize import redact_locations, scrub
 from bayesian_fields_service.common.scenes import lock_ready
-from bayesian_fields_service.common.storage import tenant_store
 from bayesian_fields_service.common.usage import JobUsage
+from bayesian_fields_service.live import redis_keys
+from bayesian_fields_service.live.redis_text import text
 from bayesian_fields_service.records.leases import Fence
 from bayesian_fields_service.records.tables import idempotency_keys, jobs
+from bayesian_fields_service.sanitize.text import redact_locations, scrub
+from bayesian_fields_service.storage.stores import tenant_store
+from bayesian_fields_service.webhooks.callbacks import on_batch_finished, on_job_terminal
 
 log = logging.getLogger(__name__)
 

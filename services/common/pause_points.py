@@ -15,8 +15,8 @@ import time
 
 import redis
 
-from bayesian_fields_service.common import redis_keys
-from bayesian_fields_service.common.redis_text import text
+from bayesian_fields_service.live import redis_keys
+from bayesian_fields_service.live.redis_text import text
 
 #: The longest a request ever waits at a point (a test that died must not hang the API).
 PAUSE_LIMIT_S = 30.0

@@ -26,11 +26,11 @@ from dataclasses import dataclass, field
 from pydantic import ValidationError
 
 from bayesian_fields_core.job.store import ArtifactNotFound, Store
-from bayesian_fields_service.common.sanitize import scrub
 from bayesian_fields_service.common.scenes import SceneRecord, SceneStore
-from bayesian_fields_service.common.settings import ServiceSettings
-from bayesian_fields_service.common.storage import TENANTS_ROOT, build_store
+from bayesian_fields_service.config.settings import ServiceSettings
 from bayesian_fields_service.records.database import open_records
+from bayesian_fields_service.sanitize.text import scrub
+from bayesian_fields_service.storage.stores import TENANTS_ROOT, build_store
 
 RECORD_NAME = "scene.json"
 """The name of the record object under ``tenants/<t>/scenes/<id>/`` in earlier releases."""
@@ -85,7 +85,7 @@ def _record_keys(store: Store) -> Iterator[tuple[str, str, str]]:
     """(tenant, scene id, key of its record object) of every scene folder in the bucket. On S3
     a listing of folders, not of every object (uploads and results are most of a bucket); a
     local folder store is listed whole."""
-    from bayesian_fields_service.common.s3_store import S3Store  # boto3: only S3 deployments have it
+    from bayesian_fields_service.storage.s3_store import S3Store  # boto3: only S3 deployments have it
 
     if isinstance(store, S3Store):
         for tenant_root in store.list_prefixes(f"{TENANTS_ROOT}/"):

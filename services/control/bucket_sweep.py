@@ -33,7 +33,7 @@ from typing import Any
 
 from bayesian_fields_service.common.scene_import import RECORD_NAME
 from bayesian_fields_service.common.scenes import SceneStore
-from bayesian_fields_service.common.storage import TENANTS_ROOT
+from bayesian_fields_service.storage.stores import TENANTS_ROOT
 
 log = logging.getLogger(__name__)
 

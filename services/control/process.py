@@ -9,7 +9,7 @@ Loops (each a thread that acts only while this replica leads):
 - dispatch, every `dispatch_interval_s`: `Dispatcher.round` (the fair-share queue in the table);
 - recovery, every `recovery_interval_s`: `Recovery.scan` (dispatched jobs whose message was lost);
 - sweep, every `orphan_sweep_interval_s`: the bucket's orphaned uploads and scene files;
-- callbacks: the outbox sender (`common.callbacks.CallbackSender`), started on taking the lead and
+- callbacks: the outbox sender (`webhooks.callbacks.CallbackSender`), started on taking the lead and
   stopped on losing it.
 The usage of jobs that end without a worker (cancelled while waiting) needs no loop: it is written
 in the transaction that ends them (`JobStore._queue_callbacks`).
@@ -34,16 +34,16 @@ from typing import Any
 import redis
 from sqlalchemy import text
 
-from bayesian_fields_service.common.callbacks import CallbackSender
 from bayesian_fields_service.common.jobs import JobStore
 from bayesian_fields_service.common.scenes import SceneStore
-from bayesian_fields_service.common.settings import ServiceSettings, apply_log_level, get_settings
-from bayesian_fields_service.common.storage import build_store, direct_transfers
+from bayesian_fields_service.config.settings import ServiceSettings, apply_log_level, get_settings
 from bayesian_fields_service.control.bucket_sweep import sweep_bucket
 from bayesian_fields_service.control.dispatcher import Dispatcher
 from bayesian_fields_service.control.leadership import Leadership
 from bayesian_fields_service.control.recovery import Recovery
 from bayesian_fields_service.records.database import open_records
+from bayesian_fields_service.storage.stores import build_store, direct_transfers
+from bayesian_fields_service.webhooks.callbacks import CallbackSender
 from bayesian_fields_service.worker.celery_app import make_celery
 
 log = logging.getLogger(__name__)

@@ -13,7 +13,7 @@ import redis
 
 from bayesian_fields_core.job.stage_table import STAGES
 from bayesian_fields_service.common.jobs import JobRecord, JobState, JobStore, overall_progress, utcnow
-from bayesian_fields_service.common.metrics import observe_job
+from bayesian_fields_service.live.metrics import observe_job
 
 
 def start_stage(jobs: JobStore, record: JobRecord, stage: str) -> JobRecord:

@@ -16,12 +16,12 @@ from pydantic import ValidationError
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.job.task_list import normalise_tasks
 from bayesian_fields_core.params import PipelineParams
-from bayesian_fields_service.common.callbacks import check_callback_url
 from bayesian_fields_service.common.job_queue import Priority
 from bayesian_fields_service.common.jobs import JobRecord, is_id, new_id
 from bayesian_fields_service.common.scenes import SceneRecord, SceneStore
-from bayesian_fields_service.common.settings import ServiceSettings
+from bayesian_fields_service.config.settings import ServiceSettings
 from bayesian_fields_service.jobs.refusals import Conflict, Invalid, Missing
+from bayesian_fields_service.webhooks.callbacks import check_callback_url
 
 #: Model profiles a job may name. The workers map "default" to BFIELDS_MODEL_PROFILE.
 MODEL_PROFILES = ("default",)

@@ -15,7 +15,7 @@ from __future__ import annotations
 from celery import Celery
 
 from bayesian_fields_core.job.stage_table import STAGE_TABLE
-from bayesian_fields_service.common.settings import ServiceSettings, apply_log_level, get_settings
+from bayesian_fields_service.config.settings import ServiceSettings, apply_log_level, get_settings
 
 
 def make_celery(settings: ServiceSettings, *, include_tasks: bool = False) -> Celery:

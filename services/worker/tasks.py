@@ -1,8 +1,8 @@
 """The stage tasks: one Celery task per pipeline stage, each idempotent and resumable.
 
-A task (tenant, job id) loads the job manifest, skips a stage whose ``stages/<name>.json`` marker
-exists, otherwise holds a per-(job, stage) Redis lock while it runs `run_stage`, reporting progress
-to Redis and the outcome to the manifest. Failure handling:
+A task (tenant, job id) loads the job's record (its PostgreSQL row), skips a stage whose
+``stages/<name>.json`` marker exists, otherwise holds a per-(job, stage) Redis lock while it runs
+`run_stage`, reporting progress to Redis and the outcome to the job's row. Failure handling:
 - `InputError` (bad scene, bad parameter): the job fails with the message; no retry;
 - `CancelledError` (the cancel flag, checked between frames): the job is cancelled;
 - connection / storage errors: retried with exponential backoff, at most ``job_max_retries``;
@@ -45,22 +45,22 @@ from bayesian_fields_core.job.stage_table import STAGE_TABLE, StageSpec
 from bayesian_fields_core.job.store import Store
 from bayesian_fields_core.params import PipelineParams
 from bayesian_fields_core.perception.models import Models, load_models
-from bayesian_fields_service.common import redis_keys
-from bayesian_fields_service.common.heartbeat_lock import HeartbeatLock
 from bayesian_fields_service.common.jobs import JobRecord, JobState, JobStore
-from bayesian_fields_service.common.metrics import observe_stage
 from bayesian_fields_service.common.pause_points import pause
-from bayesian_fields_service.common.redis_text import text
-from bayesian_fields_service.common.settings import ServiceSettings
-from bayesian_fields_service.common.storage import build_store, tenant_store
+from bayesian_fields_service.config.settings import ServiceSettings
 from bayesian_fields_service.jobs import lifecycle
 from bayesian_fields_service.jobs.durable_writes import until_landed
+from bayesian_fields_service.live import redis_keys
+from bayesian_fields_service.live.heartbeat_lock import HeartbeatLock
+from bayesian_fields_service.live.metrics import observe_stage
+from bayesian_fields_service.live.redis_text import text
+from bayesian_fields_service.live.single_flight import RedisFlight
 from bayesian_fields_service.records import job_heartbeats
 from bayesian_fields_service.records.database import open_records
+from bayesian_fields_service.storage.stores import build_store, tenant_store
 from bayesian_fields_service.worker.accounting import StageMeter, account_stage
 from bayesian_fields_service.worker.celery_app import app
 from bayesian_fields_service.worker.scene_cache import SceneCache
-from bayesian_fields_service.worker.single_flight import RedisFlight
 
 log = get_logger(__name__)  # a child of the 'celery' logger: lands in the worker log
 
@@ -75,7 +75,7 @@ TRANSIENT: tuple[type[Exception], ...] = (
     InterfaceError,
 )
 try:  # storage errors only exist when boto3 is installed
-    from bayesian_fields_service.common.s3_store import StorageError
+    from bayesian_fields_service.storage.s3_store import StorageError
 
     TRANSIENT = (*TRANSIENT, StorageError)
 except ImportError:  # pragma: no cover - local-store deployments
@@ -212,7 +212,7 @@ _HOST = socket.gethostname()
 
 
 class StageLock:
-    """A lock on (job, stage) with a heartbeat (`common.heartbeat_lock`), so a redelivered
+    """A lock on (job, stage) with a heartbeat (`live.heartbeat_lock`), so a redelivered
     duplicate never runs the same stage concurrently; a crashed holder's lock expires after
     `ttl_s` (`ServiceSettings.stage_lock_ttl_s`); the holder renews it every quarter of that.
 
@@ -321,7 +321,7 @@ def execute_stage(task: Task, stage: str, tenant: str, job_id: str, lock_waits: 
     rt = runtime()
     record = rt.jobs.load(tenant, job_id)
     if record is None:
-        log.warning("job %s/%s has no manifest; dropping %s", tenant, job_id, stage)
+        log.warning("job %s/%s has no record; dropping %s", tenant, job_id, stage)
         return "missing"
     if record.state.terminal:
         return f"already {record.state.value}"

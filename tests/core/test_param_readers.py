@@ -38,7 +38,8 @@ LENGTH_RESOLVER = ROOT / "bayesian_fields_core" / "scene" / "scale.py"
 def test_every_parameter_names_exactly_one_reader() -> None:
     found = readers()
     assert list(found) == list(PipelineParams.model_fields)
-    assert {r.stage for r in found.values()} <= {"job", *STAGES}
+    assert {stage for r in found.values() for stage in r.stages} <= {"job", *STAGES}
+    assert all(r.stage not in r.also and "job" not in r.also for r in found.values())
     assert all(r.why for r in found.values())
 
 
@@ -85,6 +86,7 @@ def test_the_table_shows_each_reader() -> None:
     assert rows["depth_tolerance_scene"].read_by == "fuse: visibility; keys the visibility cache"
     assert rows["scene_scale"].read_by == "fuse: visibility; keys the visibility and alignment cache"
     assert rows["top_k"].read_by == "cluster: objects"
+    assert rows["prior"].read_by == "fuse, cluster: fusion update"  # the per-view conditionals read it too
     assert "| read by |" in params_table.markdown_table().splitlines()[0]
 
 

@@ -106,6 +106,34 @@ def test_compose_resolved_config(compose_copy: Path) -> None:
     assert any(v["target"] == "/var/lib/postgresql/data" for v in cfg["postgres"]["volumes"])
 
 
+def _published_ports(compose_file: Path, env_extra: dict[str, str]) -> list[tuple[str, dict]]:
+    """(service, port) of every published port in the resolved config, every profile included."""
+    result = run_compose(
+        compose_file, "--profile", "cpu-only", "config", "--format", "json", env_extra=env_extra
+    )
+    assert result.returncode == 0, result.stderr
+    services = json.loads(result.stdout)["services"]
+    return [(name, port) for name, svc in services.items() for port in svc.get("ports", [])]
+
+
+def test_compose_publishes_on_loopback_unless_opened(compose_copy: Path) -> None:
+    """Every published port binds 127.0.0.1 by default; BFIELDS_BIND_ADDRESS opens all of them at
+    once (a port that ignored it would stay on loopback, or, unbound, on every interface)."""
+    ports = _published_ports(compose_copy, PASSWORDS)
+    assert {name for name, _ in ports} == {"api", "minio"}, ports
+    assert len(ports) == 3, ports  # the API, MinIO's S3 API and its console
+    assert [(name, p.get("host_ip")) for name, p in ports if p.get("host_ip") != "127.0.0.1"] == []
+    for address in ("0.0.0.0", "10.1.2.3"):
+        opened = _published_ports(compose_copy, {**PASSWORDS, "BFIELDS_BIND_ADDRESS": address})
+        assert len(opened) == len(ports)
+        assert [(name, p.get("host_ip")) for name, p in opened if p.get("host_ip") != address] == []
+    # as written, too: each entry names the one variable with the loopback default
+    raw = yaml.safe_load(compose_copy.read_text())["services"]
+    for name, svc in raw.items():
+        for entry in svc.get("ports", []):
+            assert str(entry).startswith("${BFIELDS_BIND_ADDRESS:-127.0.0.1}:"), (name, entry)
+
+
 def test_compose_control_process(compose_copy: Path) -> None:
     """One `bfields-service control` on the api's image and with exactly the api's settings,
     restarted when it dies and probed on its own health port (the image's HEALTHCHECK is the api's)."""
@@ -359,7 +387,7 @@ def test_kustomization_lists_every_manifest() -> None:
 
 
 def test_configmap_keys_are_settings() -> None:
-    from bayesian_fields_service.common.settings import ServiceSettings
+    from bayesian_fields_service.config.settings import ServiceSettings
 
     data = documents(DEPLOY / "configmap.yaml")[0]["data"]
     fields = {f"BFIELDS_{n.upper()}" for n in ServiceSettings.model_fields}

@@ -4,7 +4,7 @@ exercise. The fixtures are in `stack_fixtures.py` (registered by the root confte
 fuzz tests share them); the limits and the upload form stay here, where the tests import them.
 
 A PostgreSQL database of a test's own (`tests.integration.fixtures.postgres`) is here too: the
-records tests (tests/services/records) and the tests of the common and control modules that keep
+records tests (tests/services/records) and the tests of the common, webhooks and control modules that keep
 their rows there (scenes, usage, the callback outbox, the scene import) ask for one; each test
 that needs an empty schema gets a fresh database, dropped after it."""
 
@@ -35,6 +35,8 @@ SERVICE_ENV = {
     # Below the defaults (256 / 200) so the tests prove the configured limits are the ones applied.
     "BFIELDS_MAX_TASKS": "20",
     "BFIELDS_MAX_TASK_CHARS": "60",
+    # Below the default (1,000) so a batch past the bound of GET /v1/batches/{id}?jobs=true is small.
+    "BFIELDS_BATCH_JOBS_INLINE_MAX": "50",
     # Lets the race tests hold a scene route at a named point (inert unless a test arms one).
     "BFIELDS_TEST_PAUSE_POINTS": "true",
 }

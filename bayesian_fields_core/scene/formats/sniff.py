@@ -36,3 +36,20 @@ def is_rgb_ply_file(path: Path) -> bool:
     elements = _vertex_elements(path)
     names = {p[0] for name, _, props in elements if name == "vertex" for p in props}
     return not is_compressed_ply(elements) and is_rgb_splat(names)
+
+
+def point_cloud_properties(path: Path) -> set[str] | None:
+    """The vertex property names of `path` when it is a PLY of plain points (a point cloud, not
+    a splat: `scene.point_cloud`), else None; also None for a header that cannot be read, which
+    the splat reader then reports in its own words."""
+    from bayesian_fields_core.errors import InputError
+    from bayesian_fields_core.scene.point_cloud import is_point_cloud
+
+    if not (path.is_file() and path.name.lower().endswith(".ply")):
+        return None
+    try:
+        elements = _vertex_elements(path)
+    except InputError:
+        return None
+    names = {p[0] for name, _, props in elements if name == "vertex" for p in props}
+    return names if is_point_cloud(names) else None

@@ -1,14 +1,17 @@
 """``GET /v1/batches/{id}/events``: a server-sent-events stream of a batch's job states.
 
 Why polling Redis rather than pub/sub: the stream must be right after a reconnect, a missed
-message or an API restart, so each round reads the jobs' live hashes (``bf:job:*``, one pipelined
-HGETALL per round for the whole batch; the manifest only for a job Redis no longer knows) and
-sends what changed since the last round. Events:
+message or an API restart, so each round reads the batch's job rows (one query) and the live
+progress hashes of its active jobs (``bf:job:*``, one pipelined round trip; `JobStore.batch_jobs`)
+and sends what changed since the last round. Events:
 - ``job``: ``{"id", "state", "stage", "progress"}`` for a job whose state, stage or whole percent
   changed (every job in the first round, so a client starts from a full picture);
 - ``counts``: ``{"counts": {state: n}, "total", "progress", "finished"}`` after each round with
   changes;
 - ``end``: every job is terminal; the server closes the stream.
+A batch larger than `batch_jobs_inline_max` (the bound of ``GET /v1/batches/{id}?jobs=true``)
+gets ``counts`` and ``end`` only, read from the batch's row and its dispatched jobs (a few reads
+whatever its size): re-reading 20,000 jobs every second for one watcher would slow every tenant.
 A comment line keeps idle connections open. The stream closes after `events_max_s`; EventSource
 clients reconnect by themselves and get a fresh full picture. Authentication is the API key
 header like every route (browsers: `fetch` with the header and a stream reader, see `/ui`).
@@ -26,6 +29,7 @@ from fastapi import APIRouter, Request
 from fastapi.responses import StreamingResponse
 from starlette.concurrency import run_in_threadpool
 
+from bayesian_fields_service.api.routes.jobs import counted_status
 from bayesian_fields_service.api.state import ERRORS, AppState, State, Tenant, check_id, not_found
 from bayesian_fields_service.common.batch_records import BatchRecord
 from bayesian_fields_service.common.jobs import JobStore
@@ -55,7 +59,40 @@ def _event(name: str, seq: int, data: dict[str, Any]) -> str:
     return f"id: {seq}\nevent: {name}\ndata: {json.dumps(data, separators=(',', ':'))}\n\n"
 
 
+def counts_of(state: AppState, batch: BatchRecord) -> dict[str, Any]:
+    """The ``counts`` event of a batch from its row (read again) and its dispatched jobs' live
+    state (`jobs.counted_status`): what a large batch's stream sends, without reading its jobs."""
+    now = counted_status(state, state.jobs.load_batch(batch.tenant, batch.id) or batch)
+    return {"counts": now.counts, "total": now.total, "progress": now.progress, "finished": now.finished}
+
+
+async def _counts_stream(request: Request, state: AppState, batch: BatchRecord) -> AsyncIterator[str]:
+    """A large batch's stream: a ``counts`` event whenever they change, then ``end``."""
+    seq, last = 0, None
+    started = last_sent = time.monotonic()
+    yield f"retry: {int(state.settings.events_poll_s * 2000)}\n\n"
+    while time.monotonic() - started < state.settings.events_max_s:
+        if await request.is_disconnected():
+            return
+        data = await run_in_threadpool(counts_of, state, batch)
+        if data != last:
+            last, seq = data, seq + 1
+            yield _event("counts", seq, data)
+            last_sent = time.monotonic()
+        if data["finished"]:
+            yield _event("end", seq + 1, {"batch_id": batch.id})
+            return
+        if time.monotonic() - last_sent > KEEPALIVE_S:
+            yield ": keep-alive\n\n"
+            last_sent = time.monotonic()
+        await asyncio.sleep(state.settings.events_poll_s)
+
+
 async def stream(request: Request, state: AppState, batch: BatchRecord) -> AsyncIterator[str]:
+    if batch.total > state.settings.batch_jobs_inline_max:
+        async for chunk in _counts_stream(request, state, batch):
+            yield chunk
+        return
     known: dict[str, JobView] = {}
     seq = 0
     started = last_sent = time.monotonic()

@@ -21,15 +21,15 @@ from prometheus_client.registry import Collector
 
 from bayesian_fields_service.api.state import AppState, get_state
 from bayesian_fields_service.common.jobs import STAGES, JobState
-from bayesian_fields_service.common.metrics import (
+from bayesian_fields_service.config.settings import ServiceSettings
+from bayesian_fields_service.live.broker import queue_length
+from bayesian_fields_service.live.metrics import (
     JOB_KEY,
     QUEUE_WAIT_KEY,
     STAGE_KEY,
     queue_wait_tenants,
     read_histogram,
 )
-from bayesian_fields_service.common.settings import ServiceSettings
-from bayesian_fields_service.worker.dispatch import queue_length
 
 router = APIRouter(tags=["health"])
 

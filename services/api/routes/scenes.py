@@ -191,7 +191,7 @@ async def upload_scene(request: Request, tenant: Tenant, state: State) -> SceneR
 )
 def start_upload(body: UploadRequest, tenant: Tenant, state: State) -> UploadPlan:
     """Returns presigned multipart PUT URLs per file; then call POST /v1/scenes/{id}/complete."""
-    from bayesian_fields_service.common.s3_store import plan_parts
+    from bayesian_fields_service.storage.s3_store import plan_parts
 
     name = _checked_name(body.name)  # before anything is started in the bucket
     transfers = state.transfers(tenant)

@@ -1,9 +1,32 @@
-// Bayesian Fields web page: plain JS over the JSON API. The API key lives in sessionStorage and
-// goes out as X-API-Key on every call, so the API's own auth and tenant isolation apply.
+// Bayesian Fields web page: plain JS over the JSON API. The API key lives in this browser's
+// localStorage for this site (until "log out") and goes out as X-API-Key on every call, so the API's
+// own auth and tenant isolation apply. Kept per browser, not per tab, so a link to a job or batch
+// page (/ui/jobs/ID, /ui/batches/ID) opens signed in; the key itself never goes into a URL.
 "use strict";
 const KEY = "bfields-api-key";
 const POLL_MS = 1500;
-const key = () => sessionStorage.getItem(KEY);
+const key = () => localStorage.getItem(KEY);
+const jobPage = (id) => `/ui/jobs/${encodeURIComponent(id)}`;
+const batchPage = (id) => `/ui/batches/${encodeURIComponent(id)}`;
+
+// The id a job or batch page is for: /ui/jobs/ID, /ui/batches/ID, or the older /ui/job?id=ID form.
+function pageId() {
+  const m = location.pathname.match(/^\/ui\/(?:jobs|batches)\/([^/]+)$/);
+  return m ? decodeURIComponent(m[1]) : new URLSearchParams(location.search).get("id") || "";
+}
+
+// No key (or one the API no longer accepts) on a job or batch page: to the sign-in form, which
+// comes back here after signing in.
+function signInFirst() {
+  localStorage.removeItem(KEY);
+  location.replace(`/ui/?next=${encodeURIComponent(location.pathname + location.search)}`);
+}
+
+// Where the sign-in form goes on: a /ui page named by ?next= (same site only), else nowhere.
+function nextPage() {
+  const next = new URLSearchParams(location.search).get("next") || "";
+  return /^\/ui\/[^/\\]/.test(next) ? next : null;
+}
 
 async function api(path, opts = {}) {
   const headers = Object.assign({ "X-API-Key": key() || "" }, opts.headers || {});
@@ -11,6 +34,7 @@ async function api(path, opts = {}) {
   const text = await resp.text();
   let body = null;
   try { body = text ? JSON.parse(text) : null; } catch (e) { body = text; }
+  if (resp.status === 401 && document.body.dataset.page !== "index") signInFirst();
   if (!resp.ok) throw new Error((body && body.detail) ? (typeof body.detail === "string" ? body.detail : JSON.stringify(body.detail)) : `HTTP ${resp.status}`);
   return body;
 }
@@ -47,16 +71,28 @@ async function initIndex() {
   };
   $("login-form").addEventListener("submit", async (ev) => {
     ev.preventDefault();
-    sessionStorage.setItem(KEY, $("api-key").value.trim());
-    try { await api("/v1/jobs?limit=1"); $("login-error").textContent = ""; showApp(true); refresh(); }
-    catch (e) { sessionStorage.removeItem(KEY); $("login-error").textContent = e.message; }
+    localStorage.setItem(KEY, $("api-key").value.trim());
+    try { await api("/v1/jobs?limit=1"); } catch (e) { localStorage.removeItem(KEY); $("login-error").textContent = e.message; return; }
+    $("login-error").textContent = "";
+    if (nextPage()) { location.replace(nextPage()); return; }
+    showApp(true); refresh();
   });
-  $("logout").addEventListener("click", (ev) => { ev.preventDefault(); sessionStorage.removeItem(KEY); showApp(false); });
+  $("logout").addEventListener("click", (ev) => { ev.preventDefault(); localStorage.removeItem(KEY); showApp(false); });
+  if (key() && nextPage()) { location.replace(nextPage()); return; }
   $("upload-form").addEventListener("submit", upload);
   $("submit-job").addEventListener("click", () => submitJobs(false));
   $("submit-batch").addEventListener("click", () => submitJobs(true));
   if (key()) { showApp(true); refresh(); }
   setInterval(() => { if (key()) refreshJobs().catch(() => {}); }, POLL_MS);
+}
+
+// The stage column: a running job's stage; a finished job's outcome ("done", "failed in fuse"),
+// never its last stage as if it were still at it (a succeeded job said "stage: cluster").
+const FINISHED = ["succeeded", "failed", "cancelled"];
+function stageText(j) {
+  if (j.state === "succeeded") return "done";
+  if (FINISHED.includes(j.state)) return j.stage ? `${j.state} in ${j.stage}` : j.state;
+  return j.stage || "";
 }
 
 async function refresh() { await Promise.all([refreshScenes(), refreshJobs()]); }
@@ -75,9 +111,9 @@ async function refreshJobs() {
   const body = await api("/v1/jobs?limit=50");
   const rows = $("jobs").tBodies[0];
   rows.replaceChildren(...body.items.map((j) => el("tr", { "data-job": j.id, "data-state": j.state },
-    el("td", {}, el("a", { href: `/ui/job?id=${encodeURIComponent(j.id)}`, text: j.id })),
+    el("td", {}, el("a", { href: jobPage(j.id), text: j.id })),
     el("td", { text: j.scene_id }), el("td", { text: j.tasks.join("; ") }),
-    el("td", { class: `state-${j.state}`, text: j.state }), el("td", { text: j.stage || "" }),
+    el("td", { class: `state-${j.state}`, text: j.state }), el("td", { text: stageText(j) }),
     el("td", {}, bar(j.state === "succeeded" ? 100 : j.progress), ` ${Math.round(j.progress)}%`),
     el("td", { text: when(j.updated_at) }))));
   $("jobs-updated").textContent = `(updated ${new Date().toLocaleTimeString()})`;
@@ -116,7 +152,7 @@ async function submitJobs(asBatch) {
     if (asBatch) {
       const b = await api("/v1/batches", { method: "POST", headers: json, body: JSON.stringify({ scene_ids: scenes, task_lists: [tasks] }) });
       status.textContent = "";
-      $("batches").append(el("div", {}, "batch ", el("a", { href: `/ui/batch?id=${encodeURIComponent(b.id)}`, text: b.id }), ` (${b.jobs.length} jobs)`));
+      $("batches").append(el("div", {}, "batch ", el("a", { href: batchPage(b.id), text: b.id }), ` (${b.jobs.length} jobs)`));
     } else {
       for (const s of scenes) await api("/v1/jobs", { method: "POST", headers: json, body: JSON.stringify({ scene_id: s, tasks }) });
       status.textContent = `${scenes.length} job(s) submitted`;
@@ -127,9 +163,9 @@ async function submitJobs(asBatch) {
 
 // ---- job page: live status, previews, downloads -------------------------------------------
 async function initJob() {
-  const id = new URLSearchParams(location.search).get("id") || "";
+  const id = pageId();
   $("job-id").textContent = id;
-  if (!key()) { $("need-key").classList.remove("hidden"); return; }
+  if (!key()) { signInFirst(); return; }
   let shown = false;
   const tick = async () => {
     let job;
@@ -137,14 +173,14 @@ async function initJob() {
     catch (e) { $("job-error").textContent = e.message; return; }
     $("job-state").textContent = job.state; $("job-state").className = `state-${job.state}`;
     document.body.dataset.state = job.state;
-    $("job-stage").textContent = job.stage || "";
+    $("job-stage").textContent = stageText(job);
     const p = job.state === "succeeded" ? 100 : job.progress;
     $("job-bar").style.width = `${p}%`; $("job-progress").textContent = `${Math.round(p)}%`;
     $("job-tasks").textContent = job.tasks.join("; ");
     $("job-timings").textContent = timings(job.timings);
     $("job-error").textContent = job.error || "";
     if (job.state === "succeeded" && !shown) { shown = true; await showResult(id); }
-    if (!["succeeded", "failed", "cancelled"].includes(job.state)) setTimeout(tick, POLL_MS);
+    if (!FINISHED.includes(job.state)) setTimeout(tick, POLL_MS);
   };
   tick();
 }
@@ -237,21 +273,28 @@ async function readEvents(path, onEvent) {
 }
 
 async function initBatch() {
-  const id = new URLSearchParams(location.search).get("id") || "";
+  const id = pageId();
   $("batch-id").textContent = id;
-  if (!key()) { $("need-key").classList.remove("hidden"); return; }
+  if (!key()) { signInFirst(); return; }
   const names = {};
   const rows = {};
   const summary = (c) => `${Math.round(c.progress)}% - ` + Object.entries(c.counts).map(([k, v]) => `${v} ${k}`).join(", ");
+  // The batch's counts, then its jobs a page at a time (GET /v1/batches/{id} lists no jobs).
   const b = await api(`/v1/batches/${encodeURIComponent(id)}`);
-  for (const j of b.jobs) {
+  const jobs = [];
+  for (let cursor = null; ;) {
+    const page = await api(`/v1/batches/${encodeURIComponent(id)}/jobs?limit=500` + (cursor ? `&cursor=${cursor}` : ""));
+    jobs.push(...page.items);
+    if (!(cursor = page.next_cursor)) break;
+  }
+  for (const j of jobs) {
     if (!(j.scene_id in names)) {
       try { names[j.scene_id] = (await api(`/v1/scenes/${encodeURIComponent(j.scene_id)}`)).name || j.scene_id; }
       catch (e) { names[j.scene_id] = j.scene_id; }
     }
     const cells = { state: el("td"), stage: el("td"), progress: el("td"), timings: el("td"), thumb: el("td") };
     rows[j.id] = { tr: el("tr", { "data-job": j.id }, el("td", { text: names[j.scene_id] }),
-      el("td", {}, el("a", { href: `/ui/job?id=${encodeURIComponent(j.id)}`, text: j.id })),
+      el("td", {}, el("a", { href: jobPage(j.id), text: j.id })),
       cells.state, cells.stage, cells.progress, cells.timings, cells.thumb), cells, state: null };
     show(j);
   }
@@ -267,9 +310,9 @@ async function initBatch() {
     row.tr.dataset.state = j.state;
     row.cells.state.className = `state-${j.state}`;
     row.cells.state.textContent = j.state;
-    row.cells.stage.textContent = j.stage || "";
+    row.cells.stage.textContent = stageText(j);
     row.cells.progress.replaceChildren(bar(j.state === "succeeded" ? 100 : j.progress));
-    if (["succeeded", "failed", "cancelled"].includes(j.state) && was !== j.state) finished(j.id, j.state).catch(() => {});
+    if (FINISHED.includes(j.state) && was !== j.state) finished(j.id, j.state).catch(() => {});
   }
   async function finished(jobId, state) {
     const detail = await api(`/v1/jobs/${encodeURIComponent(jobId)}`);

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import time
 from pathlib import Path
@@ -11,6 +12,7 @@ from typing import Any
 import pytest
 
 from bayesian_fields_core.cli.cache_command import parse_duration, parse_size
+from bayesian_fields_core.cli.cache_folder import VIEW_DIR
 from bayesian_fields_core.cli.main import main
 from bayesian_fields_core.job.artifacts import ALIGNMENT_CACHE_DIR
 from bayesian_fields_core.job.factories import local_job
@@ -41,6 +43,22 @@ def two_profiles(scene_dir: Path, profile: dict, tmp_path_factory: pytest.TempPa
     return root / "cache"
 
 
+def _download(cache: Path, job: str, run: Path, age_s: float) -> Path:
+    """What `bfields view --job JOB` leaves: the job's result under view/JOB/ (here a real run's
+    result folder), last viewed `age_s` ago."""
+    target = cache / VIEW_DIR / job
+    shutil.copytree(run / "result", target / "result")
+    then = time.time() - age_s
+    for path in target.rglob("*"):
+        os.utime(path, (then, then))
+    return target
+
+
+def _files_bytes(folder: Path) -> int:
+    """What a disk holds in `folder`: the sum of its regular files' sizes (du --apparent-size)."""
+    return sum(p.stat().st_size for p in folder.rglob("*") if p.is_file() and not p.is_symlink())
+
+
 @pytest.fixture
 def cache(two_profiles: Path, tmp_path: Path) -> Path:
     copy = tmp_path / "cache"
@@ -48,9 +66,13 @@ def cache(two_profiles: Path, tmp_path: Path) -> Path:
     return copy
 
 
-def _ls(cache: Path, capsys: pytest.CaptureFixture[str]) -> list[dict]:
+def _ls_all(cache: Path, capsys: pytest.CaptureFixture[str]) -> dict[str, Any]:
     assert main(["cache", "ls", "--cache-dir", str(cache), "--json"]) == 0
     return json.loads(capsys.readouterr().out)
+
+
+def _ls(cache: Path, capsys: pytest.CaptureFixture[str]) -> list[dict]:
+    return _ls_all(cache, capsys)["entries"]
 
 
 def _age(cache: Path, profile_name: str, seconds: float) -> None:
@@ -125,6 +147,45 @@ def test_prune_removes_unreferenced_files(cache: Path, capsys: pytest.CaptureFix
     assert main(["cache", "prune", "--older-than", "30d", "--cache-dir", str(cache)]) == 0
     assert "removed 0 entries and 1 files" in capsys.readouterr().out
     assert not legacy.exists() and _npz(cache) == before - 1
+
+
+def test_ls_counts_every_file_on_disk_view_downloads_included(
+    cache: Path, two_profiles: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """It reported the frames alone (987 KiB of a 16 MB folder): `view --job` downloads were missed."""
+    run = two_profiles.parent / "out1"
+    _download(cache, "job-old", run, 3 * 86400)
+    _download(cache, "job-new", run, 60)
+    listing = _ls_all(cache, capsys)
+    assert listing["bytes_on_disk"] == _files_bytes(cache)
+    views = listing["view_downloads"]
+    assert [v["job"] for v in views] == ["job-new", "job-old"]  # most recently viewed first
+    assert all(v["bytes"] == _files_bytes(run / "result") > 0 for v in views)
+
+    assert main(["cache", "ls", "--cache-dir", str(cache)]) == 0
+    text = capsys.readouterr().out
+    assert "2 entries, 2 view downloads" in text and "job-new" in text and "job-old" in text
+
+
+def test_prune_removes_view_downloads_by_age_and_first_by_size(
+    cache: Path, two_profiles: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    run = two_profiles.parent / "out1"
+    old = _download(cache, "job-old", run, 3 * 86400)
+    new = _download(cache, "job-new", run, 60)
+    assert main(["cache", "prune", "--older-than", "2d", "--cache-dir", str(cache)]) == 0
+    said = capsys.readouterr().out
+    assert "removed 0 entries" in said and "1 view downloads" in said, said
+    assert not old.exists() and new.exists() and len(_ls(cache, capsys)) == 2
+
+    # --max-size counts the downloads too, and drops them before any entry (frames cost
+    # perception again; a view downloads its result again).
+    frames = _ls_all(cache, capsys)["bytes_on_disk"] - _files_bytes(new)
+    assert main(["cache", "prune", "--max-size", str(frames), "--cache-dir", str(cache)]) == 0
+    said = capsys.readouterr().out
+    assert "removed 0 entries" in said and "1 view downloads" in said, said
+    assert not new.exists() and len(_ls(cache, capsys)) == 2
+    assert _ls_all(cache, capsys)["bytes_on_disk"] == _files_bytes(cache) == frames
 
 
 def test_prune_needs_a_limit_and_parses_them(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

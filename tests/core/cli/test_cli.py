@@ -4,9 +4,11 @@ message with exit status 2 (never a traceback) on each kind of bad input."""
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import pytest
+from PIL import Image
 
 from bayesian_fields_core.calibration.model import load_calibration
 from bayesian_fields_core.cli.main import main
@@ -150,6 +152,81 @@ def test_run_rejects_a_missing_scene(
 
 
 SAMPLE = Path(__file__).resolve().parents[3] / "samples" / "tabletop"
+
+
+def test_run_refuses_a_point_cloud_in_one_line(
+    profile_yaml: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """An xyz-only point_cloud.ply (COLMAP's points3D as PLY) was told to run splat-transform on
+    it, which refuses it; the refusal says what the file is and how to train a splat."""
+    from tests.core.scene.test_point_clouds import xyz_cloud
+
+    scene = copy_scene(SAMPLE, tmp_path / "scene")
+    xyz_cloud(scene / "point_cloud.ply")
+    assert main(_run_args(scene, tmp_path, profile_yaml, "--task", "cup")) == 2
+    err = _one_line_error(capsys)
+    assert "point_cloud.ply: a point cloud" in err and "ns-train splatfacto" in err, err
+    assert "splat-transform" not in err
+
+
+def _error_lines(capsys: pytest.CaptureFixture[str]) -> list[str]:
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert all(line.startswith("bfields: error:") for line in lines) and "Traceback" not in "".join(lines)
+    return lines
+
+
+def test_run_reports_no_tasks_and_no_cameras_together(
+    profile_yaml: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 45: this said "no tasks given", and only on the next run "no cameras found"."""
+    scene = tmp_path / "scene"
+    scene.mkdir()
+    shutil.copy(SAMPLE / "point_cloud.ply", scene / "point_cloud.ply")
+    assert main(_run_args(scene, tmp_path, profile_yaml)) == 2
+    lines = _error_lines(capsys)
+    assert len(lines) == 2, lines
+    assert "no tasks given" in lines[0] and "no cameras found" in lines[1], lines
+
+
+def _shrink(image: Path) -> None:
+    with Image.open(image) as img:
+        small = img.resize((img.width // 2, img.height // 2))
+    small.save(image)
+
+
+def test_run_reports_a_wrong_image_size_before_the_alignment_check(
+    profile_yaml: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 45: the wrong size came after the alignment check had rendered (its report printed
+    first, seconds in); now it comes before the check runs, so no alignment report is printed."""
+    scene = copy_scene(SAMPLE, tmp_path / "scene")
+    _shrink(scene / "images" / "frame_00003.png")
+    assert main(_run_args(scene, tmp_path, profile_yaml)) == 2
+    err = capsys.readouterr().err
+    assert "alignment" not in err, err
+    assert err.startswith("bfields: error:") and len(err.strip().splitlines()) == 1, err
+    assert "frame_00003.png: image is 160x120 but its camera" in err and "transforms.json" in err
+    assert not (tmp_path / "out").exists()
+
+
+def test_run_reports_every_input_problem_of_one_run(
+    profile_yaml: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A missing tasks file, a missing image, two images of the wrong size and a bad parameter:
+    one run, one line each."""
+    scene = copy_scene(SAMPLE, tmp_path / "scene")
+    (scene / "images" / "frame_00007.png").unlink()
+    _shrink(scene / "images" / "frame_00003.png")
+    _shrink(scene / "images" / "frame_00004.png")
+    args = _run_args(
+        scene, tmp_path, profile_yaml, "--tasks", str(tmp_path / "none.yaml"), "--param", "top_k=0"
+    )
+    assert main(args) == 2
+    lines = _error_lines(capsys)
+    assert len(lines) == 4, lines
+    assert "none.yaml" in lines[0] and "top_k" in lines[1]
+    assert "frame_00007.png" in lines[2] and "drop those frames from transforms.json" in lines[2]
+    assert "2 images are not their cameras' size" in lines[3] and "frame_00004.png is 160x120" in lines[3]
 
 
 @pytest.mark.slow

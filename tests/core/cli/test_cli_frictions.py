@@ -4,12 +4,15 @@ nearest names for a typo, and one-line errors (never tracebacks) for input probl
 from __future__ import annotations
 
 import json
+import re
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
 
 from bayesian_fields_core.cli import params_table
-from bayesian_fields_core.cli.main import main
+from bayesian_fields_core.cli.main import build_parser, main
 from bayesian_fields_core.job.markers import is_done
 from bayesian_fields_core.job.pipeline import run_job
 from bayesian_fields_core.job.stage_table import STAGES
@@ -51,6 +54,19 @@ def test_generate_help_shows_the_generator_options(capsys: pytest.CaptureFixture
     text = _help(["generate", "--help"], capsys)
     assert "--n-objects" in text or "--num-objects" in text or "--suite" in text
     assert "--device" in text
+
+
+def test_generate_help_lists_seed_once_and_seed_reaches_the_generator(tmp_path: Path) -> None:
+    """`bfields generate --help` in a real interpreter: --seed once (the generator's); it showed
+    the wrapper's --seed and the generator's. A seed given before OUT still reaches the scene."""
+    done = subprocess.run(
+        [sys.executable, "-m", "bayesian_fields_core.cli.main", "generate", "--help"],
+        capture_output=True, text=True, timeout=120, check=True,
+    )  # fmt: skip
+    assert re.findall(r"--seed\b", done.stdout) == ["--seed"], done.stdout
+    args = build_parser().parse_args(["generate", "--seed", "7", str(tmp_path / "s"), "--n-frames", "4"])
+    assert args.seed == 7 and args.extra == ["--n-frames", "4"]
+    assert build_parser().parse_args(["generate", str(tmp_path / "s")]).seed is None  # the spec's default
 
 
 @pytest.mark.parametrize(

@@ -79,6 +79,29 @@ def test_a_piped_table_is_printed_at_its_natural_width(piped: dict[str, Any]) ->
     assert any("Gaussians," in line and "from cache" in line for line in out.splitlines()), out  # whole lines
 
 
+def test_piped_messages_are_never_broken_at_the_console_width(
+    piped: dict[str, Any], scene_dir: Path, profile_yaml: Path
+) -> None:
+    """stderr a pipe on a narrow setting (COLUMNS=60): the alignment line (longer than 60) arrives
+    whole, as the table does on stdout; it used to break at rich's width ("... in the" / "camera
+    frustums"). The run reuses the fixture's perception cache, with the alignment check on."""
+    work = piped["work"]
+    args = ["run", str(scene_dir), "--profile", str(profile_yaml), "--cache-dir", str(work / "cache")]
+    args += ["--task", TASKS[0], "--out", str(work / "aligned"), "-q", *CHEAP[2:]]
+    done = subprocess.run(
+        [sys.executable, "-m", "bayesian_fields_core.cli.main", *args],
+        env={**os.environ, "COLUMNS": "60"},
+        capture_output=True,
+        text=True,
+        timeout=900,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr
+    line = next(x for x in done.stderr.splitlines() if x.startswith("alignment "))
+    assert re.fullmatch(r"alignment ok: .*% of the splat in the camera frustums.*\(.+\)", line), done.stderr
+    assert len(line) > 60
+
+
 def test_the_configuration_has_what_decides_the_result(
     piped: dict[str, Any], scene_dir: Path, profile_yaml: Path
 ) -> None:

@@ -193,9 +193,9 @@ def test_not_found_answers_come_from_the_pipeline_and_match_the_eval_rule(
             assert after.selections[task] == []
         elif task in expected:
             nf = after.not_found[task]
-            assert after.selections[task] == [] and nf.rule == "peak" and nf.threshold == threshold
+            assert after.selections[task] == [] and nf.rule == "best_view_score" and nf.threshold == threshold
             assert nf.score == pytest.approx(peaks[task], abs=1e-6) and nf.score < threshold
-            assert f"< {threshold:g}" in nf.reason
+            assert f"below the not-found threshold {threshold:.3f}" in nf.reason
         else:
             assert [o.object_id for o in after.selections[task]] == [
                 o.object_id for o in before.selections[task]

@@ -8,8 +8,8 @@ import pytest
 
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.job.store import ArtifactNotFound, LocalStore
-from bayesian_fields_service.common.settings import ServiceSettings
-from bayesian_fields_service.common.storage import build_store, tenant_store
+from bayesian_fields_service.config.settings import ServiceSettings
+from bayesian_fields_service.storage.stores import build_store, tenant_store
 
 
 def test_roundtrip_ranges_and_list(tmp_path: Path) -> None:

@@ -24,6 +24,7 @@ ALLOWED_PROJECT = {
     "bayesian_fields_core.geometry",
     "bayesian_fields_core.geometry.box",
     "bayesian_fields_core.job",
+    "bayesian_fields_core.job.atomic",  # temp files for atomic writes: os and secrets only
     "bayesian_fields_core.job.artifacts",
     "bayesian_fields_core.job.store",
     "bayesian_fields_core.objects",

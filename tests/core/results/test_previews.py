@@ -65,7 +65,7 @@ def test_previews_and_task_exports(tmp_path: Path, scene, gt_result: Result) -> 
         scene={"folder": str(SAMPLE)},
     )  # fmt: skip
     summary = json.loads((tmp_path / "r" / "summary.json").read_text())
-    assert summary["format_version"] == FORMAT_VERSION == "1.5"
+    assert summary["format_version"] == FORMAT_VERSION == "1.6"
     assert summary["scene"] == {"folder": str(SAMPLE)}
     previews = summary["previews"]
     assert [p["task"] for p in previews["tasks"]] == gt_result.tasks

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import zlib
 
+import jsonschema
 import numpy as np
 import pytest
 
@@ -13,6 +14,7 @@ from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.geometry.obb import minimum_obb
 from bayesian_fields_core.geometry.spherical_harmonics import SH_C0
 from bayesian_fields_core.job.store import LocalStore
+from bayesian_fields_core.objects.not_found import not_found_reason
 from bayesian_fields_core.results import (
     FORMAT_VERSION,
     NotFound,
@@ -30,6 +32,7 @@ from bayesian_fields_core.results.format import (
     encode_ids,
     id_dtype,
 )
+from bayesian_fields_core.results.summary_schema import summary_schema
 from bayesian_fields_core.scene.ply import read_ply
 from bayesian_fields_core.scene.similarity import Similarity
 from bayesian_fields_core.scene.types import Gaussians
@@ -214,7 +217,7 @@ def test_relevance_round_trip_and_optional(setup):
     written = write_result(store, "r", res)
     back = read_result(store, "r")
     np.testing.assert_array_equal(back.relevance, res.relevance)
-    assert back.format_version == FORMAT_VERSION == "1.5"
+    assert back.format_version == FORMAT_VERSION == "1.6"
     assert result_sizes(store, "r")["total/object_map"] == sum(
         written[k] for k in ("summary.json", "object_ids.bin", "probabilities.bin", "relevance.bin")
     )
@@ -290,7 +293,7 @@ def test_format_1_4_fields_round_trip_and_name_the_frames(setup):
     res = _with_world_frame(res)
     write_result(store, "r", res, gaussians=g)
     summary = json.loads(store.get_bytes("r/summary.json"))
-    assert summary["format_version"] == FORMAT_VERSION == "1.5"
+    assert summary["format_version"] == FORMAT_VERSION == "1.6"
     assert set(summary["frames"]["names"]) == {"splat", "world"}  # no capture frame: one with the splat
     assert summary["scene_scale"]["value"] == 1.85 and summary["ranked_by"] == "evidence"
     back = read_result(store, "r")
@@ -321,3 +324,53 @@ def test_a_1_3_result_still_reads(setup):
     assert back.ranked_by == ""
     obj = back.selections[TASKS[0]][0]
     assert obj.score is None and obj.world_centroid is None and obj.world_box is None
+
+
+def test_the_best_view_score_is_written_under_its_new_name_and_the_old_one(setup):
+    """Format 1.6 (issue 45, item 12): `best_view_score` (what the "not found" rule thresholds; a
+    margin, not a probability) beside `peak` for 1.3-1.5 readers, and the rule named the same way;
+    the summary validates against the repo's schema."""
+    store, g, res = setup
+    first = res.selections[TASKS[0]][0]
+    first.peak = 1.19
+    res.selections[TASKS[1]] = []
+    res.not_found = {TASKS[1]: not_found_reason(4, 0.632, 0.640806)}
+    write_result(store, "r", res, gaussians=g)
+    summary = json.loads(store.get_bytes("r/summary.json"))
+    obj = summary["selections"][0]["objects"][0]
+    assert obj["best_view_score"] == obj["peak"] == pytest.approx(1.19)
+    assert "best_view_score" not in summary["selections"][0]["objects"][1]  # none recorded: no key
+    nf = summary["selections"][1]["not_found"]
+    assert nf["rule"] == "best_view_score" and "peak" not in nf["reason"]
+    assert nf["reason"] == (
+        "best object 4 scored 0.632, below the not-found threshold 0.641 (its best view's match to "
+        "the task: 1 = as well as a typical relevant view, 0 = as a typical irrelevant one)"
+    )
+    jsonschema.validate(summary, summary_schema())
+    back = read_result(store, "r").selections[TASKS[0]][0]
+    assert back.peak == back.best_view_score == pytest.approx(1.19)
+
+
+def test_a_summary_with_only_the_old_peak_key_still_reads(setup):
+    """A 1.3-1.5 summary (`peak`, rule "peak", the old reason) reads: the score under both names,
+    the rule and reason as today's; the new key wins where both are (a 1.6 summary)."""
+    store, g, res = setup
+    res.selections[TASKS[0]][0].peak = 0.9
+    res.selections[TASKS[1]] = []
+    res.not_found = {TASKS[1]: not_found_reason(4, 0.632, 0.640806)}
+    write_result(store, "r", res, gaussians=g)
+    summary = json.loads(store.get_bytes("r/summary.json"))
+    summary["format_version"] = "1.5"
+    del summary["selections"][0]["objects"][0]["best_view_score"]
+    summary["selections"][1]["not_found"] |= {
+        "rule": "peak",
+        "reason": "best object 4 has peak 0.632 < 0.640806",
+    }
+    store.put_bytes("r/summary.json", json.dumps(summary).encode())
+    jsonschema.validate(summary, summary_schema())
+    back = read_result(store, "r")
+    assert back.selections[TASKS[0]][0].best_view_score == pytest.approx(0.9)
+    assert back.not_found[TASKS[1]] == not_found_reason(4, 0.632, 0.640806)  # rule and wording of today
+    summary["selections"][0]["objects"][0] |= {"best_view_score": 0.95, "peak": 0.9}
+    store.put_bytes("r/summary.json", json.dumps(summary).encode())
+    assert read_result(store, "r").selections[TASKS[0]][0].peak == pytest.approx(0.95)

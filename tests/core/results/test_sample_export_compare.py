@@ -5,6 +5,7 @@ files read back by splat-transform and gsply hold the object's Gaussians, and ob
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -138,13 +139,29 @@ def test_exported_mug_reads_back_in_splat_transform_and_gsply(
 
 
 @pytest.mark.slow
-def test_all_tasks_writes_each_answered_task(runs: dict[str, Path], tmp_path: Path) -> None:
+def test_all_tasks_writes_each_answered_task_and_names_the_others(
+    runs: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     result = read_result(runs["eight"])
     assert main(["export", str(runs["eight"]), "--all-tasks", "--format", "ply", "--out", str(tmp_path)]) == 0
     ids = np.asarray(result.object_ids)
     written = sorted(tmp_path.iterdir())
     answered = [t for t in result.tasks if result.selections[t]]
     assert len(written) == len(answered) == 7  # the red lamp is "not found"
+    out, err = capsys.readouterr()
+    assert out.splitlines() == [str(p) for p in written]  # stdout: the files, nothing else
+    lamp = result.not_found["pick up the red lamp"]
+    assert err.splitlines() == [f'"pick up the red lamp": not found, no file written ({lamp.reason})']
+    # said as what the number means (issue 45, item 12), not "has peak 0.632 < 0.640806"
+    assert re.fullmatch(
+        rf"best object {lamp.object_id} scored {lamp.score:.3f}, below the not-found threshold "
+        rf"{lamp.threshold:.3f} \(its best view's match to the task: 1 = as well as a typical relevant "
+        r"view, 0 = as a typical irrelevant one\)",
+        lamp.reason,
+    ), lamp.reason
+    summary = json.loads((runs["eight"] / "result" / "summary.json").read_text())
+    objects = [o for s in summary["selections"] for o in s["objects"]]
+    assert objects and all(o["best_view_score"] == o["peak"] for o in objects)
     for path, task in zip(written, answered, strict=True):
         chosen = [o.object_id for o in result.selections[task]]
         assert len(read_ply(path)) == int(np.isin(ids, chosen).sum()), task

@@ -72,9 +72,10 @@ def test_a_task_rank_and_objects_from_the_results_own_exports(written, tmp_path:
 
 def test_all_tasks_writes_one_file_per_answered_task(written, tmp_path: Path) -> None:
     folder, _, ids = written
-    files = export_all_tasks(folder, tmp_path / "all", fmt="ply")
-    assert list(files) == TASKS[:2]  # the lamp has no answer
-    assert len(read_ply(files[TASKS[1]])) == int((ids == 2).sum())
+    exports = export_all_tasks(folder, tmp_path / "all", fmt="ply")
+    assert list(exports.written) == TASKS[:2]  # the lamp has no answer
+    assert exports.unanswered == {TASKS[2]: "no object selected"}  # and says so
+    assert len(read_ply(exports.written[TASKS[1]])) == int((ids == 2).sum())
 
 
 def test_the_cli_names_each_format_it_writes() -> None:

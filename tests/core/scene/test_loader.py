@@ -92,6 +92,32 @@ def test_missing_images_are_listed(tmp_path, frames):
         load_scene(tmp_path)
 
 
+@pytest.mark.parametrize(
+    ("cameras", "listed"),
+    [
+        ("colmap-text", "sparse/0/images.txt"),
+        ("colmap-binary", "sparse/0/images.bin"),
+        ("transforms", "transforms.json"),
+    ],
+)
+def test_missing_images_come_with_their_fix(tmp_path, frames, cameras, listed):
+    """The refusal says what to do, naming the file that lists the frames (issue 45)."""
+    if cameras == "transforms":
+        write_ply(tmp_path / "point_cloud.ply", random_gaussians(100, 1))
+        write_images(tmp_path, frames)
+        for f in frames:
+            f.image_path = tmp_path / "images" / f.name
+        write_transforms(tmp_path / "transforms.json", frames)
+    else:
+        colmap_scene(tmp_path, frames, binary=cameras == "colmap-binary")
+    (tmp_path / "images" / "frame_2.png").unlink()
+    with pytest.raises(InputError) as refused:
+        load_scene(tmp_path)
+    message = str(refused.value)
+    assert "frame_2.png" in message and "frame_1.png" not in message
+    assert message.endswith(f"; restore those image files, or drop those frames from {listed}"), message
+
+
 def test_transforms_scene_with_depth(tmp_path, frames):
     write_ply(tmp_path / "splat.ply", random_gaussians(10, 0))
     write_images(tmp_path, frames)

@@ -141,6 +141,15 @@ def test_viewer_in_chromium(viewer, browser) -> None:  # noqa: ANN001
             lambda shot: np.abs(shot.astype(int) - before.astype(int)).mean() > 1.0,
             "the highlight to change",
         )
+        # The legend in the panel: no part of a row broken inside ("(422 ⏎ G)" was), so the
+        # Gaussian count is one line, as tall as the row's first part.
+        count = page.get_by_text(f"({second[0].num_gaussians} G)", exact=True)
+        count.wait_for(timeout=30_000)
+        head = page.get_by_text(f"#1 object {second[0].object_id}", exact=True).bounding_box()
+        assert count.bounding_box()["height"] == pytest.approx(head["height"], abs=1)
+        # The object id field starts empty (it showed "-1" for "no object").
+        values = page.locator("input").evaluate_all("els => els.map(e => e.value)")
+        assert "-1" not in values and "" in values, values
     finally:
         page.close()
 
@@ -157,6 +166,12 @@ def test_click_picks_the_object_under_the_ray(viewer) -> None:  # noqa: ANN001
     assert set(info["tasks"]) == set(TASKS) and info["num_gaussians"] > 0 and info["box"] is not None
     assert f"Object {picked}" in viewer.gui_info.content
     assert data.pick(origin, origin - target) is None  # pointing away from the scene hits nothing
+    assert viewer.gui_object.value == ""  # the id field before any click: empty, never "-1"
+    assert viewer.show_typed_object(" ") is None
+    last = data.result.num_objects - 1
+    assert viewer.show_typed_object(str(last + 1)) is None
+    assert f"No object {last + 1}: the ids run 0 to {last}." in viewer.gui_info.content
+    assert viewer.show_typed_object(str(picked))["num_gaussians"] == info["num_gaussians"]
 
 
 def test_view_cli_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

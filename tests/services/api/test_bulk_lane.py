@@ -26,6 +26,9 @@ from tests.services.conftest import scene_form
 
 pytestmark = pytest.mark.integration
 
+#: BFIELDS_API_BULK_LANE_WAIT_S of the lane's API: how long a batch waits on a frozen lane.
+LANE_WAIT_S = 2.0
+
 
 def _children(pid: int) -> list[int]:
     """Live child processes of `pid` (from /proc: the 4th field of stat is the parent pid)."""
@@ -90,11 +93,26 @@ def _refuses(path: Path, timeout_s: float) -> bool:
     return False
 
 
+def _listens(path: Path, timeout_s: float) -> bool:
+    """True once the Unix socket `path` accepts connections (the lane has started)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as probe:
+            try:
+                probe.connect(str(path))
+                return True
+            except OSError:
+                pass
+        time.sleep(0.1)
+    return False
+
+
 @pytest.fixture
 def lane_api(tmp_path: Path, private_redis: RedisServer) -> Iterator[ApiServer]:
     s3 = S3Server(tmp_path / "s3").start()
     keys = {"tenant-l": "key-l-" + secrets.token_urlsafe(12)}
-    env = build_service_env(tmp_path / "env", private_redis.url(), s3.env(), keys)
+    env = build_service_env(tmp_path / "env", private_redis.url(), s3.env(), keys,
+                            {"BFIELDS_API_BULK_LANE_WAIT_S": str(LANE_WAIT_S)})  # fmt: skip
     api = ApiServer(env=env, log_dir=tmp_path / "api", keys=keys).start()
     yield api
     api.stop()
@@ -113,20 +131,30 @@ def test_batches_go_through_the_lane_which_restarts_after_a_crash_and_ends_with_
         scene_id = upload.json()["id"]
         body = {"scene_ids": [scene_id], "task_lists": [["held one"], ["held two"]]}
         lane = _lane_pid(api_pid)
+        assert _listens(_lane_socket(api, api_pid), 60), "the bulk lane never listened"
 
-        # held lane: the batch cannot be answered, other requests are answered at once
+        # frozen lane: the batch is answered 503 + Retry-After after BFIELDS_API_BULK_LANE_WAIT_S
+        # (issue 41: it waited as long as the lane was frozen, bounded only by the 600 s answer
+        # timeout); other requests are answered at once meanwhile
         os.kill(lane, signal.SIGSTOP)
         try:
-            with pytest.raises(httpx.ReadTimeout):
-                client.post("/v1/batches", json=body, headers={"Idempotency-Key": "held"}, timeout=3.0)
+            t0 = time.monotonic()
+            held = client.post("/v1/batches", json=body, headers={"Idempotency-Key": "held"}, timeout=60.0)
+            waited = time.monotonic() - t0
+            assert held.status_code == 503 and int(held.headers["Retry-After"]) > 0, held.text
+            assert "Idempotency-Key" in held.json()["detail"], held.text
+            assert LANE_WAIT_S - 0.5 < waited < LANE_WAIT_S + 3.0, waited
             t0 = time.monotonic()
             listing = client.get("/v1/jobs", timeout=10.0)
             assert listing.status_code == 200 and time.monotonic() - t0 < 2.0, listing.text
         finally:
             os.kill(lane, signal.SIGCONT)
-        # the held batch is stored once the lane runs again; its key gives it back, not a new one
+        # retried with the same key once the lane runs again: the batch (stored by the woken lane,
+        # or now), never a second one
         retry = client.post("/v1/batches", json=body, headers={"Idempotency-Key": "held"}, timeout=60.0)
         assert retry.status_code in (200, 202), retry.text
+        again = client.post("/v1/batches", json=body, headers={"Idempotency-Key": "held"}, timeout=60.0)
+        assert again.status_code == 200 and again.json()["id"] == retry.json()["id"], again.text
         jobs = client.get("/v1/jobs", params={"limit": 500}).json()["items"]
         assert sorted(j["tasks"][0] for j in jobs) == ["held one", "held two"], jobs
         assert {j["batch_id"] for j in jobs} == {retry.json()["id"]}

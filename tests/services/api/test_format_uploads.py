@@ -74,6 +74,20 @@ def test_checkpoint_and_unread_formats_are_refused_by_name(
         assert expected in resp.json()["detail"]
 
 
+def test_a_point_cloud_is_refused_with_what_it_is(
+    client_a: httpx.Client, images_zip: bytes, tmp_path: Path
+) -> None:
+    """COLMAP's points3D as PLY (x y z, normals, colours) is not a splat: a 422 that says so and
+    how to train one, not a splat-transform command that refuses the file."""
+    from tests.core.scene.test_point_clouds import colmap_cloud
+
+    resp = client_a.post("/v1/scenes", files=form(colmap_cloud(tmp_path / "point_cloud.ply"), images_zip))
+    assert resp.status_code == 422, resp.text
+    detail = resp.json()["detail"]
+    assert "point_cloud.ply: a point cloud" in detail and "ns-train splatfacto" in detail, detail
+    assert "splat-transform" not in detail and str(tmp_path) not in detail
+
+
 def test_colmap_3_12_frames_and_rigs_upload(client_a: httpx.Client, tmp_path: Path) -> None:
     """Today's API refused this upload with "'frames.txt' is not a supported camera file"."""
     source = small_source_scene(tmp_path, sh_degree=1, centre=(0.3, -0.2, 1.0))

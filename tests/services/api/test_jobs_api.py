@@ -3,6 +3,8 @@ queued, and are cancelled at the end so later worker tests skip them)."""
 
 from __future__ import annotations
 
+import json
+import re
 import uuid
 
 import httpx
@@ -122,6 +124,70 @@ def test_batch_status_aggregates(client_a: httpx.Client, stored_scene: dict) -> 
     assert bad.status_code == 404  # validated before anything is queued
 
 
+def _sse(client: httpx.Client, path: str) -> list[tuple[str, dict]]:
+    """The events of a server-sent-event stream that ends by itself (a finished batch's)."""
+    events: list[tuple[str, dict]] = []
+    with client.stream("GET", path, timeout=30.0) as resp:
+        assert resp.status_code == 200
+        name = ""
+        for line in resp.iter_lines():
+            if line.startswith("event: "):
+                name = line[7:]
+            elif line.startswith("data: "):
+                events.append((name, json.loads(line[6:])))
+    return events
+
+
+def test_batch_status_is_the_aggregate_and_lists_jobs_only_when_asked_within_the_bound(
+    client_a: httpx.Client, stored_scene: dict
+) -> None:
+    """Issue 41: one tenant polling a 20,000-job batch (listed by default) slowed every tenant.
+    The default answer is counts and progress; jobs=true is answered up to
+    BFIELDS_BATCH_JOBS_INLINE_MAX (50 in the service tests) and refused past it with a 422 that
+    names the field and the paged route; the paged route reads every job of any batch."""
+    small = client_a.post(
+        "/v1/batches", json={"scene_ids": [stored_scene["id"]], "task_lists": [["a"], ["b"]]}
+    )
+    bound = 50
+    big = client_a.post("/v1/batches", json={"scene_ids": [stored_scene["id"]],
+                                              "task_lists": [[f"t {i}"] for i in range(bound + 1)]})  # fmt: skip
+    assert small.status_code == 202 and big.status_code == 202, (small.text, big.text)
+    small_id, big_id = small.json()["id"], big.json()["id"]
+    try:
+        plain = client_a.get(f"/v1/batches/{small_id}").json()
+        assert plain["jobs"] == [] and plain["total"] == 2 and sum(plain["counts"].values()) == 2
+        listed = client_a.get(f"/v1/batches/{small_id}", params={"jobs": "true"}).json()
+        assert [j["tasks"] for j in listed["jobs"]] == [["a"], ["b"]]
+
+        aggregate = client_a.get(f"/v1/batches/{big_id}")
+        assert aggregate.status_code == 200 and aggregate.json()["jobs"] == [], aggregate.text
+        assert aggregate.json()["total"] == bound + 1
+        refused = client_a.get(f"/v1/batches/{big_id}", params={"jobs": "true"})
+        assert refused.status_code == 422, refused.text
+        detail = refused.json()["detail"]
+        assert detail.startswith("query.jobs: ") and f"/v1/batches/{big_id}/jobs" in detail, detail
+        assert str(bound) in detail and "BFIELDS_BATCH_JOBS_INLINE_MAX" in detail, detail
+        assert refused.json()["errors"][0]["loc"] == ["query", "jobs"]
+        paged, cursor = [], None
+        while True:
+            page = client_a.get(f"/v1/batches/{big_id}/jobs",
+                                params={"limit": 20, **({"cursor": cursor} if cursor else {})}).json()  # fmt: skip
+            paged += page["items"]
+            if not (cursor := page["next_cursor"]):
+                break
+        assert [j["tasks"] for j in paged] == [[f"t {i}"] for i in range(bound + 1)]
+    finally:
+        for batch_id in (small_id, big_id):
+            assert client_a.post(f"/v1/batches/{batch_id}/cancel").status_code == 202
+
+    # a large batch's event stream sends counts only (no per-job read each round); a small one every job
+    big_events = _sse(client_a, f"/v1/batches/{big_id}/events")
+    assert [name for name, _ in big_events] == ["counts", "end"], big_events
+    assert big_events[0][1]["counts"] == {"cancelled": bound + 1} and big_events[0][1]["finished"]
+    small_events = _sse(client_a, f"/v1/batches/{small_id}/events")
+    assert [name for name, _ in small_events] == ["job", "job", "counts", "end"], small_events
+
+
 def test_tenant_isolation_on_every_route(
     client_a: httpx.Client, client_b: httpx.Client, stored_scene: dict, queued_job: str
 ) -> None:
@@ -175,6 +241,22 @@ def test_openapi_health_and_metrics(api: ApiServer) -> None:
     assert 'bfields_queue_depth{queue="gpu"}' in metrics and "bfields_jobs_active" in metrics
 
 
+def test_the_docs_page_names_no_other_host_and_its_assets_are_served(api: ApiServer) -> None:
+    """/docs works offline (issue 41): FastAPI's page loaded Swagger UI from a CDN and its favicon
+    from fastapi.tiangolo.com; the API serves them itself now."""
+    page = httpx.get(f"{api.base_url}/docs")
+    assert page.status_code == 200 and "text/html" in page.headers["content-type"]
+    assert re.findall(r"(?:https?:)?//[A-Za-z0-9.-]+", page.text) == [], "the page names another host"
+    assets = re.findall(r"""(?:src|href)=['"]([^'"]+)['"]|url: ['"]([^'"]+)['"]""", page.text)
+    urls = sorted({a or b for a, b in assets})
+    assert "/openapi.json" in urls and any(u.endswith("swagger-ui-bundle.js") for u in urls), urls
+    for url in urls:
+        resp = httpx.get(f"{api.base_url}{url}")
+        assert resp.status_code == 200 and resp.content, url
+    assert "SwaggerUIBundle" in httpx.get(f"{api.base_url}/docs/assets/swagger-ui-bundle.js").text
+    assert httpx.get(f"{api.base_url}/redoc").status_code == 404  # CDN-only; /openapi.json instead
+
+
 def test_cli_batch_submits_scenes_x_task_lists(
     api: ApiServer,
     scene_dir,
@@ -194,7 +276,7 @@ def test_cli_batch_submits_scenes_x_task_lists(
     assert batch(manifest, server=api.base_url, api_key=api.keys["tenant-a"], wait=False) == 0
     batch_id = capsys.readouterr().out.strip().splitlines()[-1]
     with api.client("tenant-a") as client:
-        state = client.get(f"/v1/batches/{batch_id}").json()
+        state = client.get(f"/v1/batches/{batch_id}", params={"jobs": "true"}).json()
         try:
             assert len(state["jobs"]) == 4  # 2 scenes x 2 task lists
             assert sorted(map(tuple, (j["tasks"] for j in state["jobs"]))) == sorted(
@@ -247,7 +329,11 @@ def test_an_idempotency_key_sent_again_with_another_body_is_a_422_naming_it(
         assert refused.status_code == 422 and batch_key in refused.text, refused.text
         client_a.post(f"/v1/batches/{made.json()['id']}/cancel")
 
-        item = {"scene_id": stored_scene["id"], "tasks": ["blue blob"], "idempotency_key": f"item-{uuid.uuid4()}"}
+        item = {
+            "scene_id": stored_scene["id"],
+            "tasks": ["blue blob"],
+            "idempotency_key": f"item-{uuid.uuid4()}",
+        }
         kept = client_a.post("/v1/batches", json={"items": [item]})
         assert kept.status_code == 202, kept.text
         reused = client_a.post("/v1/batches", json={"items": [{**item, "tasks": ["green blob"]}]})

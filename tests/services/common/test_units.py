@@ -99,6 +99,6 @@ def test_garbage_is_not_an_archive(tmp_path: Path) -> None:
     ],
 )
 def test_redaction_keeps_the_paths_a_user_sent_and_drops_the_servers(message: str, expected: str) -> None:
-    from bayesian_fields_service.common.sanitize import redact_locations
+    from bayesian_fields_service.sanitize.text import redact_locations
 
     assert redact_locations(message) == expected

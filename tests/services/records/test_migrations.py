@@ -95,3 +95,27 @@ def test_the_migrate_command_names_an_unreachable_database_in_one_line() -> None
         and "BFIELDS_DATABASE_URL" in lines[0]
     )
     assert "secret" not in out.stderr
+
+
+def test_the_migrate_command_creates_the_database_it_names_when_asked() -> None:
+    """The no-Docker recipe (docs/service/index.md) creates its own database this way instead of
+    writing into whatever database answers on the server."""
+    from sqlalchemy.engine import make_url
+
+    from tests.integration.fixtures.postgres import PREFIX, SERVER, drop_database
+
+    url = make_url(SERVER).set(database=f"{PREFIX}{os.getpid()}_cli_{os.urandom(4).hex()}")
+    shown = url.render_as_string(hide_password=False)
+    bin_dir = Path(sys.executable).parent
+    env = {**os.environ, "BFIELDS_DATABASE_URL": shown}
+    argv = [str(bin_dir / "bfields-service"), "migrate", "--create-database"]
+    try:
+        first = subprocess.run(argv, env=env, capture_output=True, text=True, timeout=120)
+        assert first.returncode == 0, first.stderr
+        assert f"created database {url.database}" in first.stdout
+        assert f"at revision {head_revision()}" in first.stdout
+        assert current_revision(shown) == head_revision()
+        again = subprocess.run(argv, env=env, capture_output=True, text=True, timeout=120)
+        assert again.returncode == 0 and "created database" not in again.stdout, again.stdout + again.stderr
+    finally:
+        drop_database(shown)

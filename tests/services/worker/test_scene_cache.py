@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from bayesian_fields_service.common.storage import tenant_store
+from bayesian_fields_service.storage.stores import tenant_store
 from bayesian_fields_service.worker.scene_cache import SceneCache
 from tests.integration.fixtures.s3_server import S3Server
 
@@ -31,7 +31,7 @@ def _scene(s3_server: S3Server, tenant: str) -> tuple[str, str]:
 
 
 def _lease_in_child(env: dict, root: str, tenant: str, scene_id: str, out: mp.Queue) -> None:
-    from bayesian_fields_service.common.s3_store import S3Credentials, S3Store
+    from bayesian_fields_service.storage.s3_store import S3Credentials, S3Store
 
     store = S3Store(
         env["bucket"], endpoint_url=env["endpoint"], credentials=S3Credentials(env["id"], env["secret"])

@@ -69,6 +69,8 @@ def test_ui_flow(api_server: ApiServer, ui_workers, browser, images_zip: Path, t
     job_id = status.split("job ")[1].split()[0]
     # the jobs table polls until the job has succeeded
     page.wait_for_selector(f"tr[data-job='{job_id}'][data-state='succeeded']", timeout=JOB_TIMEOUT_MS)
+    # a finished job's stage cell says it is done, not the last stage it ran ("cluster")
+    assert page.text_content(f"tr[data-job='{job_id}'] td:nth-child(5)") == "done"
 
     t0 = time.perf_counter()
     page.goto(f"{api.base_url}/ui/job?id={job_id}")
@@ -79,6 +81,7 @@ def test_ui_flow(api_server: ApiServer, ui_workers, browser, images_zip: Path, t
     )
     job_page_s = time.perf_counter() - t0
     assert page.text_content("#job-state") == "succeeded"
+    assert page.text_content("#job-stage") == "done"  # it said "cluster", the last stage run
     img = page.locator(f"#previews img[data-task='{TASKS[0]}']")
     shot = pixels(img.screenshot())
     assert shot.shape[0] > 100 and shot.std() > 20, "the preview is blank"
@@ -136,6 +139,7 @@ def test_ui_flow(api_server: ApiServer, ui_workers, browser, images_zip: Path, t
     rows = page.locator("#batch-jobs tbody tr")
     assert rows.count() == 1
     assert rows.first.get_attribute("data-state") == "succeeded"
+    assert rows.first.locator("td").nth(3).text_content() == "done"
     assert "tabletop" in rows.first.text_content()
     page.wait_for_function(
         "(() => { const i = document.querySelector('#batch-jobs img.thumb'); return i && i.complete && i.naturalWidth > 0; })()"

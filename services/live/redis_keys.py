@@ -1,0 +1,57 @@
+"""Every Redis key the service reads or writes, in one place.
+
+Why one module: a key written in one file and read in another (a live hash, a stage lock that
+recovery looks for) is an interface; when each side spelled it, the job's live key ended up
+defined twice and written a third time inside a Lua script. What Redis holds is disposable:
+live progress, cancel flags, stage and single-flight locks, metrics histograms and test pause
+points; the records (jobs, their queue, batches, scenes, callbacks, usage) are PostgreSQL's. The
+Celery broker's own keys (one list per queue and priority, named after the queue) are Celery's.
+"""
+
+from __future__ import annotations
+
+
+def live_job(tenant: str, job_id: str) -> str:
+    """Hash: the job's live state, stage, progress and phase ('waiting' / 'active')."""
+    return f"bf:job:{tenant}:{job_id}"
+
+
+def cancel_flag(tenant: str, job_id: str) -> str:
+    """A set key while a cancel was accepted: workers look between frames."""
+    return f"bf:cancel:{tenant}:{job_id}"
+
+
+def stage_lock(tenant: str, job_id: str, stage: str) -> str:
+    """The heartbeat lock of one stage execution (`live.heartbeat_lock`)."""
+    return f"bf:lock:{tenant}:{job_id}:{stage}"
+
+
+def stage_lock_pattern(tenant: str, job_id: str) -> str:
+    """SCAN pattern of every stage lock of one job (recovery: does a worker run it?)."""
+    return stage_lock(tenant, job_id, "*")
+
+
+def flight_lock(tenant: str, key: str) -> str:
+    """The single-flight lock of one shared computation (one perception per scene)."""
+    return f"bf:flight:{tenant}:{key}"
+
+
+#: Histograms (hashes of bucket counters), formatted with ``stage=``, ``outcome=`` or ``tenant=``.
+STAGE_HISTOGRAM = "bf:metrics:stage:{stage}"
+JOB_HISTOGRAM = "bf:metrics:job:{outcome}"
+QUEUE_WAIT_HISTOGRAM = "bf:metrics:queue_wait:{tenant}"
+
+
+def pause_armed(point: str) -> str:
+    """Test pause points (`common.pause_points`): armed with a scene id by a test ..."""
+    return f"bf:test:pause:{point}"
+
+
+def pause_reached(point: str, scene_id: str) -> str:
+    """... set by the request when it arrives there ..."""
+    return f"bf:test:reached:{point}:{scene_id}"
+
+
+def pause_resume(point: str, scene_id: str) -> str:
+    """... and set by the test to let it go on."""
+    return f"bf:test:resume:{point}:{scene_id}"

@@ -1,0 +1,42 @@
+"""API-key authentication for the HTTP API: a FastAPI dependency that yields the caller's tenant.
+
+Keys are resolved by `bayesian_fields_service.security.api_keys.ApiKeyRing` (inline settings or a secret file,
+compared as sha256 digests in constant time). Every route takes the tenant from here and every
+storage key it builds goes through `tenant_store(store, tenant)`, so one tenant can never name
+another tenant's objects: a foreign id simply does not exist in its namespace (404).
+"""
+
+from __future__ import annotations
+
+from fastapi import Depends, HTTPException, Request, status
+from fastapi.security import APIKeyHeader, HTTPAuthorizationCredentials, HTTPBearer
+
+from bayesian_fields_service.security.api_keys import ApiKeyRing
+
+API_KEY_HEADER = "X-API-Key"
+
+_header_scheme = APIKeyHeader(name=API_KEY_HEADER, auto_error=False, description="The tenant's API key.")
+_bearer_scheme = HTTPBearer(auto_error=False, description="The API key as a bearer token.")
+
+
+def presented_key(
+    header_key: str | None = Depends(_header_scheme),
+    bearer: HTTPAuthorizationCredentials | None = Depends(_bearer_scheme),
+) -> str | None:
+    """The key from ``X-API-Key`` or ``Authorization: Bearer <key>``."""
+    if header_key:
+        return header_key
+    return bearer.credentials if bearer is not None else None
+
+
+def require_tenant(request: Request, key: str | None = Depends(presented_key)) -> str:
+    """FastAPI dependency: the tenant owning the presented key, else 401."""
+    ring: ApiKeyRing = request.app.state.key_ring
+    tenant = ring.tenant_for(key)
+    if tenant is None:
+        raise HTTPException(
+            status_code=status.HTTP_401_UNAUTHORIZED,
+            detail="missing or invalid API key (send it as X-API-Key or Authorization: Bearer)",
+            headers={"WWW-Authenticate": "Bearer"},
+        )
+    return tenant

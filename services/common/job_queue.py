@@ -177,17 +177,24 @@ class JobQueue:
             rows = conn.execute(select(jobs.c.tenant, jobs.c.id).where(DISPATCHED).order_by(jobs.c.id))
             return [(r.tenant, r.id) for r in rows]
 
-    def requeue(self, tenant: str, job_id: str, fence: Fence | None = None) -> bool:
+    def requeue(
+        self, tenant: str, job_id: str, fence: Fence | None = None, *, recovered: bool = False
+    ) -> bool:
         """Back to the queue (front: it is older than what still waits), as *queued* again even if
         a stage of it had started: no stage runs now, and only queued rows are waiting work. False
-        when the job ended or was not dispatched meanwhile. Fenced as `take` is."""
+        when the job ended or was not dispatched meanwhile. Fenced as `take` is. `recovered`:
+        recovery's requeue of a job that lost its worker, counted in its `recoveries`."""
         with self.database.begin() as conn:
             if fence is not None:
                 assert_lease(conn, fence)
             moved = conn.execute(
                 update(jobs)
                 .where(jobs.c.tenant == tenant, jobs.c.id == job_id, DISPATCHED)
-                .values(dispatched_at=None, state="queued")
+                .values(
+                    dispatched_at=None,
+                    state="queued",
+                    recoveries=jobs.c.recoveries + (1 if recovered else 0),
+                )
             )
             return bool(moved.rowcount)
 

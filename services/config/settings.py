@@ -267,11 +267,26 @@ class ServiceSettings(BaseSettings):
     recovery_interval_s: float = Field(
         15.0, gt=0, le=3600, description="Seconds between the control process's scans for orphaned jobs."
     )
+    record_write_budget_s: float = Field(
+        600.0,
+        gt=0,
+        le=24 * 3600,
+        description="How long a worker keeps retrying the write of a stage's or a job's end while the "
+        "records database is unreachable (backoff up to 8 s between tries); past it, recovery finishes "
+        "the job from its row once the database answers.",
+    )
+    max_recoveries: int = Field(
+        5,
+        ge=1,
+        le=1000,
+        description="How many times recovery puts a job that lost its worker back in the queue; the "
+        "next time it fails with the reason instead of looping.",
+    )
     recovery_grace_s: float = Field(
         20.0,
         ge=0,
-        description="How long a job must look orphaned (running, no stage lock, no queued task) "
-        "before a scan re-enqueues its next stage.",
+        description="How long a job must look orphaned (no worker's heartbeat on its row within "
+        "BFIELDS_STAGE_LOCK_TTL_S, no queued task) before a scan puts it back in the queue.",
     )
 
     # ---- outages (request path of the API) -------------------------------------------------------

@@ -22,8 +22,9 @@ import redis
 from celery import Celery
 
 from bayesian_fields_service.common.job_queue import StrideClock, TenantBacklog, choose
-from bayesian_fields_service.common.jobs import JobRecord, JobStore, id_age_s
+from bayesian_fields_service.common.jobs import JobRecord, JobState, JobStore, id_age_s
 from bayesian_fields_service.config.settings import ServiceSettings
+from bayesian_fields_service.jobs import lifecycle
 from bayesian_fields_service.live.broker import enqueue_stages, queue_length
 from bayesian_fields_service.live.metrics import observe_queue_wait
 from bayesian_fields_service.records.leases import Fence, LeaseLost
@@ -89,7 +90,14 @@ class Dispatcher:
         pick.dispatched += 1
 
     def _send(self, record: JobRecord) -> None:
-        """The job's remaining stages as one chain; the stamp is given back if the send fails."""
+        """The job's remaining stages as one chain; the stamp is given back if the send fails. A
+        job with no stage left (its end was not written) is finished here instead: a chain of no
+        stage would leave it dispatched for ever."""
+        if not record.remaining_stages():
+            ended = lifecycle.finish(self.jobs, record, JobState.succeeded)
+            log.warning("finished job %s/%s on dispatch: every stage was done (%s)", record.tenant, record.id,
+                        ended.state.value)  # fmt: skip
+            return
         try:
             enqueue_stages(self.app, record.tenant, record.id, record.remaining_stages(),
                            gpu_queue=self.settings.gpu_queue, cpu_queue=self.settings.cpu_queue)  # fmt: skip

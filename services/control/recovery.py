@@ -1,21 +1,26 @@
-"""Put back in the queue the dispatched jobs that Redis or a dead worker lost.
+"""Settle the dispatched jobs no worker runs: finish, requeue or fail each, by rule, from its row.
 
 A waiting job cannot be lost: it is a row (`common.job_queue`). What can be lost is a dispatched
-job's stage message: Redis restarted without its data, or a worker took the message and died
-before it took the stage lock (the message then sits in the broker's unacknowledged hash until
-the visibility timeout, hours), or the dispatcher died between the stamp and the send. Such a job
-is *orphaned*: its row is dispatched and unfinished, no lock on any of its stages is held, and no
-message of it waits in a Celery queue (or Redis has no live hash of it, or its hash says a stage
-executes while no lock is held: a SIGKILLed worker, found once its lock expired, a minute, not
-after the broker's visibility timeout).
+job's stage message (Redis restarted without its data, a worker took the message and died, the
+dispatcher died between its stamp and its send) or the write that would have ended it (the
+records database unreachable at that moment for longer than the worker's retries). Whether a
+worker runs a job is read from its row: a running stage beats `heartbeat_at` every quarter of
+`stage_lock_ttl_s` (`records.job_heartbeats`), so a job whose heartbeat is fresh is alive
+whatever Redis holds. For each dispatched, unfinished job with no fresh heartbeat, one rule:
 
-An orphan is requeued (`JobQueue.requeue`: its dispatch stamp cleared, so it is the front of its
-tenant's queue and the dispatcher sends its remaining stages within the tenant's bound) only
-after it has looked orphaned for `recovery_grace_s` on two scans: a worker that is running a stage
-re-creates its lock within one heartbeat, and a chain between two stages has its next message
-queued within moments, so a live job is never sent twice. Should a duplicate slip through anyway,
-stages are idempotent (finished markers are skipped) and guarded by the per-stage lock, so the
-cost is time, never a wrong result.
+- **finish**: every stage is done (its artifacts and stage reports are on the row and in the
+  bucket; only the final write was lost): it is marked succeeded, with its callback and usage
+  rows in that same transaction, once (`jobs.lifecycle.finish`). Before, such a job was requeued
+  and the dispatcher had no stage left to send, forever;
+- **wait**: its next stage's message is queued for a worker (between two stages of a chain);
+- **requeue**: otherwise, after it has looked orphaned for `recovery_grace_s` on two scans (a
+  chain between two stages has its next message queued within moments): its dispatch stamp is
+  cleared, so it is the front of its tenant's queue, and `recoveries` counts the move;
+- **fail**: a job already requeued `max_recoveries` times fails with that reason instead.
+
+A duplicate that slips through is harmless: stages are idempotent (finished stages are skipped)
+and locked, so the cost is time, never a wrong result. A requeue is fenced by the leader's lease;
+a finish or a failure is right whoever writes it (a terminal state is written once).
 
 Run by the control process's leader only, so the first-seen times of suspects live in its memory
 (a new leader starts them afresh, which only delays a requeue by one grace period).
@@ -28,10 +33,12 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from bayesian_fields_service.common.jobs import JobStore
+from bayesian_fields_core.job.stage_table import STAGES
+from bayesian_fields_service.common.jobs import JobState, JobStore
 from bayesian_fields_service.config.settings import ServiceSettings
+from bayesian_fields_service.jobs import lifecycle
 from bayesian_fields_service.live.broker import jobs_with_queued_messages
-from bayesian_fields_service.live.redis_keys import stage_lock_pattern
+from bayesian_fields_service.records.job_heartbeats import DispatchedJob, dispatched_jobs
 from bayesian_fields_service.records.leases import Fence, LeaseLost
 
 log = logging.getLogger(__name__)
@@ -39,7 +46,7 @@ log = logging.getLogger(__name__)
 
 @dataclass
 class Recovery:
-    """The orphan scan (module docstring) with its suspects' first-seen times."""
+    """The scan (module docstring) with its suspects' first-seen times."""
 
     jobs: JobStore
     settings: ServiceSettings
@@ -47,36 +54,63 @@ class Recovery:
     suspects: dict[tuple[str, str], float] = field(default_factory=dict)
 
     def scan(self, *, grace_s: float | None = None) -> list[str]:
-        """One scan; returns the ids of the jobs it put back in the queue."""
+        """One scan; returns the ids of the jobs it finished, requeued or failed."""
         grace_s = self.settings.recovery_grace_s if grace_s is None else grace_s
-        client = self.jobs.redis
         now = time.time()
         queued: set[str] | None = None
-        requeued: list[str] = []
+        moved: list[str] = []
         seen: set[tuple[str, str]] = set()
-        for tenant, job_id in self.jobs.queue.dispatched_jobs():
-            if any(True for _ in client.scan_iter(match=stage_lock_pattern(tenant, job_id), count=100)):
-                continue  # a worker runs one of its stages
-            if self.jobs.live_phase(tenant, job_id) == "waiting":
+        for job in dispatched_jobs(self.jobs.database, self.settings.stage_lock_ttl_s):
+            if job.running:
+                continue  # a worker beats its row
+            if set(job.stages_done) >= set(STAGES):
+                if self._finish(job):
+                    moved.append(job.id)
+                continue
+            if self.jobs.live_phase(job.tenant, job.id) == "waiting":
                 if queued is None:  # read once per scan, and only when a job needs it
                     queued = jobs_with_queued_messages(
-                        client, {self.settings.gpu_queue, self.settings.cpu_queue}
+                        self.jobs.redis, {self.settings.gpu_queue, self.settings.cpu_queue}
                     )
-                if job_id in queued:
+                if job.id in queued:
                     continue  # its next message waits for a worker
-            pair = (tenant, job_id)
+            pair = (job.tenant, job.id)
             seen.add(pair)
             first_seen = self.suspects.setdefault(pair, now)
             if first_seen == now and grace_s > 0 or now - first_seen < grace_s:
                 continue
             try:
-                moved = self.jobs.queue.requeue(tenant, job_id, self.fence())
+                if self._requeue_or_fail(job):
+                    moved.append(job.id)
             except LeaseLost as exc:  # another replica leads now: its own scan takes over
                 log.warning("recovery scan stopped: %s", exc)
                 break
-            if moved:
-                requeued.append(job_id)
-                log.warning("requeued orphaned job %s/%s (no stage lock, no queued message)", tenant, job_id)
             seen.discard(pair)
         self.suspects = {p: t for p, t in self.suspects.items() if p in seen}
-        return requeued
+        return moved
+
+    def _finish(self, job: DispatchedJob) -> bool:
+        """All stages done and only the end unwritten: succeeded, from the row (module docstring)."""
+        record = self.jobs.load(job.tenant, job.id)
+        if record is None or record.state.terminal:
+            return False
+        ended = lifecycle.finish(self.jobs, record, JobState.succeeded)
+        log.warning("finished job %s/%s, whose stages were all done (its end had not been written): %s",
+                    job.tenant, job.id, ended.state.value)  # fmt: skip
+        return True
+
+    def _requeue_or_fail(self, job: DispatchedJob) -> bool:
+        if job.recoveries >= self.settings.max_recoveries:
+            record = self.jobs.load(job.tenant, job.id)
+            if record is None or record.state.terminal:
+                return False
+            reason = (f"lost its worker {job.recoveries + 1} times (each stage is re-run from its "
+                      f"last finished stage; the limit is BFIELDS_MAX_RECOVERIES={self.settings.max_recoveries})")  # fmt: skip
+            lifecycle.finish(self.jobs, record, JobState.failed, reason)
+            log.warning("failed job %s/%s: %s", job.tenant, job.id, reason)
+            return True
+        if self.jobs.queue.requeue(job.tenant, job.id, self.fence(), recovered=True):
+            log.warning("requeued orphaned job %s/%s (no heartbeat on its row, no queued message)",
+                        job.tenant, job.id)  # fmt: skip
+            return True
+        return False

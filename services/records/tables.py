@@ -123,6 +123,14 @@ jobs = Table(
     Column("callback_url", Text),
     Column("retry_of", ID),
     Column("idempotency_key", String(255)),
+    # Who runs the job's current stage and when it last said so (revision 0008): a running stage
+    # beats its row every quarter of `stage_lock_ttl_s`; recovery reads staleness from here, not
+    # from Redis. `recoveries` counts recovery's requeues, so a job that keeps losing its worker
+    # fails with a reason instead of looping. Written only by their own statements
+    # (`records.job_heartbeats`), never by a record's save.
+    Column("worker", String(255)),
+    _when("heartbeat_at", nullable=True),
+    Column("recoveries", Integer, nullable=False, server_default="0"),
     _when("created_at"),
     _when("updated_at"),
     _when("dispatched_at", nullable=True),

@@ -19,6 +19,7 @@ from sqlalchemy import Engine
 from bayesian_fields_core.job.store import Store
 from bayesian_fields_service.common import usage
 from bayesian_fields_service.common.jobs import JobRecord, utcnow
+from bayesian_fields_service.jobs.durable_writes import until_landed
 from bayesian_fields_service.storage.stores import tenant_store
 from bayesian_fields_service.worker.scene_cache import list_input
 
@@ -56,11 +57,19 @@ def job_bytes(store: Store, record: JobRecord) -> int:
 
 
 def account_stage(
-    store: Store, database: Engine, record: JobRecord, stage: str, meter: StageMeter
+    store: Store,
+    database: Engine,
+    record: JobRecord,
+    stage: str,
+    meter: StageMeter,
+    *,
+    write_budget_s: float = 0.0,
 ) -> JobRecord:
     """`record` with this stage execution added to its usage (the caller saves it), and its ledger
-    row. Accounting never fails a stage: a storage or database error is logged. (The job's end is
-    ledgered by the jobs domain, in the transaction that makes it terminal.)"""
+    row, retried for `write_budget_s` while the database is unreachable (`durable_writes`; the row's
+    entry id makes a repeated write count once). Accounting never fails a stage: a storage error,
+    or a database error past the budget, is logged. (The job's end is ledgered by the jobs domain,
+    in the transaction that makes it terminal.)"""
     try:
         size = job_bytes(store, record)
     except Exception as exc:  # the bucket is flaky: keep the last known size
@@ -70,8 +79,12 @@ def account_stage(
         update={"usage": record.usage.add_stage(stage, meter.cpu_s, meter.gpu_s, size)}
     )
     try:
-        usage.record_stage(database, record.tenant, record.id, stage, record.stage_runs, meter.cpu_s, meter.gpu_s,
-                           utcnow())  # fmt: skip
+        until_landed(
+            lambda: usage.record_stage(database, record.tenant, record.id, stage, record.stage_runs,
+                                       meter.cpu_s, meter.gpu_s, utcnow()),
+            budget_s=write_budget_s,
+            what=f"the usage of stage {stage} of job {record.id}",
+        )  # fmt: skip
     except Exception as exc:
         log.warning("job %s: usage of %s not recorded (%s)", record.id, stage, exc)
     return updated

@@ -35,6 +35,7 @@ from celery import Task
 from celery.exceptions import SoftTimeLimitExceeded
 from celery.signals import worker_init, worker_process_init
 from celery.utils.log import get_logger
+from sqlalchemy.exc import InterfaceError, OperationalError
 
 from bayesian_fields_core.errors import CancelledError, InputError, ModelError
 from bayesian_fields_core.job.factories import store_job
@@ -48,11 +49,13 @@ from bayesian_fields_service.common.jobs import JobRecord, JobState, JobStore
 from bayesian_fields_service.common.pause_points import pause
 from bayesian_fields_service.config.settings import ServiceSettings
 from bayesian_fields_service.jobs import lifecycle
+from bayesian_fields_service.jobs.durable_writes import until_landed
 from bayesian_fields_service.live import redis_keys
 from bayesian_fields_service.live.heartbeat_lock import HeartbeatLock
 from bayesian_fields_service.live.metrics import observe_stage
 from bayesian_fields_service.live.redis_text import text
 from bayesian_fields_service.live.single_flight import RedisFlight
+from bayesian_fields_service.records import job_heartbeats
 from bayesian_fields_service.records.database import open_records
 from bayesian_fields_service.storage.stores import build_store, tenant_store
 from bayesian_fields_service.worker.accounting import StageMeter, account_stage
@@ -67,6 +70,9 @@ TRANSIENT: tuple[type[Exception], ...] = (
     redis.TimeoutError,
     ConnectionError,
     TimeoutError,
+    # the records database unreachable (a stage's start, before any work): retried like Redis
+    OperationalError,
+    InterfaceError,
 )
 try:  # storage errors only exist when boto3 is installed
     from bayesian_fields_service.storage.s3_store import StorageError
@@ -251,7 +257,62 @@ def stage_lock_key(tenant: str, job_id: str, stage: str) -> str:
 
 
 def _finish(rt: _Runtime, record: JobRecord, state: JobState, error: str | None = None) -> JobRecord:
-    return lifecycle.finish(rt.jobs, record, state, error)
+    """End the job, retrying while the records database is unreachable (`durable_writes`)."""
+    return until_landed(
+        lambda: lifecycle.finish(rt.jobs, record, state, error),
+        budget_s=rt.settings.record_write_budget_s,
+        what=f"the end of job {record.tenant}/{record.id} ({state.value})",
+    )
+
+
+def _account(rt: _Runtime, record: JobRecord, stage: str, meter: StageMeter) -> JobRecord:
+    return account_stage(rt.store, rt.jobs.database, record, stage, meter,
+                         write_budget_s=rt.settings.record_write_budget_s)  # fmt: skip
+
+
+class RowHeartbeat:
+    """While a stage runs, its worker's name and a heartbeat on the job's row, every quarter of
+    `stage_lock_ttl_s` (`records.job_heartbeats`): what recovery reads to know the job is alive.
+    A beat that fails (the database away) is tried again at the next; one that finds the job
+    ended or taken over by a later attempt stops the beating, not the stage."""
+
+    def __init__(self, rt: _Runtime, record: JobRecord) -> None:
+        self.rt = rt
+        self.record = record
+        pid = os.getpid()
+        self.worker = f"{_HOST}:{pid}:{_process_start(pid)}:{secrets.token_hex(4)}"
+        self.interval_s = rt.settings.stage_lock_ttl_s / 4
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="bf-row-heartbeat", daemon=True)
+
+    def _beat(self) -> bool:
+        r = self.record
+        try:
+            return job_heartbeats.beat(self.rt.jobs.database, r.tenant, r.id, self.worker, r.stage_runs)
+        except Exception as exc:  # the database away for a moment: the next beat tries again
+            log.warning("heartbeat of %s/%s not written (%s)", r.tenant, r.id, type(exc).__name__)
+            return True
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.interval_s):
+            if not self._beat():
+                log.warning("job %s/%s ended or was taken over; its heartbeat stops", self.record.tenant,
+                            self.record.id)  # fmt: skip
+                return
+
+    def __enter__(self) -> RowHeartbeat:
+        self._beat()
+        self._thread.start()
+        return self
+
+    def __exit__(self, *_: object) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5)
+        r = self.record
+        try:
+            job_heartbeats.stage_ended(self.rt.jobs.database, r.tenant, r.id, self.worker)
+        except Exception as exc:  # the heartbeat goes stale by itself
+            log.warning("stage end of %s/%s not marked on its row (%s)", r.tenant, r.id, type(exc).__name__)
 
 
 def execute_stage(task: Task, stage: str, tenant: str, job_id: str, lock_waits: int = 0) -> str:
@@ -309,10 +370,15 @@ class SharedSceneCopy:
 
 
 def _run_locked(rt: _Runtime, record: JobRecord, stage: str) -> str:
-    tenant, job_id = record.tenant, record.id
     record = lifecycle.start_stage(rt.jobs, record, stage)
     if record.state.terminal:
         return f"already {record.state.value}"
+    with RowHeartbeat(rt, record):
+        return _run_started(rt, record, stage)
+
+
+def _run_started(rt: _Runtime, record: JobRecord, stage: str) -> str:
+    tenant, job_id = record.tenant, record.id
     last = [0.0]
 
     def progress(name: str, fraction: float) -> None:
@@ -360,18 +426,18 @@ def _run_locked(rt: _Runtime, record: JobRecord, stage: str) -> str:
             report = run_stage(stage, job)
         seconds = time.perf_counter() - t0
     except CancelledError:
-        record = account_stage(rt.store, rt.jobs.database, record, stage, meter)
+        record = _account(rt, record, stage, meter)
         _finish(rt, record, JobState.cancelled, "cancelled by request")
         discard_result(tenant_store(rt.store, tenant), record.job_prefix)  # a stage stopped mid-write
         return "cancelled"
     except (InputError, ModelError) as exc:
-        record = account_stage(rt.store, rt.jobs.database, record, stage, meter)
+        record = _account(rt, record, stage, meter)
         _finish(rt, record, JobState.failed, f"{stage}: {exc}")
         return "failed"
     except TRANSIENT:
         raise  # retried by the task wrapper
     except SoftTimeLimitExceeded:
-        record = account_stage(rt.store, rt.jobs.database, record, stage, meter)
+        record = _account(rt, record, stage, meter)
         _finish(
             rt,
             record,
@@ -381,12 +447,15 @@ def _run_locked(rt: _Runtime, record: JobRecord, stage: str) -> str:
         return "failed"
     except Exception as exc:  # a bug, not bad input: fail the job visibly instead of leaving it running
         log.exception("stage %s of %s/%s crashed", stage, tenant, job_id)
-        record = account_stage(rt.store, rt.jobs.database, record, stage, meter)
+        record = _account(rt, record, stage, meter)
         _finish(rt, record, JobState.failed, f"{stage}: internal error: {type(exc).__name__}: {exc}")
         return "failed"
     observe_stage(rt.redis, stage, seconds)
-    record = lifecycle.stage_done(
-        rt.jobs, account_stage(rt.store, rt.jobs.database, record, stage, meter), stage, report, seconds
+    accounted = _account(rt, record, stage, meter)
+    record = until_landed(
+        lambda: lifecycle.stage_done(rt.jobs, accounted, stage, report, seconds),
+        budget_s=rt.settings.record_write_budget_s,
+        what=f"the end of stage {stage} of job {tenant}/{job_id}",
     )
     if lifecycle.all_stages_done(record):
         final = _finish(rt, record, JobState.succeeded)

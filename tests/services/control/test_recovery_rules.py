@@ -1,0 +1,106 @@
+"""Recovery's rules, decided from the job's row on a real PostgreSQL (and a private Redis for the
+live state it still reads): a job a worker beats is left alone; one whose stages are all done but
+whose end was never written is finished, its callback and usage written once; one that lost its
+worker is put back in the queue and counted; one that lost it too often fails with the reason."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import redis
+from sqlalchemy import Engine, func, select, update
+
+from bayesian_fields_core.job.stage_table import STAGES
+from bayesian_fields_core.job.store import LocalStore
+from bayesian_fields_service.common.jobs import JobRecord, JobState, JobStore, new_id
+from bayesian_fields_service.config.settings import ServiceSettings
+from bayesian_fields_service.control.recovery import Recovery
+from bayesian_fields_service.records import job_heartbeats
+from bayesian_fields_service.records.tables import callback_outbox, jobs, usage_ledger
+from tests.integration.fixtures.redis_server import RedisServer
+
+
+@pytest.fixture
+def store(records_db: Engine, private_redis: RedisServer, tmp_path: Path) -> JobStore:
+    return JobStore(LocalStore(tmp_path / "bucket"), redis.Redis.from_url(private_redis.url()), records_db)
+
+
+def _dispatched(jobs_: JobStore, **fields: object) -> JobRecord:
+    """A job as the dispatcher leaves it (stamped, its chain sent), with `fields` on its row."""
+    record = JobRecord(id=new_id("j_"), tenant="t", scene_id="s_x", tasks=["a"],
+                       callback_url="http://127.0.0.1:9/cb")  # fmt: skip
+    jobs_.create_many([record])
+    with jobs_.database.begin() as conn:
+        conn.execute(update(jobs).where(jobs.c.id == record.id).values(dispatched_at=func.now(), **fields))
+    loaded = jobs_.load("t", record.id)
+    assert loaded is not None
+    return loaded
+
+
+def _row(db: Engine, job_id: str) -> dict:
+    with db.connect() as conn:
+        return dict(conn.execute(select(jobs).where(jobs.c.id == job_id)).mappings().one())
+
+
+def _recovery(store: JobStore, **settings: object) -> Recovery:
+    return Recovery(store, ServiceSettings(stage_lock_ttl_s=4, **settings))  # type: ignore[arg-type]
+
+
+def test_a_job_whose_worker_beats_its_row_is_left_alone(store: JobStore) -> None:
+    record = _dispatched(store, state="running", stage="perceive", stage_runs=1)
+    assert job_heartbeats.beat(store.database, "t", record.id, "host:1:2:ab", attempt=1)
+    assert _recovery(store).scan(grace_s=0) == []
+    assert _row(store.database, record.id)["dispatched_at"] is not None
+    assert not job_heartbeats.beat(
+        store.database, "t", record.id, "host:1:2:ab", attempt=0
+    )  # a stale attempt
+
+
+def test_a_job_with_every_stage_done_and_no_end_is_finished_once(store: JobStore) -> None:
+    """The stuck job: its final write was lost; before, it was requeued for ever with no stage to send."""
+    record = _dispatched(store, state="queued", stages_done=list(STAGES), stage_runs=3)
+    recovery = _recovery(store)
+    assert recovery.scan(grace_s=0) == [record.id]
+    assert recovery.scan(grace_s=0) == []  # nothing left to do
+    row = _row(store.database, record.id)
+    assert row["state"] == "succeeded" and row["finished_at"] is not None
+    with store.database.connect() as conn:
+        ends = conn.execute(
+            select(func.count()).where(usage_ledger.c.job_id == record.id, usage_ledger.c.kind == "end")
+        ).scalar_one()
+        events = conn.execute(
+            select(func.count()).where(callback_outbox.c.url == "http://127.0.0.1:9/cb")
+        ).scalar_one()
+    assert (ends, events) == (1, 1)
+
+
+def test_a_job_that_lost_its_worker_is_requeued_and_counted_then_failed_past_the_limit(
+    store: JobStore,
+) -> None:
+    record = _dispatched(store, state="running", stage="fuse", stages_done=["perceive"], stage_runs=2)
+    # its worker beat the row, then died: the beat is older than the lease (4 s) by now
+    with store.database.begin() as conn:
+        conn.execute(update(jobs).where(jobs.c.id == record.id).values(
+            worker="host:1:2:ab", heartbeat_at=func.now() - func.make_interval(0, 0, 0, 0, 0, 0, 60)))  # fmt: skip
+    recovery = _recovery(store, max_recoveries=2)
+    assert recovery.scan(grace_s=0) == [record.id]
+    row = _row(store.database, record.id)
+    assert (row["state"], row["dispatched_at"], row["recoveries"]) == ("queued", None, 1)
+    with store.database.begin() as conn:  # dispatched again, lost again, and once more
+        conn.execute(
+            update(jobs).where(jobs.c.id == record.id).values(dispatched_at=func.now(), recoveries=2)
+        )
+    assert recovery.scan(grace_s=0) == [record.id]
+    row = _row(store.database, record.id)
+    assert row["state"] == JobState.failed.value
+    assert "lost its worker 3 times" in row["error"] and "BFIELDS_MAX_RECOVERIES=2" in row["error"]
+
+
+def test_a_suspect_waits_its_grace_over_two_scans(store: JobStore) -> None:
+    record = _dispatched(store, state="queued")
+    recovery = _recovery(store)
+    assert recovery.scan(grace_s=60) == []  # first seen now
+    assert recovery.scan(grace_s=60) == []  # still within its grace
+    assert _row(store.database, record.id)["dispatched_at"] is not None
+    assert recovery.scan(grace_s=0) == [record.id]

@@ -194,6 +194,7 @@ class JobQueue:
                     dispatched_at=None,
                     state="queued",
                     recoveries=jobs.c.recoveries + (1 if recovered else 0),
+                    worker=None,  # whatever held it is gone: its next delivery claims it afresh
                 )
             )
             return bool(moved.rowcount)

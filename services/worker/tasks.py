@@ -246,6 +246,7 @@ class StageClaim:
         self.lease_s = float(rt.settings.stage_lock_ttl_s)
         self.cancel_requested = threading.Event()
         self._remaining_s = 0.0
+        self.ended = False  # the job was no longer active when it was claimed
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
@@ -261,6 +262,7 @@ class StageClaim:
                             self.holder_pid(got.holder))  # fmt: skip
         if not got.taken:
             self._remaining_s = got.remaining_s
+            self.ended = got.ended
             return False
         self._thread = threading.Thread(target=self._run, name="bf-stage-heartbeat", daemon=True)
         self._thread.start()
@@ -317,25 +319,24 @@ def _account(rt: _Runtime, record: JobRecord, stage: str, meter: StageMeter) -> 
 
 def execute_stage(task: Task, stage: str, tenant: str, job_id: str, lock_waits: int = 0) -> str:
     """The body of every stage task; returns what happened ('ran', 'skipped', 'cancelled', ...).
-    `lock_waits`: how many of this delivery's retries were waits for the stage lock."""
+    `lock_waits`: how many of this delivery's retries were waits for another delivery's claim.
+
+    The job is claimed on its row first thing after the message is read, so a worker that dies
+    from then on leaves a claim that lapses (and recovery takes the job back), never a job that
+    looks as if its message still waited. Reading the row and claiming it wait out a records
+    database outage (`durable_writes`) instead of spending the transient-error retries."""
     rt = runtime()
-    record = rt.jobs.load(tenant, job_id)
+    budget = rt.settings.record_write_budget_s
+    record = until_landed(lambda: rt.jobs.load(tenant, job_id), budget_s=budget, what=f"reading job {job_id}")
     if record is None:
         log.warning("job %s/%s has no record; dropping %s", tenant, job_id, stage)
         return "missing"
     if record.state.terminal:
         return f"already {record.state.value}"
-    if lifecycle.should_stop(rt.jobs, record):
-        _finish(rt, record, JobState.cancelled, "cancelled by request")
-        return "cancelled"
-    if stage in record.stages_done:
-        # A duplicate message (recovery's enqueue of a job the API had enqueued after all): the
-        # stage ran and is recorded; not counted as a stage run, and the chain goes on.
-        return "skipped"
-    # Between taking the message and taking the stage lock: a test kills the worker here.
-    pause(rt.redis, rt.settings.test_pause_points, f"stage:{stage}:before_lock", record.scene_id)
     lock = StageClaim(rt, tenant, job_id)
-    if not lock.acquire():
+    if not until_landed(lock.acquire, budget_s=budget, what=f"claiming job {job_id}"):
+        if lock.ended:
+            return "ended"
         # Another delivery runs a stage of this job (or its holder died on another host): try
         # again when its claim would lapse. Unlimited: a live holder beats its claim, and a dead
         # one's lapses within stage_lock_ttl_s, so this ends.
@@ -343,6 +344,15 @@ def execute_stage(task: Task, stage: str, tenant: str, job_id: str, lock_waits: 
         log.info("stage %s of %s is locked; retry in %.1fs", stage, job_id, countdown)  # claimed on its row
         raise task.retry(countdown=countdown, kwargs={"lock_waits": lock_waits + 1})
     try:
+        if lifecycle.should_stop(rt.jobs, record):
+            _finish(rt, record, JobState.cancelled, "cancelled by request")
+            return "cancelled"
+        if stage in record.stages_done:
+            # A duplicate message (recovery's enqueue of a job the API had enqueued after all): the
+            # stage ran and is recorded; not counted as a stage run, and the chain goes on.
+            return "skipped"
+        # The message taken and the job claimed, the stage not started: a test kills the worker here.
+        pause(rt.redis, rt.settings.test_pause_points, f"stage:{stage}:before_lock", record.scene_id)
         return _run_locked(rt, record, stage, lock)
     finally:
         lock.release()
@@ -371,7 +381,11 @@ class SharedSceneCopy:
 
 def _run_locked(rt: _Runtime, record: JobRecord, stage: str, claim: StageClaim) -> str:
     tenant, job_id = record.tenant, record.id
-    record = lifecycle.start_stage(rt.jobs, record, stage)
+    record = until_landed(
+        lambda: lifecycle.start_stage(rt.jobs, record, stage),
+        budget_s=rt.settings.record_write_budget_s,
+        what=f"the start of stage {stage} of job {tenant}/{job_id}",
+    )
     if record.state.terminal:
         return f"already {record.state.value}"
     last = [0.0]

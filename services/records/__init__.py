@@ -8,3 +8,22 @@ statements inside one transaction, not a loop of object-store round trips; a sta
 be one conditional UPDATE; and the records must survive losing Redis, which keeps only Celery's
 broker and live progress. What is large (uploads, artifacts, results) stays in object storage.
 """
+
+from __future__ import annotations
+
+from contextlib import AbstractContextManager
+
+from sqlalchemy import Connection, Engine
+
+
+def begin(database: Engine) -> AbstractContextManager[Connection]:
+    """The unit of work: one transaction on `database`, committed when the ``with`` body ends
+    (rolled back on an exception). A domain opens it and hands its connection to the statement
+    functions of this package (`jobs`, `queue`, `batches`, ...), so several of them commit
+    together or not at all."""
+    return database.begin()
+
+
+def connect(database: Engine) -> AbstractContextManager[Connection]:
+    """A connection for reads (autobegun, rolled back at the end of the ``with`` body)."""
+    return database.connect()

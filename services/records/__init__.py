@@ -1,7 +1,13 @@
 """The service's records in PostgreSQL (issue 28): scenes, jobs, batches, idempotency keys, the
 callback outbox and the usage ledger, as SQLAlchemy Core tables (`tables`) whose schema is
 versioned by Alembic migrations (`migrations/`), applied by `bfields-service migrate` or at
-start-up under one advisory lock (`database.migrate`).
+start-up under one advisory lock (`database.migrate`), and readable as it stands in `schema.sql`.
+
+The only package that issues SQL (issue 43; `tests/services/records/test_records_boundary.py`):
+one module of statement functions per aggregate, each taking a `Connection` so that several
+share one transaction (`jobs`, `keys`, `queue`, `batches`, `scenes`, `outbox`, `usage`,
+`job_heartbeats`, `leases`), and the unit of work the domains open, `begin` / `connect`. The
+rules (a job's merge, cancel-wins, a batch's status, the fair share) stay in the domains.
 
 Why PostgreSQL: a fleet operation (submit, cancel or page a 5,000-job batch) must be a few
 statements inside one transaction, not a loop of object-store round trips; a state change must

@@ -54,7 +54,7 @@ def _migration(file_name: str) -> ModuleType:
 
 def render() -> str:
     """The text `schema.sql` must hold."""
-    dialect = postgresql.dialect()  # type: ignore[no-untyped-call]
+    dialect = postgresql.dialect()
     parts = [_HEADER]
     for table in metadata.sorted_tables:
         parts.append(f"{str(CreateTable(table).compile(dialect=dialect)).strip()};\n")

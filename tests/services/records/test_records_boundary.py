@@ -59,8 +59,11 @@ def _modules() -> list[Path]:
 
 def test_no_module_outside_records_issues_sql() -> None:
     assert len(_modules()) > 50  # the walk found the service
-    found = [use for path in _modules() for use in sql_uses(path.read_text(), str(path.relative_to(SERVICES)))]
-    assert found == [], "SQL outside services/records/ (move it into a repository there):\n" + "\n".join(found)
+    found = [
+        use for path in _modules() for use in sql_uses(path.read_text(), str(path.relative_to(SERVICES)))
+    ]
+    listing = "\n".join(found)
+    assert found == [], f"SQL outside services/records/ (move it into a repository there):\n{listing}"
 
 
 def test_the_check_catches_each_kind_of_probe() -> None:

@@ -16,23 +16,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from sqlalchemy import text
 from sqlalchemy.engine import make_url
-
-
-def _create_database(url: str) -> bool:
-    """Create the database `url` names when it does not exist (connecting to `postgres`)."""
-    from bayesian_fields_service.records.database import engine
-
-    target = make_url(url)
-    name = target.database
-    admin = target.set(database="postgres")
-    eng = engine(admin.render_as_string(hide_password=False)).execution_options(isolation_level="AUTOCOMMIT")
-    with eng.connect() as conn:
-        if conn.execute(text("SELECT 1 FROM pg_database WHERE datname = :n"), {"n": name}).first():
-            return False
-        conn.execute(text(f'CREATE DATABASE "{name}"'))
-        return True
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -57,7 +41,7 @@ def main(argv: list[str] | None = None) -> int:
     from sqlalchemy.exc import OperationalError
 
     from bayesian_fields_service.config.settings import get_settings
-    from bayesian_fields_service.records.database import current_revision, head_revision
+    from bayesian_fields_service.records.database import create_database, current_revision, head_revision
     from bayesian_fields_service.records.database import migrate as run
 
     url = get_settings().database_url
@@ -71,7 +55,7 @@ def main(argv: list[str] | None = None) -> int:
 
             print(run_import(get_settings()).line())
             return 0
-        if args.create_database and _create_database(url):
+        if args.create_database and create_database(url):
             print(f"created database {make_url(url).database}")
         print(f"{shown}: at revision {run(url, args.revision) or 'none'}")
         return 0

@@ -50,6 +50,7 @@ SERVICE_LAYERS: list[set[str]] = [
     {"common"},
     {"webhooks", "live", "storage", "security", "sanitize"},
     {"records"},
+    {"hooks"},
     {"config"},
     {"__init__"},
 ]
@@ -60,7 +61,8 @@ workers call the jobs domain (`jobs`), which works over the records' access and 
 (`webhooks`, which write their outbox rows through `records`), Redis and the broker (`live`, the
 only package that knows either; the worker builds the Celery app and hands it in, so `live` never
 imports `worker`), object storage (`storage`), API keys (`security`) and text safe to serve
-(`sanitize`); then the records schema, below everything that reads or writes it; and `config`
+(`sanitize`); then the records schema, below everything that reads or writes it; the hook
+points (`hooks.py`, called by routes and stages, knowing nothing of who registers); and `config`
 (`ServiceSettings`) at the bottom, because every package reads settings and settings read nothing
 of the service. The operator's `admin` commands (which start the control process) sit beside the
 user's client."""

@@ -50,6 +50,7 @@ SERVICE_LAYERS: list[set[str]] = [
     {"common"},
     {"webhooks", "live", "storage", "security", "sanitize"},
     {"records"},
+    {"hooks"},
     {"config"},
     {"__init__"},
 ]
@@ -61,9 +62,10 @@ callbacks (`webhooks`, which write their outbox rows through `records`), Redis a
 (`live`, the only package that knows either; the worker builds the Celery app and hands it in, so
 `live` never imports `worker`), object storage (`storage`), API keys (`security`) and text safe to
 serve (`sanitize`); then the records (the schema, every SQL statement and the unit of work), below
-everything that reads or writes them; and `config` (`ServiceSettings`) at the bottom, because
-every package reads settings and settings read nothing of the service. The operator's `admin`
-commands (which start the control process) sit beside the user's client."""
+everything that reads or writes them; the hook points (`hooks.py`, called by routes and stages,
+knowing nothing of who registers); and `config` (`ServiceSettings`) at the bottom, because every
+package reads settings and settings read nothing of the service. The operator's `admin` commands
+(which start the control process) sit beside the user's client."""
 
 
 def module_name(package: str, path: Path) -> str:

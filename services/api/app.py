@@ -19,6 +19,7 @@ from fastapi import FastAPI
 from redis.backoff import ConstantBackoff
 from redis.retry import Retry
 
+from bayesian_fields_service import hooks
 from bayesian_fields_service.api.body_deadline import BodyDeadline
 from bayesian_fields_service.api.bulk_lane import BulkLane, settle_child
 from bayesian_fields_service.api.docs_page import install_docs
@@ -103,6 +104,7 @@ def create_lane_app() -> FastAPI:
 def create_app(settings: ServiceSettings | None = None) -> FastAPI:
     settings = settings or get_settings()
     apply_log_level(settings)
+    hooks.install(settings)
     store = build_store(settings, request_path=True)
     client = _redis_client(settings)
     state = AppState(

@@ -33,6 +33,7 @@ from typing import Any
 
 import redis
 
+from bayesian_fields_service import hooks
 from bayesian_fields_service.common.jobs import JobStore
 from bayesian_fields_service.common.scenes import SceneStore
 from bayesian_fields_service.config.settings import ServiceSettings, apply_log_level, get_settings
@@ -191,6 +192,7 @@ def main() -> int:
     """The `bfields-service control` command."""
     settings = get_settings()
     apply_log_level(settings)
+    hooks.install(settings)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     control = ControlProcess(settings)
     server = serve_health(control, settings.control_port, settings.control_host)

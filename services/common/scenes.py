@@ -34,6 +34,7 @@ from pydantic import BaseModel, Field
 from sqlalchemy import ARRAY, Connection, Engine, cast, delete, func, insert, select, update
 from sqlalchemy.dialects.postgresql import insert as pg_insert
 
+from bayesian_fields_service.records import answers as answer_records
 from bayesian_fields_service.records.tables import ID, jobs, scenes
 
 SCENE_EXAMPLE_ID = "s_0192f3a1b2c3aa55bb66cc"
@@ -240,7 +241,8 @@ class SceneStore:
         """Mark the scene deleting, in one transaction holding its row ``FOR UPDATE``, unless a
         job on it is queued or running (`SceneBusy`); `SceneGone` when it has no row or is
         already being deleted. Returns the record as it was (its pending uploads are to abort).
-        Once this commits the scene is gone for every reader and for good."""
+        Once this commits the scene is gone for every reader and for good, and so are its jobs'
+        answers (issue 42; the jobs' rows stay: a job's record outlives its scene)."""
         with self.database.begin() as conn:
             row = conn.execute(_one_of(tenant, scene_id).with_for_update()).mappings().first()
             if row is None or row["state"] == DELETING:
@@ -258,6 +260,7 @@ class SceneStore:
                 .where(scenes.c.tenant == tenant, scenes.c.id == scene_id)
                 .values(state=DELETING, updated_at=datetime.now(UTC))
             )
+            answer_records.delete_scene(conn, tenant, scene_id)  # gone with the scene, at once
         return _record_of(row)
 
     def purge(self, tenant: str, scene_id: str) -> None:

@@ -19,14 +19,20 @@ whose selections carry no content key, is read whole for its computed keys (a ba
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from datetime import datetime
 from typing import Any
+
+from sqlalchemy import Engine
 
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.job.store import Store
 from bayesian_fields_core.results.format import SelectedObject
 from bayesian_fields_core.results.reader import read_result, read_summary
-from bayesian_fields_service.common.jobs import JobRecord
+from bayesian_fields_service.common.jobs import JobRecord, utcnow
+from bayesian_fields_service.records import answers as answer_records
+from bayesian_fields_service.storage.stores import tenant_store
 
 log = logging.getLogger(__name__)
 
@@ -105,3 +111,53 @@ def rows_for_finish(store: Store, job: JobRecord, finished_at: datetime) -> list
     except InputError as exc:
         log.warning("answers of %s/%s not indexed: %s", job.tenant, job.id, exc)
         return []
+
+
+@dataclass
+class Backfill:
+    """What `index_existing` did: jobs indexed, answer rows written, jobs whose result could not
+    be read (listed by id, at most `SHOWN`), and how many were left to index when it started."""
+
+    total: int
+    indexed: int = 0
+    rows: int = 0
+    unreadable: list[str] = field(default_factory=list)
+
+    SHOWN = 20
+
+    def line(self) -> str:
+        bad = (
+            f", {len(self.unreadable)} unreadable ({', '.join(self.unreadable[: self.SHOWN])})"
+            if self.unreadable
+            else ""
+        )
+        return (
+            f"indexed {self.indexed} of {self.total} succeeded jobs without answers ({self.rows} rows){bad}"
+        )
+
+
+def index_existing(
+    bucket: Store, database: Engine, *, chunk: int = 200, progress: Callable[[Backfill], None] | None = None
+) -> Backfill:
+    """Answers for every succeeded job that has none (jobs that succeeded before revision 0009):
+    each job's summary read from `bucket` (the whole bucket; tenants by prefix) and its rows
+    written in a transaction of its own, so a stopped run resumes where it was and a second run
+    finds nothing to do. `progress` is called after each chunk."""
+    done = Backfill(total=answer_records.count_unindexed(database))
+    after = ""
+    while batch := answer_records.unindexed_jobs(database, after=after, limit=chunk):
+        for tenant, job_id, scene_id, finished_at in batch:
+            job = JobRecord.model_construct(id=job_id, tenant=tenant, scene_id=scene_id)
+            try:
+                rows = answer_rows(tenant_store(bucket, tenant), job, finished_at or utcnow())
+            except InputError as exc:
+                log.warning("answers of %s/%s not indexed: %s", tenant, job_id, exc)
+                done.unreadable.append(job_id)
+                continue
+            answer_records.write_job(database, job_id, rows)
+            done.indexed += 1
+            done.rows += len(rows)
+        after = batch[-1][1]
+        if progress is not None:
+            progress(done)
+    return done

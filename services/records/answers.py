@@ -232,3 +232,13 @@ def write_job(database: Engine, job_id: str, rows: Sequence[dict[str, Any]]) -> 
         ).first()
         if alive is not None:
             replace_job(conn, job_id, rows)
+
+
+def answer_probability(database: Engine, tenant: str, task: str, job_id: str, rank: int) -> float | None:
+    """The probability of one found answer (a fleet cursor's position), or None when it is gone."""
+    query = select(answers.c.probability).where(
+        answers.c.tenant == tenant, answers.c.job_id == job_id, answers.c.task == task,
+        answers.c.rank == rank, answers.c.found.is_(True),
+    )  # fmt: skip
+    with database.connect() as conn:
+        return conn.execute(query).scalar_one_or_none()

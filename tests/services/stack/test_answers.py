@@ -225,6 +225,46 @@ def test_the_backfill_indexes_jobs_without_answers_once(fleet: dict, api: ApiSer
     assert _all_pages(client_a, path, limit=500) == before
 
 
+def test_the_batch_page_shows_each_tasks_answers_ranked(fleet: dict, api: ApiServer, client_a: httpx.Client,
+                                                        browser) -> None:  # noqa: ANN001  # fmt: skip
+    """In chromium: per task, the scenes where it was found (best first) with a preview linking to
+    the job page, and the count of scenes that answered "not found"."""
+    rows = _all_pages(client_a, f"/v1/batches/{fleet['batch']}/answers", max_rank=1, limit=500)
+    page = browser.new_context(viewport={"width": 1200, "height": 900}).new_page()
+    page.goto(f"{api.base_url}/ui/")
+    page.fill("#api-key", api.keys["tenant-a"])
+    page.click("#login")
+    page.wait_for_selector("#app:not(.hidden)")
+    page.goto(f"{api.base_url}/ui/batches/{fleet['batch']}")
+    page.wait_for_selector("body[data-answers]")
+    assert page.evaluate("document.body.dataset.answers") == str(len(rows))
+    for task in ("red blob", "green blob", "purple elephant"):
+        mine = [r for r in rows if r["task"] == task]
+        best: dict[str, dict] = {}
+        for r in mine:
+            if r["found"] and (r["scene_id"] not in best or r["probability"] > best[r["scene_id"]]["probability"]):
+                best[r["scene_id"]] = r
+        ranked = sorted(best.values(), key=lambda r: -r["probability"])
+        missing = len({r["scene_id"] for r in mine}) - len(ranked)
+        table = page.locator(f"table.answers[data-task='{task}']")
+        caption = table.locator("caption").text_content()
+        assert caption == f"{task}: found in {len(ranked)} scene(s), not found in {missing}"
+        shown = table.locator("tbody tr")
+        assert shown.count() == len(ranked)
+        for i, r in enumerate(ranked):
+            tr = shown.nth(i)
+            assert tr.get_attribute("data-job") == r["job_id"]
+            assert tr.locator("td").nth(2).text_content() == f"{r['probability']:.3f}"
+            assert tr.locator("td a img").count() == 1
+            assert tr.locator("td a").last.get_attribute("href") == f"/ui/jobs/{r['job_id']}"
+    page.wait_for_function(
+        "[...document.querySelectorAll('table.answers img.thumb')].every(i => i.complete && i.naturalWidth > 0)"
+    )
+    assert page.locator("table.answers img.thumb").count() > 0
+    if os.environ.get("BFIELDS_UI_SCREENSHOTS") == "1":
+        page.screenshot(path=str(Path(__file__).resolve().parents[3] / "docs" / "ui-batch-answers.png"), full_page=True)
+
+
 def test_deleting_a_scene_removes_its_answers(fleet: dict, api: ApiServer, client_a: httpx.Client) -> None:
     """Last in the module: it deletes room-2."""
     path = f"/v1/batches/{fleet['batch']}/answers"

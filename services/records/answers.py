@@ -44,8 +44,9 @@ def replace_job(conn: Connection, job_id: str, rows: Sequence[dict[str, Any]]) -
     """The job's answers become `rows` (its earlier rows deleted first): a repeated finish or a
     backfill run twice writes them once. Inside the caller's transaction."""
     conn.execute(delete(answers).where(answers.c.job_id == job_id))
-    if rows:
-        conn.execute(insert(answers), list(rows))
+    if rows:  # every row with every column: one executemany needs one shape ("not found" rows hold few)
+        names = [c.name for c in answers.columns]
+        conn.execute(insert(answers), [{n: row.get(n) for n in names} for row in rows])
 
 
 def delete_scene(conn: Connection, tenant: str, scene_id: str) -> int:

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from sqlalchemy import Connection, Engine, and_, delete, func, insert, literal, or_, select, tuple_
+from sqlalchemy.dialects.postgresql import distinct_on
 from sqlalchemy.sql import Select
 
 from bayesian_fields_service.records.tables import answers, batch_jobs, jobs, scenes
@@ -155,7 +156,7 @@ def fleet(
             )
         )
     latest = (
-        latest.distinct(answers.c.scene_id)
+        latest.ext(distinct_on(answers.c.scene_id))
         .order_by(answers.c.scene_id, answers.c.finished_at.desc(), answers.c.job_id.desc())
         .cte("latest")
     )

@@ -31,7 +31,9 @@ def _rows(job_id: str, scene: str, probs: list[float], *, task: str = "mug", ten
             "task_index": 0}  # fmt: skip
     if not probs:
         return [{**base, "rank": 0, "found": False, "not_found_reason": "too little evidence"}]
-    return [{**base, "rank": i + 1, "found": True, "object_id": i, "probability": p} for i, p in enumerate(probs)]
+    return [
+        {**base, "rank": i + 1, "found": True, "object_id": i, "probability": p} for i, p in enumerate(probs)
+    ]
 
 
 def _write(db: Engine, job_id: str, rows: list[dict]) -> None:
@@ -88,7 +90,9 @@ def test_batch_pages_follow_submission_order_and_never_repeat(records_db: Engine
     sure = records.batch_page(records_db, "t1", "b1", records.AnswerFilter(min_probability=0.5, max_rank=1),
                               after=None, limit=100)  # fmt: skip
     assert [(r["job_id"], r["rank"]) for r in sure] == [("j1", 1), ("j3", 1)]
-    missing = records.batch_page(records_db, "t1", "b1", records.AnswerFilter(found=False), after=None, limit=100)
+    missing = records.batch_page(
+        records_db, "t1", "b1", records.AnswerFilter(found=False), after=None, limit=100
+    )
     assert [r["job_id"] for r in missing] == ["j0", "j2", "j4"]
 
 
@@ -104,7 +108,9 @@ def test_the_fleet_takes_each_scenes_latest_job_and_counts_the_misses(records_db
     every = records.fleet(records_db, "t1", "mug", best_only=False, limit=10)
     assert [(r["job_id"], r["rank"]) for r in every.rows] == [("j2", 1), ("j3", 1), ("j2", 2)]
     first = records.fleet(records_db, "t1", "mug", best_only=False, limit=1).rows[0]
-    rest = records.fleet(records_db, "t1", "mug", best_only=False, after=(first["probability"], "j2", 1), limit=10)
+    rest = records.fleet(
+        records_db, "t1", "mug", best_only=False, after=(first["probability"], "j2", 1), limit=10
+    )
     assert [(r["job_id"], r["rank"]) for r in rest.rows] == [("j3", 1), ("j2", 2)]
     assert records.fleet(records_db, "t2", "mug", limit=10).asked == 0
 

@@ -47,7 +47,9 @@ def fleet(api: ApiServer, workers: WorkerPool, scene_dir: Path) -> dict:
             resp = client.post("/v1/scenes", files=scene_form(scene_dir), data={"name": name})
             assert resp.status_code == 201, resp.text
             scenes.append(resp.json()["id"])
-        resp = client.post("/v1/batches", json={"scene_ids": scenes, "task_lists": TASK_LISTS, "parameters": PARAMS})
+        resp = client.post(
+            "/v1/batches", json={"scene_ids": scenes, "task_lists": TASK_LISTS, "parameters": PARAMS}
+        )
         assert resp.status_code == 202, resp.text
         batch = resp.json()
         done = _wait_batch(client, batch["id"])
@@ -87,12 +89,21 @@ def test_every_job_answer_is_a_row_equal_to_its_summary(fleet: dict, client_a: h
             assert best["best_view_score"] == pytest.approx(first["best_view_score"])
             assert best["num_gaussians"] == first["num_gaussians"]
             framed = first.get("world_frame") or first.get("capture_frame") or first
-            assert [best["centre_x"], best["centre_y"], best["centre_z"]] == pytest.approx(framed["box"]["center"])
-            assert [best["centroid_x"], best["centroid_y"], best["centroid_z"]] == pytest.approx(framed["centroid"])
-            assert best["rotation"] == pytest.approx(framed["box"]["rotation"])
+            assert [best["centre_x"], best["centre_y"], best["centre_z"]] == pytest.approx(
+                framed["box"]["center"]
+            )
+            assert [best["centroid_x"], best["centroid_y"], best["centroid_z"]] == pytest.approx(
+                framed["centroid"]
+            )
+            assert sum(best["rotation"], []) == pytest.approx(sum(framed["box"]["rotation"], []))
             index = summary["tasks"].index(entry["task"])
             assert best["preview"] == "result/" + summary["previews"]["tasks"][index]["file"]
-            assert client_a.get(best["preview_url"]).status_code == 200 if best["preview_url"].startswith("http") else True
+            image = (
+                httpx.get(best["preview_url"])
+                if best["preview_url"].startswith("http")
+                else client_a.get(best["preview_url"])
+            )
+            assert image.status_code == 200 and image.content.startswith(b"\x89PNG")
 
 
 def test_pages_are_stable_and_filters_apply(fleet: dict, client_a: httpx.Client) -> None:
@@ -111,7 +122,11 @@ def test_pages_are_stable_and_filters_apply(fleet: dict, client_a: httpx.Client)
     assert all(r["probability"] >= 0.5 for r in sure)
     assert len(sure) == sum(1 for r in whole if r["probability"] is not None and r["probability"] >= 0.5)
     one = _all_pages(client_a, path, scene="room-2")
-    assert one and {r["scene_id"] for r in one} == {fleet["scenes"][1]} and {r["scene_name"] for r in one} == {"room-2"}
+    assert (
+        one
+        and {r["scene_id"] for r in one} == {fleet["scenes"][1]}
+        and {r["scene_name"] for r in one} == {"room-2"}
+    )
     missing = _all_pages(client_a, path, found="false")
     assert all(not r["found"] and r["rank"] == 0 for r in missing)
     assert len(missing) == sum(1 for r in whole if not r["found"])
@@ -130,7 +145,9 @@ def test_the_whole_table_streams_as_csv_and_json_lines(fleet: dict, client_a: ht
         (r["job_id"], r["task_index"], r["rank"]) for r in whole
     ]
     found = [r for r in table if r["found"] == "True"]
-    assert [float(r["probability"]) for r in found] == pytest.approx([r["probability"] for r in whole if r["found"]])
+    assert [float(r["probability"]) for r in found] == pytest.approx(
+        [r["probability"] for r in whole if r["found"]]
+    )
 
     lines = client_a.get(path, headers={"Accept": "application/x-ndjson"})
     assert lines.headers["content-type"].startswith("application/x-ndjson")
@@ -155,7 +172,9 @@ def test_the_fleet_search_ranks_each_scenes_latest_answer(fleet: dict, client_a:
     probs = [r["probability"] for r in body["items"]]
     assert probs == sorted(probs, reverse=True) and all(r["rank"] == 1 for r in body["items"])
     every = _all_pages(client_a, "/v1/answers", task="red blob", all_ranks="true", limit=1)
-    assert len(every) >= len(body["items"]) and {r["job_id"] for r in every} <= {j["id"] for j in latest.values()}
+    assert len(every) >= len(body["items"]) and {r["job_id"] for r in every} <= {
+        j["id"] for j in latest.values()
+    }
     scoped = client_a.get("/v1/answers", params={"task": "red", "batch": fleet["batch"]}).json()
     assert scoped["asked"] == 2 and scoped["task"] == "red blob"
     nobody = client_a.get("/v1/answers", params={"task": "a unicorn"}).json()
@@ -167,7 +186,9 @@ def test_another_tenant_sees_nothing(fleet: dict, client_b: httpx.Client) -> Non
     assert client_b.get(f"/v1/batches/{fleet['batch']}/answers", params={"format": "csv"}).status_code == 404
     theirs = client_b.get("/v1/answers", params={"task": "red blob"}).json()
     assert (theirs["asked"], theirs["items"]) == (0, [])
-    assert client_b.get("/v1/answers", params={"task": "red blob", "batch": fleet["batch"]}).status_code == 404
+    assert (
+        client_b.get("/v1/answers", params={"task": "red blob", "batch": fleet["batch"]}).status_code == 404
+    )
 
 
 @pytest.mark.parametrize(
@@ -206,7 +227,9 @@ def test_hostile_query_values_are_422_naming_the_field(
     assert client_a.get("/v1/answers", params={"task": "red", "cursor": "j_00.1"}).status_code == 422
 
 
-def test_the_backfill_indexes_jobs_without_answers_once(fleet: dict, api: ApiServer, client_a: httpx.Client) -> None:
+def test_the_backfill_indexes_jobs_without_answers_once(
+    fleet: dict, api: ApiServer, client_a: httpx.Client
+) -> None:
     path = f"/v1/batches/{fleet['batch']}/answers"
     before = _all_pages(client_a, path, limit=500)
     url = api.env["BFIELDS_DATABASE_URL"]
@@ -242,7 +265,9 @@ def test_the_batch_page_shows_each_tasks_answers_ranked(fleet: dict, api: ApiSer
         mine = [r for r in rows if r["task"] == task]
         best: dict[str, dict] = {}
         for r in mine:
-            if r["found"] and (r["scene_id"] not in best or r["probability"] > best[r["scene_id"]]["probability"]):
+            if r["found"] and (
+                r["scene_id"] not in best or r["probability"] > best[r["scene_id"]]["probability"]
+            ):
                 best[r["scene_id"]] = r
         ranked = sorted(best.values(), key=lambda r: -r["probability"])
         missing = len({r["scene_id"] for r in mine}) - len(ranked)
@@ -262,7 +287,9 @@ def test_the_batch_page_shows_each_tasks_answers_ranked(fleet: dict, api: ApiSer
     )
     assert page.locator("table.answers img.thumb").count() > 0
     if os.environ.get("BFIELDS_UI_SCREENSHOTS") == "1":
-        page.screenshot(path=str(Path(__file__).resolve().parents[3] / "docs" / "ui-batch-answers.png"), full_page=True)
+        page.screenshot(
+            path=str(Path(__file__).resolve().parents[3] / "docs" / "ui-batch-answers.png"), full_page=True
+        )
 
 
 def test_deleting_a_scene_removes_its_answers(fleet: dict, api: ApiServer, client_a: httpx.Client) -> None:

@@ -227,6 +227,37 @@ def test_hostile_query_values_are_422_naming_the_field(
     assert client_a.get("/v1/answers", params={"task": "red", "cursor": "j_00.1"}).status_code == 422
 
 
+def test_the_cli_prints_the_batch_and_the_fleet(
+    fleet: dict, api: ApiServer, client_a: httpx.Client, tmp_path: Path
+) -> None:
+    """`bfields answers` as a user runs it (a subprocess, piped): CSV to a file equal to the API's
+    rows; the table piped, whole; --all ranks the fleet; a bad request is one line and exit 2."""
+    env = {
+        **os.environ,
+        "BFIELDS_SERVER": api.base_url,
+        "BFIELDS_API_KEY": api.keys["tenant-a"],
+        "COLUMNS": "60",
+    }
+    cli = [sys.executable, "-m", "bayesian_fields_core.cli", "answers"]
+    out = tmp_path / "a.csv"
+    done = subprocess.run([*cli, fleet["batch"], "--task", "red", "--format", "csv", "--out", str(out)],
+                          env=env, capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    table = list(csv.DictReader(out.open()))
+    rows = _all_pages(client_a, f"/v1/batches/{fleet['batch']}/answers", task="red blob")
+    assert [(r["job_id"], int(r["rank"])) for r in table] == [(r["job_id"], r["rank"]) for r in rows]
+    shown = subprocess.run([*cli, fleet["batch"]], env=env, capture_output=True, text=True, timeout=120)
+    assert shown.returncode == 0 and all(r["job_id"] in shown.stdout for r in rows)  # never cut at 60 columns
+    best = subprocess.run([*cli, "--all", "--task", "red blob", "--format", "json"], env=env, capture_output=True,
+                          text=True, timeout=120)  # fmt: skip
+    listed = json.loads(best.stdout)
+    assert [r["job_id"] for r in listed] == [
+        r["job_id"] for r in client_a.get("/v1/answers", params={"task": "red blob"}).json()["items"]
+    ]
+    bad = subprocess.run([*cli, "--all"], env=env, capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2 and "--all needs --task" in bad.stderr and "Traceback" not in bad.stderr
+
+
 def _without_links(rows: list[dict]) -> list[dict]:
     """Rows without `preview_url`: a presigned link differs from one request to the next."""
     return [{k: v for k, v in r.items() if k != "preview_url"} for r in rows]

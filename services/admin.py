@@ -4,6 +4,7 @@
     bfields-service db-revision                                    print the database's revision
     bfields-service control                                        run the control process
     bfields-service import-scenes                                  scene records of the bucket -> rows
+    bfields-service index-answers                                  answers of earlier succeeded jobs -> rows
 
 Why a separate command from `bfields`: these act on the deployment's database with the
 deployment's settings (`BFIELDS_DATABASE_URL`), run from an init container or by hand in an
@@ -19,6 +20,24 @@ import sys
 from sqlalchemy.engine import make_url
 
 
+def _index_answers(url: str) -> int:
+    """`index-answers`: the backfill of `jobs.answers.index_existing`, with a progress line per chunk."""
+    from bayesian_fields_service.config.settings import get_settings
+    from bayesian_fields_service.jobs.answers import index_existing
+    from bayesian_fields_service.records.database import open_records
+    from bayesian_fields_service.storage.stores import build_store
+
+    settings = get_settings()
+    database = open_records(url, migrate_first=True)
+
+    def progress(done: object) -> None:
+        print(f"... {done.line()}", flush=True)  # type: ignore[attr-defined]
+
+    done = index_existing(build_store(settings), database, progress=progress)
+    print(done.line())
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="bfields-service", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -31,6 +50,10 @@ def main(argv: list[str] | None = None) -> int:
     )
     sub.add_parser(
         "import-scenes", help="rows for the scene records an earlier release kept in the bucket (idempotent)"
+    )
+    sub.add_parser(
+        "index-answers",
+        help="answer rows for succeeded jobs that have none (after upgrading to revision 0009; resumable, idempotent)",
     )
     args = parser.parse_args(argv)
     if args.command == "control":
@@ -55,6 +78,8 @@ def main(argv: list[str] | None = None) -> int:
 
             print(run_import(get_settings()).line())
             return 0
+        if args.command == "index-answers":
+            return _index_answers(url)
         if args.create_database and create_database(url):
             print(f"created database {make_url(url).database}")
         print(f"{shown}: at revision {run(url, args.revision) or 'none'}")

@@ -50,6 +50,7 @@ from bayesian_fields_service.common.scenes import lock_ready
 from bayesian_fields_service.common.usage import JobUsage
 from bayesian_fields_service.live import redis_keys
 from bayesian_fields_service.live.redis_text import text
+from bayesian_fields_service.records import answers as answer_records
 from bayesian_fields_service.records import jobs as job_rows
 from bayesian_fields_service.records import keys
 from bayesian_fields_service.records.leases import Fence
@@ -386,18 +387,24 @@ class JobStore:
             if retry_in is not None:
                 batch_records.replace_jobs(conn, retry_in, {r.retry_of: r.id for r in records if r.retry_of})
 
-    def save(self, record: JobRecord) -> JobRecord:
+    def save(self, record: JobRecord, *, answers: Sequence[dict[str, Any]] = ()) -> JobRecord:
         """Write `record`, merged with the stored row (see `_merge`) under the row's lock so the
         API's cancel and a worker's stage update never lose each other's fields.
 
         A job whose cancel was accepted never becomes *succeeded*: a success written after (or
         racing with) an accepted cancel is stored as *cancelled* (`request_cancel` sets the flag
         under the same row lock, so the two are ordered). The caller removes the result
-        (`pipeline.discard_result`) when the saved state is cancelled."""
+        (`pipeline.discard_result`) when the saved state is cancelled.
+
+        `answers` (the rows of `jobs.answers`, read from the result before this transaction) are
+        written in the transaction that makes the job succeeded, replacing any it had: a success
+        and its answers commit together or not at all (issue 42)."""
         with db.begin(self.database) as conn:
             old = self._locked(conn, record.tenant, record.id)
             merged = self._merge_and_write(conn, old, record)
             if merged.state.terminal and (old is None or not old.state.terminal):
+                if merged.state == JobState.succeeded:
+                    answer_records.replace_job(conn, merged.id, answers)
                 self._queue_callbacks(conn, [merged])
         return self._after_write(merged)
 

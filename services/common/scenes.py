@@ -34,6 +34,7 @@ from pydantic import BaseModel, Field
 from sqlalchemy import Connection, Engine
 
 from bayesian_fields_service import records
+from bayesian_fields_service.records import answers as answer_records
 from bayesian_fields_service.records import jobs as job_rows
 from bayesian_fields_service.records import scenes as scene_rows
 
@@ -219,7 +220,8 @@ class SceneStore:
         """Mark the scene deleting, in one transaction holding its row ``FOR UPDATE``, unless a
         job on it is queued or running (`SceneBusy`); `SceneGone` when it has no row or is
         already being deleted. Returns the record as it was (its pending uploads are to abort).
-        Once this commits the scene is gone for every reader and for good."""
+        Once this commits the scene is gone for every reader and for good, and so are its jobs'
+        answers (issue 42; the jobs' rows stay: a job's record outlives its scene)."""
         with records.begin(self.database) as conn:
             row = scene_rows.load(conn, tenant, scene_id, lock=True)
             if row is None or row["state"] == DELETING:
@@ -228,6 +230,7 @@ class SceneStore:
             if active is not None:
                 raise SceneBusy(scene_id, active["id"], active["state"])
             scene_rows.set_deleting(conn, tenant, scene_id)
+            answer_records.delete_scene(conn, tenant, scene_id)  # gone with the scene, at once
         return _record_of(row)
 
     def purge(self, tenant: str, scene_id: str) -> None:

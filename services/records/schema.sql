@@ -150,6 +150,44 @@ CREATE INDEX ix_jobs_tenant_state_created_at_id ON jobs (tenant, state, created_
 
 CREATE INDEX ix_jobs_waiting ON jobs (tenant, priority, created_at, id) WHERE state = 'queued' AND dispatched_at IS NULL;
 
+CREATE TABLE answers (
+    job_id VARCHAR(40) NOT NULL,
+    task_index INTEGER NOT NULL,
+    rank INTEGER NOT NULL,
+    tenant VARCHAR(64) NOT NULL,
+    scene_id VARCHAR(40) NOT NULL,
+    finished_at TIMESTAMP WITH TIME ZONE NOT NULL,
+    task TEXT NOT NULL,
+    found BOOLEAN NOT NULL,
+    object_id INTEGER,
+    content_key VARCHAR(64),
+    probability DOUBLE PRECISION,
+    best_view_score DOUBLE PRECISION,
+    score DOUBLE PRECISION,
+    ranked_by VARCHAR(16),
+    num_gaussians INTEGER,
+    frame VARCHAR(8),
+    centre_x DOUBLE PRECISION,
+    centre_y DOUBLE PRECISION,
+    centre_z DOUBLE PRECISION,
+    extent_x DOUBLE PRECISION,
+    extent_y DOUBLE PRECISION,
+    extent_z DOUBLE PRECISION,
+    centroid_x DOUBLE PRECISION,
+    centroid_y DOUBLE PRECISION,
+    centroid_z DOUBLE PRECISION,
+    rotation JSONB,
+    preview VARCHAR(255),
+    not_found_reason TEXT,
+    CONSTRAINT pk_answers PRIMARY KEY (job_id, task_index, rank),
+    CONSTRAINT ck_answers_rank CHECK (rank >= 0 AND task_index >= 0),
+    CONSTRAINT fk_answers_job_id_jobs FOREIGN KEY(job_id) REFERENCES jobs (id) ON DELETE CASCADE
+);
+
+CREATE INDEX ix_answers_tenant_scene_id ON answers (tenant, scene_id);
+
+CREATE INDEX ix_answers_tenant_task_scene_id_finished_at ON answers (tenant, task, scene_id, finished_at);
+
 CREATE TABLE batch_jobs (
     batch_id VARCHAR(40) NOT NULL,
     position INTEGER NOT NULL,

@@ -4,6 +4,7 @@
     bfields-service db-revision                                    print the database's revision
     bfields-service control                                        run the control process
     bfields-service import-scenes                                  scene records of the bucket -> rows
+    bfields-service index-answers                                  answers of earlier succeeded jobs -> rows
 
 Why a separate command from `bfields`: these act on the deployment's database with the
 deployment's settings (`BFIELDS_DATABASE_URL`), run from an init container or by hand in an
@@ -16,23 +17,25 @@ from __future__ import annotations
 import argparse
 import sys
 
-from sqlalchemy import text
 from sqlalchemy.engine import make_url
 
 
-def _create_database(url: str) -> bool:
-    """Create the database `url` names when it does not exist (connecting to `postgres`)."""
-    from bayesian_fields_service.records.database import engine
+def _index_answers(url: str) -> int:
+    """`index-answers`: the backfill of `jobs.answers.index_existing`, with a progress line per chunk."""
+    from bayesian_fields_service.config.settings import get_settings
+    from bayesian_fields_service.jobs.answers import index_existing
+    from bayesian_fields_service.records.database import open_records
+    from bayesian_fields_service.storage.stores import build_store
 
-    target = make_url(url)
-    name = target.database
-    admin = target.set(database="postgres")
-    eng = engine(admin.render_as_string(hide_password=False)).execution_options(isolation_level="AUTOCOMMIT")
-    with eng.connect() as conn:
-        if conn.execute(text("SELECT 1 FROM pg_database WHERE datname = :n"), {"n": name}).first():
-            return False
-        conn.execute(text(f'CREATE DATABASE "{name}"'))
-        return True
+    settings = get_settings()
+    database = open_records(url, migrate_first=True)
+
+    def progress(done: object) -> None:
+        print(f"... {done.line()}", flush=True)  # type: ignore[attr-defined]
+
+    done = index_existing(build_store(settings), database, progress=progress)
+    print(done.line())
+    return 0
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -48,6 +51,10 @@ def main(argv: list[str] | None = None) -> int:
     sub.add_parser(
         "import-scenes", help="rows for the scene records an earlier release kept in the bucket (idempotent)"
     )
+    sub.add_parser(
+        "index-answers",
+        help="answer rows for succeeded jobs that have none (after upgrading to revision 0009; resumable, idempotent)",
+    )
     args = parser.parse_args(argv)
     if args.command == "control":
         from bayesian_fields_service.control.process import main as run_control
@@ -57,7 +64,7 @@ def main(argv: list[str] | None = None) -> int:
     from sqlalchemy.exc import OperationalError
 
     from bayesian_fields_service.config.settings import get_settings
-    from bayesian_fields_service.records.database import current_revision, head_revision
+    from bayesian_fields_service.records.database import create_database, current_revision, head_revision
     from bayesian_fields_service.records.database import migrate as run
 
     url = get_settings().database_url
@@ -71,7 +78,9 @@ def main(argv: list[str] | None = None) -> int:
 
             print(run_import(get_settings()).line())
             return 0
-        if args.create_database and _create_database(url):
+        if args.command == "index-answers":
+            return _index_answers(url)
+        if args.create_database and create_database(url):
             print(f"created database {make_url(url).database}")
         print(f"{shown}: at revision {run(url, args.revision) or 'none'}")
         return 0

@@ -50,20 +50,22 @@ SERVICE_LAYERS: list[set[str]] = [
     {"common"},
     {"webhooks", "live", "storage", "security", "sanitize"},
     {"records"},
+    {"hooks"},
     {"config"},
     {"__init__"},
 ]
 """The service's packages, top down, as their imports stand: the control process sends stages
 through the worker's Celery app and sits beside the API (neither imports the other); both and the
-workers call the jobs domain (`jobs`), which works over the records' access and rules still in
-`common`; below them the adapters, one job each and none importing another: the callbacks
-(`webhooks`, which write their outbox rows through `records`), Redis and the broker (`live`, the
-only package that knows either; the worker builds the Celery app and hands it in, so `live` never
-imports `worker`), object storage (`storage`), API keys (`security`) and text safe to serve
-(`sanitize`); then the records schema, below everything that reads or writes it; and `config`
-(`ServiceSettings`) at the bottom, because every package reads settings and settings read nothing
-of the service. The operator's `admin` commands (which start the control process) sit beside the
-user's client."""
+workers call the jobs domain (`jobs`), which works over the rules still in `common`, which call
+the records' repositories; below them the adapters, one job each and none importing another: the
+callbacks (`webhooks`, which write their outbox rows through `records`), Redis and the broker
+(`live`, the only package that knows either; the worker builds the Celery app and hands it in, so
+`live` never imports `worker`), object storage (`storage`), API keys (`security`) and text safe to
+serve (`sanitize`); then the records (the schema, every SQL statement and the unit of work), below
+everything that reads or writes them; the hook points (`hooks.py`, called by routes and stages,
+knowing nothing of who registers); and `config` (`ServiceSettings`) at the bottom, because every
+package reads settings and settings read nothing of the service. The operator's `admin` commands
+(which start the control process) sit beside the user's client."""
 
 
 def module_name(package: str, path: Path) -> str:

@@ -74,7 +74,9 @@ class NotFound:
             )
             if str(data["rule"]) in LEGACY_RULES and None not in (score, object_id, threshold):
                 # an older result's reason ("has peak 0.632 < 0.640806"), said as today's
-                found.reason = not_found_reason(found.object_id, found.score, found.threshold).reason
+                today = not_found_reason(found.object_id, found.score, found.threshold)
+                if today is not None:  # None: today's rule would answer it; keep the stored words
+                    found.reason = today.reason
             return found
         except KeyError as exc:
             raise InputError(f"result summary: not_found missing field {exc.args[0]!r}") from None

@@ -47,7 +47,7 @@ class Models:
         self.load_seconds: dict[str, float] = {}
         self._calibration: Calibration | None = None
         self._calibration_loaded = False
-        #: Applied to the encoder when it is built (a worker's test-only call counter wraps it).
+        #: Applied to the encoder when it is built (a service worker passes it through its hooks).
         self.encoder_wrapper: Callable[[Encoder], Encoder] | None = None
 
     def describe(self, role: str) -> str:

@@ -19,12 +19,13 @@ from fastapi import FastAPI
 from redis.backoff import ConstantBackoff
 from redis.retry import Retry
 
+from bayesian_fields_service import hooks
 from bayesian_fields_service.api.body_deadline import BodyDeadline
 from bayesian_fields_service.api.bulk_lane import BulkLane, settle_child
 from bayesian_fields_service.api.docs_page import install_docs
 from bayesian_fields_service.api.edge import Utf8Guard, install_handlers
 from bayesian_fields_service.api.json_body import add_body_schemas
-from bayesian_fields_service.api.routes import events, health, jobs, metrics, scenes, ui, usage
+from bayesian_fields_service.api.routes import answers, events, health, jobs, metrics, scenes, ui, usage
 from bayesian_fields_service.api.routes.metrics import metrics_registry
 from bayesian_fields_service.api.schemas import BatchRequest
 from bayesian_fields_service.api.state import AppState
@@ -103,6 +104,7 @@ def create_lane_app() -> FastAPI:
 def create_app(settings: ServiceSettings | None = None) -> FastAPI:
     settings = settings or get_settings()
     apply_log_level(settings)
+    hooks.install(settings)
     store = build_store(settings, request_path=True)
     client = _redis_client(settings)
     state = AppState(
@@ -126,7 +128,7 @@ def create_app(settings: ServiceSettings | None = None) -> FastAPI:
     install_docs(app, app.title)
     app.state.bf = state
     app.state.key_ring = state.key_ring
-    for module in (scenes, jobs, health, metrics, ui, events, usage):
+    for module in (scenes, jobs, answers, health, metrics, ui, events, usage):
         app.include_router(module.router)
     add_body_schemas(app, [BatchRequest])  # the bodies routes parse themselves (json_body.py)
     install_handlers(app, settings.retry_after_s)

@@ -13,7 +13,7 @@ from datetime import date
 from typing import Annotated
 
 from fastapi import Query
-from pydantic import AfterValidator
+from pydantic import AfterValidator, StringConstraints
 
 from bayesian_fields_service.common.jobs import id_pattern
 
@@ -66,3 +66,82 @@ PositionCursor = Annotated[
 ]
 #: A day of a usage period (YYYY-MM-DD, within `YEARS`).
 Day = Annotated[date | None, AfterValidator(_in_years)]
+
+
+# ---- answers (issue 42) ------------------------------------------------------------------------
+#: The longest task text or scene name a filter may give: longer than any stored one can be
+#: (`max_task_chars`, a scene name's 255), so a longer one is a client's mistake, not a miss.
+FILTER_CHARS = 1000
+#: A task's index and an answer's rank in a cursor: a job holds at most `max_tasks` tasks and
+#: `top_k` objects per task, both far below this.
+MAX_RANK = 100_000
+
+
+def _printable(value: str | None) -> str | None:
+    """Text without control characters (a NUL cannot reach PostgreSQL; a newline in a filter is
+    never a stored task's), and not blank."""
+    if value is None:
+        return None
+    if not value.strip():
+        raise ValueError("must not be blank")
+    if any(ord(c) < 32 or ord(c) == 127 for c in value):
+        raise ValueError("must not contain control characters (NUL, newline, tab, ...)")
+    return value
+
+
+def _answer_cursor(value: str | None) -> tuple[int, int, int] | None:
+    """`position.task_index.rank` of the previous page's last answer."""
+    if value is None:
+        return None
+    position, index, rank = (int(v) for v in value.split("."))
+    if position > MAX_POSITION or index > MAX_RANK or rank > MAX_RANK:
+        raise ValueError("not a cursor this service wrote; send next_cursor of the previous page")
+    return position, index, rank
+
+
+def _fleet_cursor(value: str | None) -> tuple[str, int] | None:
+    """`job_id.rank` of the previous page's last answer."""
+    if value is None:
+        return None
+    job_id, rank = value.split(".")
+    if int(rank) > MAX_RANK:
+        raise ValueError("not a cursor this service wrote; send next_cursor of the previous page")
+    return job_id, int(rank)
+
+
+#: A task filter: its exact text or a unique part of it (as `bfields export --task`).
+TaskText = Annotated[
+    str | None,
+    Query(max_length=FILTER_CHARS, description="the task's text, or a unique part of it ('mug')"),
+    AfterValidator(_printable),
+]
+#: A scene filter of the answer routes: a scene's name or id.
+SceneName = Annotated[
+    str | None,
+    Query(max_length=FILTER_CHARS, description="only this scene's answers (its name or id)"),
+    AfterValidator(_printable),
+]
+#: The least probability an answer may have, in [0, 1].
+MinProbability = Annotated[
+    float | None,
+    Query(ge=0.0, le=1.0, allow_inf_nan=False, description="answers at least this probable (0-1)"),
+]
+#: The greatest rank kept (1 = only each task's best object).
+MaxRank = Annotated[int | None, Query(ge=1, le=MAX_RANK, description="answers up to this rank (1 = best)")]
+#: `GET /v1/batches/{id}/answers?cursor=`.
+AnswerCursor = Annotated[
+    str | None,
+    Query(pattern=r"^[0-9]{1,10}\.[0-9]{1,6}\.[0-9]{1,6}$", description="next_cursor of the previous page"),
+    AfterValidator(_answer_cursor),
+]
+#: `GET /v1/answers?cursor=`.
+FleetCursor = Annotated[
+    str | None,
+    Query(pattern=id_pattern("j_")[:-1] + r"\.[0-9]{1,6}$", description="next_cursor of the previous page"),
+    AfterValidator(_fleet_cursor),
+]
+#: `GET /v1/answers?batch=`: batch ids (repeat the parameter), at most 100.
+BatchIds = Annotated[
+    list[Annotated[str, StringConstraints(pattern=id_pattern("b_"))]] | None,
+    Query(max_length=100, description="only these batches' jobs (repeat: batch=b_..&batch=b_..)"),
+]

@@ -314,6 +314,45 @@ class BFieldsClient:
             if not cursor:
                 return
 
+    def answers(
+        self,
+        batch_id: str | None = None,
+        *,
+        task: str | None = None,
+        min_probability: float | None = None,
+        max_rank: int | None = None,
+        found: bool | None = None,
+        scene: str | None = None,
+        all_ranks: bool = False,
+        page: int = 500,
+    ) -> Iterator[dict[str, Any]]:
+        """Answers as rows, a page at a time: a batch's (`batch_id`; every task, or `task`), or
+        with no batch one task's across your fleet (`task` required: each scene's latest
+        succeeded job that asked it, best first; `all_ranks` for every ranked object)."""
+        params: dict[str, Any] = {"limit": page, "task": task, "min_probability": min_probability}
+        if batch_id is not None:
+            path = f"/v1/batches/{batch_id}/answers"
+            params |= {"max_rank": max_rank, "scene": scene,
+                       "found": None if found is None else str(found).lower()}  # fmt: skip
+        else:
+            path, params["all_ranks"] = "/v1/answers", str(all_ranks).lower()
+        params = {k: v for k, v in params.items() if v is not None}
+        cursor: str | None = None
+        while True:
+            got = self._call("GET", path, params={**params, **({"cursor": cursor} if cursor else {})})
+            yield from got["items"]
+            cursor = got.get("next_cursor")
+            if not cursor:
+                return
+
+    def fleet_answers(self, task: str, *, min_probability: float | None = None) -> dict[str, Any]:
+        """The first page of one task's fleet search with its counts (`asked`, `found`, `not_found`)."""
+        params = {
+            "task": task,
+            **({"min_probability": min_probability} if min_probability is not None else {}),
+        }
+        return self._call("GET", "/v1/answers", params=params)
+
     def cancel_batch(self, batch_id: str) -> dict[str, Any]:
         return self._call("POST", f"/v1/batches/{batch_id}/cancel")
 

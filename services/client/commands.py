@@ -234,6 +234,19 @@ def batch(manifest: str | Path, *, server: str | None = None, api_key: str | Non
         return 0 if not failed else 1
 
 
+def answers(batch_id: str | None, *, everything: bool = False, task: str | None = None,
+            min_probability: float | None = None, fmt: str = "table", out: str | None = None,
+            server: str | None = None, api_key: str | None = None) -> int:  # fmt: skip
+    """`bfields answers`: a batch's or the fleet's answers as one table (`client.answers`)."""
+    from bayesian_fields_service.client.answers import answers as show
+    from bayesian_fields_service.client.answers import check
+
+    check(batch_id, everything=everything, task=task, fmt=fmt)
+    with _client(server, api_key) as client:
+        return show(client, batch_id, everything=everything, task=task, min_probability=min_probability,
+                    fmt=fmt, out=out)  # fmt: skip
+
+
 def run_verb(fn: Any, **kwargs: Any) -> int:
     """Call a client verb; a client or input error is one red line and exit status 2."""
     try:

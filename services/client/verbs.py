@@ -1,4 +1,4 @@
-"""The client verbs' arguments: `bfields submit | status | fetch | batch`.
+"""The client verbs' arguments: `bfields submit | status | fetch | batch | answers`.
 
 `register_client_commands(subparsers)` adds them to a `bfields`-style parser. Only argparse and the
 library's shared job arguments (`bayesian_fields_core.cli.job_options`) are imported here: the
@@ -54,6 +54,21 @@ def _batch(a: argparse.Namespace) -> int:
                  out=a.out, priority=a.priority, params=a.params, param=a.param)  # fmt: skip
 
 
+def _answers(a: argparse.Namespace) -> int:
+    return _call("answers", batch_id=a.batch_id, everything=a.all, task=a.task, min_probability=a.min_probability,
+                 fmt=a.format, out=a.out, server=a.server, api_key=a.api_key)  # fmt: skip
+
+
+def _probability(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number between 0 and 1") from None
+    if not 0.0 <= value <= 1.0:
+        raise argparse.ArgumentTypeError(f"{text!r} is not between 0 and 1")
+    return value
+
+
 def register_client_commands(subparsers: argparse._SubParsersAction) -> None:
     """Add submit/status/fetch/batch to a `bfields` argparse parser (handler in `func`)."""
     p = subparsers.add_parser("submit", help="upload a scene folder and submit a job to the service")
@@ -87,6 +102,22 @@ def register_client_commands(subparsers: argparse._SubParsersAction) -> None:
     _priority(p, "bulk")
     _common(p)
     p.set_defaults(func=_batch)
+
+    p = subparsers.add_parser(
+        "answers",
+        help="a batch's answers, or one task's across every scene of yours (--all), as one table",
+        description="Example: bfields answers b_0123... --task mug --format csv --out mugs.csv; "
+        "bfields answers --all --task 'fire extinguisher' --min-probability 0.5",
+    )
+    p.add_argument("batch_id", nargs="?", help="the batch (leave out with --all)")
+    p.add_argument("--all", action="store_true", help="every scene's latest succeeded job that asked --task")
+    p.add_argument("--task", help="the task: its text, or a unique part of it (required with --all)")
+    p.add_argument("--min-probability", type=_probability, help="only answers at least this probable (0-1)")
+    p.add_argument("--format", choices=("table", "tsv", "csv", "json"), default="table",
+                   help="table (default; whole when piped), tsv, csv or json (every column)")  # fmt: skip
+    p.add_argument("--out", help="write to this file instead of stdout")
+    _common(p)
+    p.set_defaults(func=_answers)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -29,21 +29,17 @@ from dataclasses import dataclass, field
 from datetime import datetime
 from typing import Any, Literal
 
-from sqlalchemy import Connection, Engine, and_, func, literal, select, tuple_, update
+from sqlalchemy import Connection, Engine
 
+from bayesian_fields_service import records
+from bayesian_fields_service.records import queue
 from bayesian_fields_service.records.leases import Fence, assert_lease
-from bayesian_fields_service.records.locks import lock_key
-from bayesian_fields_service.records.tables import jobs
 
 Priority = Literal["interactive", "bulk"]
 PRIORITIES: tuple[Priority, ...] = ("interactive", "bulk")
 
 #: Seconds of dispatch history used for a tenant's dispatch rate (the estimated start).
 RATE_WINDOW_S = 600.0
-
-_ACTIVE = ("queued", "running")
-WAITING = and_(jobs.c.state == "queued", jobs.c.dispatched_at.is_(None))
-DISPATCHED = and_(jobs.c.dispatched_at.is_not(None), jobs.c.state.in_(_ACTIVE))
 
 
 class AdmissionRefused(Exception):
@@ -63,13 +59,10 @@ def admit(conn: Connection, tenant: str, asked: int, limit: int) -> int:
     """In the caller's inserting transaction: hold the tenant's admission lock (until commit) and
     count its unfinished jobs; `AdmissionRefused` when `asked` more would pass `limit`. Returns
     the count before the new jobs."""
-    conn.execute(select(func.pg_advisory_xact_lock(lock_key("admission", tenant))))
-    active = conn.execute(
-        select(func.count()).select_from(jobs).where(jobs.c.tenant == tenant, jobs.c.state.in_(_ACTIVE))
-    ).scalar_one()
+    active = queue.admission_count(conn, tenant)
     if active + asked > limit:
-        raise AdmissionRefused(int(active), limit, asked)
-    return int(active)
+        raise AdmissionRefused(active, limit, asked)
+    return active
 
 
 @dataclass
@@ -119,7 +112,7 @@ def choose(backlog: list[TenantBacklog], limit: int, skip: set[str]) -> TenantBa
 
 
 class JobQueue:
-    """Reads and moves of the waiting queue (statements over `jobs`; module docstring)."""
+    """Reads and moves of the waiting queue (the statements of `records.queue`; module docstring)."""
 
     def __init__(self, database: Engine) -> None:
         self.database = database
@@ -127,44 +120,25 @@ class JobQueue:
     # ---- dispatcher side -----------------------------------------------------------------------
     def backlog(self) -> list[TenantBacklog]:
         """Every tenant with waiting or dispatched jobs: two grouped index scans."""
-        with self.database.connect() as conn:
-            waiting = conn.execute(
-                select(jobs.c.tenant, jobs.c.priority, func.count()).where(WAITING)
-                .group_by(jobs.c.tenant, jobs.c.priority)
-            ).all()  # fmt: skip
-            dispatched = conn.execute(
-                select(jobs.c.tenant, func.count()).where(DISPATCHED).group_by(jobs.c.tenant)
-            ).all()
+        with records.connect(self.database) as conn:
+            waiting = queue.waiting_counts(conn)
+            dispatched = queue.dispatched_counts(conn)
         out: dict[str, TenantBacklog] = {}
         for tenant, priority, n in waiting:
             b = out.setdefault(tenant, TenantBacklog(tenant, 0, 0, 0))
-            setattr(b, priority, int(n))
-        for tenant, n in dispatched:
-            out.setdefault(tenant, TenantBacklog(tenant, 0, 0, 0)).dispatched = int(n)
+            setattr(b, priority, n)
+        for tenant, n in dispatched.items():
+            out.setdefault(tenant, TenantBacklog(tenant, 0, 0, 0)).dispatched = n
         return [out[t] for t in sorted(out)]
 
     def take(self, tenant: str, fence: Fence | None = None) -> dict[str, Any] | None:
         """Stamp the tenant's next waiting job dispatched and return its row (None: nothing waits,
         or what waits is being changed by another transaction right now, e.g. cancelled). With a
         `fence`, only while that lease is still current (`records.leases.LeaseLost` otherwise)."""
-        with self.database.begin() as conn:
+        with records.begin(self.database) as conn:
             if fence is not None:
                 assert_lease(conn, fence)
-            for priority in PRIORITIES:
-                head = (
-                    select(jobs.c.id)
-                    .where(WAITING, jobs.c.tenant == tenant, jobs.c.priority == priority)
-                    .order_by(jobs.c.created_at, jobs.c.id)
-                    .limit(1)
-                    .with_for_update(skip_locked=True)
-                    .scalar_subquery()
-                )
-                row = conn.execute(
-                    update(jobs).where(jobs.c.id == head).values(dispatched_at=func.now()).returning(*jobs.c)
-                ).mappings().first()  # fmt: skip
-                if row is not None:
-                    return dict(row)
-        return None
+            return queue.take(conn, tenant, PRIORITIES)
 
     def undo_take(self, tenant: str, job_id: str) -> None:
         """Put a job whose chain could not be sent back where it was (the broker was down)."""
@@ -173,9 +147,8 @@ class JobQueue:
     # ---- recovery side -------------------------------------------------------------------------
     def dispatched_jobs(self) -> list[tuple[str, str]]:
         """(tenant, id) of every dispatched, unfinished job."""
-        with self.database.connect() as conn:
-            rows = conn.execute(select(jobs.c.tenant, jobs.c.id).where(DISPATCHED).order_by(jobs.c.id))
-            return [(r.tenant, r.id) for r in rows]
+        with records.connect(self.database) as conn:
+            return queue.dispatched_pairs(conn)
 
     def requeue(
         self, tenant: str, job_id: str, fence: Fence | None = None, *, recovered: bool = False
@@ -184,64 +157,35 @@ class JobQueue:
         a stage of it had started: no stage runs now, and only queued rows are waiting work. False
         when the job ended or was not dispatched meanwhile. Fenced as `take` is. `recovered`:
         recovery's requeue of a job that lost its worker, counted in its `recoveries`."""
-        with self.database.begin() as conn:
+        with records.begin(self.database) as conn:
             if fence is not None:
                 assert_lease(conn, fence)
-            moved = conn.execute(
-                update(jobs)
-                .where(jobs.c.tenant == tenant, jobs.c.id == job_id, DISPATCHED)
-                .values(
-                    dispatched_at=None,
-                    state="queued",
-                    recoveries=jobs.c.recoveries + (1 if recovered else 0),
-                    worker=None,  # whatever held it is gone: its next delivery claims it afresh
-                )
-            )
-            return bool(moved.rowcount)
+            return queue.requeue(conn, tenant, job_id, recovered=recovered)
 
     # ---- reading (API, metrics) ----------------------------------------------------------------
     def position(self, tenant: str, job_id: str, priority: str, created_at: datetime) -> int | None:
         """1 for the tenant's next job to be dispatched; None when the job does not wait. One
         counted range of the waiting index (interactive jobs first, then bulk, oldest first)."""
-        mine = tuple_(jobs.c.created_at, jobs.c.id) < tuple_(literal(created_at), literal(job_id))
-        ahead = and_(jobs.c.priority == priority, mine)
-        if priority == "bulk":
-            ahead = (jobs.c.priority == "interactive") | ahead
-        with self.database.connect() as conn:
-            waits = conn.execute(
-                select(jobs.c.id).where(WAITING, jobs.c.tenant == tenant, jobs.c.id == job_id)
-            ).first()
-            if waits is None:
+        with records.connect(self.database) as conn:
+            if not queue.waits(conn, tenant, job_id):
                 return None
-            n = conn.execute(
-                select(func.count()).select_from(jobs).where(WAITING, jobs.c.tenant == tenant, ahead)
-            ).scalar_one()
-        return int(n) + 1
+            return queue.count_ahead(conn, tenant, job_id, priority, created_at) + 1
 
     def dispatch_rate(self, tenant: str, now: float | None = None) -> float:
         """The tenant's jobs dispatched per second over the last `RATE_WINDOW_S`."""
         now = time.time() if now is None else now
-        since = func.to_timestamp(now - RATE_WINDOW_S)
-        with self.database.connect() as conn:
-            n, first = conn.execute(
-                select(func.count(), func.min(jobs.c.dispatched_at)).where(
-                    jobs.c.tenant == tenant, jobs.c.dispatched_at.is_not(None), jobs.c.dispatched_at > since
-                )
-            ).one()
+        with records.connect(self.database) as conn:
+            n, first = queue.dispatches_since(conn, tenant, now - RATE_WINDOW_S)
         if n < 2 or first is None:
             return 0.0
         return float(n) / max(now - first.timestamp(), 1.0)
 
     def waiting_by_tenant(self) -> dict[str, int]:
         """Waiting jobs per tenant that has any (the Prometheus gauge and KEDA's measure)."""
-        with self.database.connect() as conn:
-            rows = conn.execute(select(jobs.c.tenant, func.count()).where(WAITING).group_by(jobs.c.tenant))
-            return {tenant: int(n) for tenant, n in rows}
+        with records.connect(self.database) as conn:
+            return queue.waiting_by_tenant(conn)
 
     def dispatched_ids(self, tenant: str, among: Iterable[str] | None = None) -> list[str]:
         """Ids of the tenant's dispatched, unfinished jobs (at most its dispatch bound)."""
-        query = select(jobs.c.id).where(DISPATCHED, jobs.c.tenant == tenant)
-        if among is not None:
-            query = query.where(jobs.c.id.in_(list(among)))
-        with self.database.connect() as conn:
-            return [r.id for r in conn.execute(query)]
+        with records.connect(self.database) as conn:
+            return queue.dispatched_ids(conn, tenant, among)

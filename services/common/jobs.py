@@ -38,10 +38,11 @@ from typing import Any
 
 import redis
 from pydantic import BaseModel, Field, computed_field, model_validator
-from sqlalchemy import Connection, Engine, delete, func, insert, select, update
+from sqlalchemy import Connection, Engine
 
 from bayesian_fields_core.job.stage_table import STAGE_TABLE, STAGES
 from bayesian_fields_core.job.store import Store
+from bayesian_fields_service import records as db  # `records` names lists of job records here
 from bayesian_fields_service.common import batch_records, usage
 from bayesian_fields_service.common.batch_records import BatchRecord
 from bayesian_fields_service.common.job_queue import JobQueue, Priority, admit
@@ -49,8 +50,10 @@ from bayesian_fields_service.common.scenes import lock_ready
 from bayesian_fields_service.common.usage import JobUsage
 from bayesian_fields_service.live import redis_keys
 from bayesian_fields_service.live.redis_text import text
+from bayesian_fields_service.records import answers as answer_records
+from bayesian_fields_service.records import jobs as job_rows
+from bayesian_fields_service.records import keys
 from bayesian_fields_service.records.leases import Fence
-from bayesian_fields_service.records.tables import idempotency_keys, jobs
 from bayesian_fields_service.sanitize.text import redact_locations, scrub
 from bayesian_fields_service.storage.stores import tenant_store
 from bayesian_fields_service.webhooks.callbacks import on_batch_finished, on_job_terminal
@@ -268,8 +271,8 @@ def _record_of(row: Any) -> JobRecord:
 
 
 #: What a batch's cancel reads back of each job it changed.
-_CANCELLED_COLUMNS = (jobs.c.id, jobs.c.tenant, jobs.c.scene_id, jobs.c.batch_id, jobs.c.state, jobs.c.error,
-                      jobs.c.callback_url, jobs.c.finished_at, jobs.c.usage)  # fmt: skip
+_CANCELLED_COLUMNS = ("id", "tenant", "scene_id", "batch_id", "state", "error", "callback_url", "finished_at",
+                      "usage")  # fmt: skip
 
 
 @dataclass
@@ -321,21 +324,13 @@ class JobStore:
     # ---- rows ----------------------------------------------------------------------------------
     def load(self, tenant: str, job_id: str) -> JobRecord | None:
         """The stored record (no live overlay), or None."""
-        with self.database.connect() as conn:
-            row = (
-                conn.execute(select(jobs).where(jobs.c.tenant == tenant, jobs.c.id == job_id))
-                .mappings()
-                .first()
-            )
+        with db.connect(self.database) as conn:
+            row = job_rows.load(conn, tenant, job_id)
         return _record_of(row) if row is not None else None
 
     @staticmethod
     def _locked(conn: Connection, tenant: str, job_id: str) -> JobRecord | None:
-        row = (
-            conn.execute(select(jobs).where(jobs.c.tenant == tenant, jobs.c.id == job_id).with_for_update())
-            .mappings()
-            .first()
-        )
+        row = job_rows.load(conn, tenant, job_id, lock=True)
         return _record_of(row) if row is not None else None
 
     def create(self, record: JobRecord, *, admit_limit: int | None = None) -> None:
@@ -369,7 +364,7 @@ class JobStore:
         live hash when the dispatcher sends it (`touch_live`), so a submission needs no Redis at
         all and a cancel of waiting jobs has no hash to update."""
         digests = digests or {}
-        with self.database.begin() as conn:
+        with db.begin(self.database) as conn:
             if records and scene_ids:
                 lock_ready(conn, records[0].tenant, scene_ids)
             if records and admit_limit is not None:
@@ -377,13 +372,13 @@ class JobStore:
             if batch is not None:
                 batch_records.insert_batch(conn, batch, len(batch_job_ids or records))
             if records:
-                batch_records.copy_rows(conn, jobs, [_row_of(r) for r in records])
+                job_rows.insert_many(conn, [_row_of(r) for r in records])
             keyed = [  # with the jobs: a retry after a crash finds them
                 {"tenant": r.tenant, "endpoint": JOBS_ENDPOINT, "key": r.idempotency_key,
                  "body_sha256": digests.get(r.id, ""), "target_id": r.id}
                 for r in records if r.idempotency_key
             ]  # fmt: skip
-            batch_records.remember_keys(conn, keyed, replace=retry_in is not None)
+            keys.remember(conn, keyed, replace=retry_in is not None)
             if batch is not None:
                 batch_records.insert_links(conn, batch.id, batch_job_ids or [r.id for r in records])
                 if batch.idempotency_key:
@@ -392,18 +387,24 @@ class JobStore:
             if retry_in is not None:
                 batch_records.replace_jobs(conn, retry_in, {r.retry_of: r.id for r in records if r.retry_of})
 
-    def save(self, record: JobRecord) -> JobRecord:
+    def save(self, record: JobRecord, *, answers: Sequence[dict[str, Any]] = ()) -> JobRecord:
         """Write `record`, merged with the stored row (see `_merge`) under the row's lock so the
         API's cancel and a worker's stage update never lose each other's fields.
 
         A job whose cancel was accepted never becomes *succeeded*: a success written after (or
         racing with) an accepted cancel is stored as *cancelled* (`request_cancel` sets the flag
         under the same row lock, so the two are ordered). The caller removes the result
-        (`pipeline.discard_result`) when the saved state is cancelled."""
-        with self.database.begin() as conn:
+        (`pipeline.discard_result`) when the saved state is cancelled.
+
+        `answers` (the rows of `jobs.answers`, read from the result before this transaction) are
+        written in the transaction that makes the job succeeded, replacing any it had: a success
+        and its answers commit together or not at all (issue 42)."""
+        with db.begin(self.database) as conn:
             old = self._locked(conn, record.tenant, record.id)
             merged = self._merge_and_write(conn, old, record)
             if merged.state.terminal and (old is None or not old.state.terminal):
+                if merged.state == JobState.succeeded:
+                    answer_records.replace_job(conn, merged.id, answers)
                 self._queue_callbacks(conn, [merged])
         return self._after_write(merged)
 
@@ -424,11 +425,9 @@ class JobStore:
         merged.updated_at = utcnow()
         row = _row_of(merged)
         if old is None:
-            conn.execute(insert(jobs).values(**row))
+            job_rows.insert_row(conn, row)
         else:
-            conn.execute(
-                update(jobs).where(jobs.c.tenant == merged.tenant, jobs.c.id == merged.id).values(**row)
-            )
+            job_rows.write_row(conn, row)
         return merged
 
     @staticmethod
@@ -509,12 +508,10 @@ class JobStore:
         Redis round trip however many ids."""
         if not job_ids:
             return {}
-        with self.database.connect() as conn:
-            rows = conn.execute(
-                select(jobs).where(jobs.c.tenant == tenant, jobs.c.id.in_(job_ids))
-            ).mappings()
-            records = [_record_of(r) for r in rows]
-        return {r.id: r for r in self._with_live_many(records)}
+        with db.connect(self.database) as conn:
+            rows = job_rows.load_many(conn, tenant, job_ids)
+        found = [_record_of(r) for r in rows]
+        return {r.id: r for r in self._with_live_many(found)}
 
     def _with_live(self, record: JobRecord) -> JobRecord:
         return self._with_live_many([record])[0]
@@ -539,7 +536,7 @@ class JobStore:
         Under the row lock: a job that is already terminal is returned unchanged (the cancel is
         not accepted: ``cancel_requested`` stays false), and a cancel that is accepted is seen by
         the worker's final save, which then stores *cancelled* instead of *succeeded*."""
-        with self.database.begin() as conn:
+        with db.begin(self.database) as conn:
             record = self._locked(conn, tenant, job_id)
             if record is None or record.state.terminal:
                 return record
@@ -570,7 +567,7 @@ class JobStore:
         side: a cancel flag for each job a worker runs (a few: the tenant's dispatch bound), and
         the live hashes of the jobs cancelled at once removed in one command (only dispatched jobs
         have one). Returns what changed."""
-        with self.database.begin() as conn:
+        with db.begin(self.database) as conn:
             rows = batch_records.cancel_jobs(conn, tenant, batch_id, columns=_CANCELLED_COLUMNS)
             changed = [CancelledJob.of(r) for r in rows]
             ended = [c for c in changed if c.state.terminal]
@@ -609,33 +606,29 @@ class JobStore:
         and keeps those Redis says run; every other filter is the row's own."""
         if scene_id is not None and not is_id(scene_id, "s_"):
             return [], None  # not an id the service issues: no scene, no jobs
-        query = select(jobs).where(jobs.c.tenant == tenant)
+        states: tuple[str, ...] | None = None
         if state == JobState.running:
-            query = query.where(jobs.c.state.in_(_ACTIVE_STATES))
+            states = _ACTIVE_STATES
         elif state is not None:
-            query = query.where(jobs.c.state == state.value)
-        if scene_id is not None:
-            query = query.where(jobs.c.scene_id == scene_id)
-        if batch_id is not None:
-            query = query.where(jobs.c.batch_id == batch_id)
+            states = (state.value,)
         out: builtins.list[JobRecord] = []
         position = cursor
         chunk = limit + 1
         while True:
-            page = query if position is None else query.where(jobs.c.id < position)
-            with self.database.connect() as conn:
-                rows = conn.execute(page.order_by(jobs.c.id.desc()).limit(chunk)).mappings().all()
-            records = self._with_live_many([_record_of(r) for r in rows])
-            for n, record in enumerate(records):
+            with db.connect(self.database) as conn:
+                rows = job_rows.page(conn, tenant, states=states, scene_id=scene_id, batch_id=batch_id,
+                                     before=position, limit=chunk)  # fmt: skip
+            found = self._with_live_many([_record_of(r) for r in rows])
+            for n, record in enumerate(found):
                 if state is not None and record.state != state:
                     continue
                 out.append(record)
                 if len(out) == limit:
-                    more = n + 1 < len(records) or len(rows) == chunk
+                    more = n + 1 < len(found) or len(rows) == chunk
                     return out, (record.id if more else None)
             if len(rows) < chunk:
                 return out, None
-            position = records[-1].id
+            position = found[-1].id
 
     def dispatch_next(self, tenant: str, fence: Fence | None = None) -> JobRecord | None:
         """Stamp the tenant's next waiting job dispatched (`JobQueue.take`, fenced by the leader's
@@ -645,72 +638,42 @@ class JobStore:
 
     def count_active(self, tenant: str | None = None) -> int:
         """Queued or running jobs (of one tenant, or of all)."""
-        query = select(func.count()).select_from(jobs).where(jobs.c.state.in_(_ACTIVE_STATES))
-        if tenant is not None:
-            query = query.where(jobs.c.tenant == tenant)
-        with self.database.connect() as conn:
-            return int(conn.execute(query).scalar_one())
+        with db.connect(self.database) as conn:
+            return job_rows.count_active(conn, tenant)
 
     def active_jobs(self) -> builtins.list[tuple[str, str]]:
         """(tenant, job id) of every job whose row says queued or running."""
-        return self._pairs(jobs.c.state.in_(_ACTIVE_STATES))
-
-    def _pairs(self, condition: Any) -> builtins.list[tuple[str, str]]:
-        with self.database.connect() as conn:
-            rows = conn.execute(select(jobs.c.tenant, jobs.c.id).where(condition).order_by(jobs.c.id))
-            return [(r.tenant, r.id) for r in rows]
+        with db.connect(self.database) as conn:
+            return job_rows.active_pairs(conn)
 
     # ---- idempotency ---------------------------------------------------------------------------
     def _idempotent(self, tenant: str, endpoint: str, key: str) -> tuple[str, str] | None:
         """(target id, sha256 of the body it was first sent with) of an Idempotency-Key."""
-        with self.database.connect() as conn:
-            row = conn.execute(
-                select(idempotency_keys.c.target_id, idempotency_keys.c.body_sha256).where(
-                    idempotency_keys.c.tenant == tenant,
-                    idempotency_keys.c.endpoint == endpoint,
-                    idempotency_keys.c.key == key,
-                )
-            ).first()
-        return (row.target_id, row.body_sha256) if row is not None else None
+        with db.connect(self.database) as conn:
+            return keys.lookup(conn, tenant, endpoint, key)
 
     def idempotent_job(self, tenant: str, key: str) -> tuple[str, str] | None:
         return self._idempotent(tenant, JOBS_ENDPOINT, key)
 
-    def idempotent_jobs(self, tenant: str, keys: builtins.list[str]) -> dict[str, tuple[str, str]]:
+    def idempotent_jobs(self, tenant: str, wanted: builtins.list[str]) -> dict[str, tuple[str, str]]:
         """`idempotent_job` for many keys in one query: key -> (job id, digest)."""
-        if not keys:
+        if not wanted:
             return {}
-        with self.database.connect() as conn:
-            rows = conn.execute(
-                select(
-                    idempotency_keys.c.key, idempotency_keys.c.target_id, idempotency_keys.c.body_sha256
-                ).where(
-                    idempotency_keys.c.tenant == tenant,
-                    idempotency_keys.c.endpoint == JOBS_ENDPOINT,
-                    idempotency_keys.c.key.in_(keys),
-                )
-            )
-            return {r.key: (r.target_id, r.body_sha256) for r in rows}
+        with db.connect(self.database) as conn:
+            return keys.lookup_many(conn, tenant, JOBS_ENDPOINT, wanted)
 
     def idempotent_batch(self, tenant: str, key: str) -> tuple[str, str] | None:
         return self._idempotent(tenant, BATCHES_ENDPOINT, key)
 
     def forget_idempotent_batch(self, tenant: str, key: str, batch_id: str) -> None:
         """Drop a batch's Idempotency-Key row (its submission failed: a retry makes a new batch)."""
-        with self.database.begin() as conn:
-            conn.execute(
-                delete(idempotency_keys).where(
-                    idempotency_keys.c.tenant == tenant,
-                    idempotency_keys.c.endpoint == BATCHES_ENDPOINT,
-                    idempotency_keys.c.key == key,
-                    idempotency_keys.c.target_id == batch_id,
-                )
-            )
+        with db.begin(self.database) as conn:
+            keys.forget(conn, tenant, BATCHES_ENDPOINT, key, batch_id)
 
     # ---- batches -------------------------------------------------------------------------------
     def load_batch(self, tenant: str, batch_id: str) -> BatchRecord | None:
         """The batch's row: its counts as the records hold them (`live_batch` adds live progress)."""
-        with self.database.connect() as conn:
+        with db.connect(self.database) as conn:
             return batch_records.load_batch(conn, tenant, batch_id)
 
     def live_batch(self, batch: BatchRecord) -> BatchRecord:
@@ -722,7 +685,7 @@ class JobStore:
         dispatched = self.queue.dispatched_ids(batch.tenant)
         if not dispatched:
             return batch
-        with self.database.connect() as conn:
+        with db.connect(self.database) as conn:
             rows = batch_records.batch_job_rows(conn, batch.id, states=_ACTIVE_STATES, job_ids=dispatched)
         stored = [_record_of(r) for _, r in rows]
         counts = dict(batch.counts)
@@ -742,7 +705,7 @@ class JobStore:
         states: Sequence[str] | None = None,
     ) -> builtins.list[tuple[int, JobRecord]]:
         """(position, record) of the batch's jobs in submission order, live overlay included."""
-        with self.database.connect() as conn:
+        with db.connect(self.database) as conn:
             rows = batch_records.batch_job_rows(conn, batch.id, start=start, limit=limit, states=states)
         records = self._with_live_many([_record_of(r) for _, r in rows])
         return [(p, rec) for (p, _), rec in zip(rows, records, strict=True)]

@@ -31,15 +31,16 @@ from enum import StrEnum
 from typing import Any
 
 from pydantic import BaseModel, Field
-from sqlalchemy import ARRAY, Connection, Engine, cast, delete, func, insert, select, update
-from sqlalchemy.dialects.postgresql import insert as pg_insert
+from sqlalchemy import Connection, Engine
 
-from bayesian_fields_service.records.tables import ID, jobs, scenes
+from bayesian_fields_service import records
+from bayesian_fields_service.records import answers as answer_records
+from bayesian_fields_service.records import jobs as job_rows
+from bayesian_fields_service.records import scenes as scene_rows
 
 SCENE_EXAMPLE_ID = "s_0192f3a1b2c3aa55bb66cc"
 #: The row state of a scene whose delete was acknowledged (never shown by the API: a 404).
-DELETING = "deleting"
-_ACTIVE_JOB_STATES = ("queued", "running")
+DELETING = scene_rows.DELETING
 
 
 # The states the API shows; a row may also be `DELETING`, which reads as absent. (No docstring:
@@ -136,15 +137,6 @@ def _row_of(record: SceneRecord, state: str | None = None) -> dict[str, Any]:
     return {name: row[name] for name in _FIELDS}
 
 
-def _one_of(tenant: str, scene_id: str) -> Any:
-    return select(scenes).where(scenes.c.tenant == tenant, scenes.c.id == scene_id)
-
-
-def _any_of(scene_ids: Sequence[str]) -> Any:
-    """``id = ANY(:ids)``: one bound array however many ids (a batch may name thousands)."""
-    return scenes.c.id == func.any(cast(builtins.list(scene_ids), ARRAY(ID)))
-
-
 def lock_ready(conn: Connection, tenant: str, scene_ids: Sequence[str]) -> dict[str, SceneRecord]:
     """Share-lock the rows of `scene_ids` in the caller's transaction and return their records.
 
@@ -155,8 +147,7 @@ def lock_ready(conn: Connection, tenant: str, scene_ids: Sequence[str]) -> dict[
     wanted = builtins.list(dict.fromkeys(scene_ids))
     if not wanted:
         return {}
-    query = select(scenes).where(scenes.c.tenant == tenant, _any_of(wanted)).order_by(scenes.c.id)
-    rows = {r["id"]: r for r in conn.execute(query.with_for_update(read=True)).mappings()}
+    rows = scene_rows.share_lock(conn, tenant, wanted)
     for scene_id in wanted:
         row = rows.get(scene_id)
         if row is None or row["state"] == DELETING:
@@ -174,21 +165,19 @@ class SceneStore:
 
     def create(self, record: SceneRecord) -> None:
         """Insert a new scene's row (its id is new: a clash is an error)."""
-        with self.database.begin() as conn:
-            conn.execute(insert(scenes).values(**_row_of(record)))
+        with records.begin(self.database) as conn:
+            scene_rows.insert_row(conn, _row_of(record))
 
     def adopt(self, record: SceneRecord, *, deleting: bool = False) -> bool:
         """Insert a row for a scene recorded elsewhere (an upgrade's import) unless one exists;
         True when inserted. `deleting`: the scene's delete was acknowledged there."""
-        row = _row_of(record, DELETING if deleting else None)
-        statement = pg_insert(scenes).values(**row).on_conflict_do_nothing(index_elements=["id"])
-        with self.database.begin() as conn:  # RETURNING: psycopg reports no rowcount for this one
-            return conn.execute(statement.returning(scenes.c.id)).first() is not None
+        with records.begin(self.database) as conn:
+            return scene_rows.insert_if_absent(conn, _row_of(record, DELETING if deleting else None))
 
     def get(self, tenant: str, scene_id: str) -> SceneRecord | None:
         """The scene's record; None when it has no row or is being deleted."""
-        with self.database.connect() as conn:
-            row = conn.execute(_one_of(tenant, scene_id)).mappings().first()
+        with records.connect(self.database) as conn:
+            row = scene_rows.load(conn, tenant, scene_id)
         return None if row is None or row["state"] == DELETING else _record_of(row)
 
     def list(
@@ -196,11 +185,8 @@ class SceneStore:
     ) -> tuple[builtins.list[SceneRecord], str | None]:
         """A page of the tenant's scenes, newest first (descending id), without deleting ones;
         `cursor` is the last id of the previous page, the second value the next page's cursor."""
-        query = select(scenes).where(scenes.c.tenant == tenant, scenes.c.state != DELETING)
-        if cursor is not None:
-            query = query.where(scenes.c.id < cursor)
-        with self.database.connect() as conn:
-            rows = conn.execute(query.order_by(scenes.c.id.desc()).limit(limit + 1)).mappings().all()
+        with records.connect(self.database) as conn:
+            rows = scene_rows.page(conn, tenant, limit + 1, cursor)
         page = [_record_of(r) for r in rows[:limit]]
         return page, (page[-1].id if len(rows) > limit else None)
 
@@ -219,73 +205,53 @@ class SceneStore:
         being deleted (a delete came first: the caller removes what it copied);
         `SceneNotUploading` when another completion published it. `while_locked` runs with the
         row locked, before the change (the API's test pause point)."""
-        with self.database.begin() as conn:
-            row = conn.execute(_one_of(tenant, scene_id).with_for_update()).mappings().first()
+        with records.begin(self.database) as conn:
+            row = scene_rows.load(conn, tenant, scene_id, lock=True)
             if while_locked is not None:
                 while_locked()
             if row is None or row["state"] == DELETING:
                 raise SceneGone(scene_id)
             if row["state"] != SceneState.uploading.value:
                 raise SceneNotUploading(scene_id, row["state"])
-            changed = conn.execute(
-                update(scenes)
-                .where(scenes.c.tenant == tenant, scenes.c.id == scene_id)
-                .values(state=SceneState.ready.value, files=files, bytes=size, summary=summary,
-                        pending_uploads=[], updated_at=datetime.now(UTC))
-                .returning(*scenes.c)
-            ).mappings().one()  # fmt: skip
+            changed = scene_rows.set_ready(conn, tenant, scene_id, files=files, size=size, summary=summary)
         return _record_of(changed)
 
     def mark_deleting(self, tenant: str, scene_id: str) -> SceneRecord:
         """Mark the scene deleting, in one transaction holding its row ``FOR UPDATE``, unless a
         job on it is queued or running (`SceneBusy`); `SceneGone` when it has no row or is
         already being deleted. Returns the record as it was (its pending uploads are to abort).
-        Once this commits the scene is gone for every reader and for good."""
-        with self.database.begin() as conn:
-            row = conn.execute(_one_of(tenant, scene_id).with_for_update()).mappings().first()
+        Once this commits the scene is gone for every reader and for good, and so are its jobs'
+        answers (issue 42; the jobs' rows stay: a job's record outlives its scene)."""
+        with records.begin(self.database) as conn:
+            row = scene_rows.load(conn, tenant, scene_id, lock=True)
             if row is None or row["state"] == DELETING:
                 raise SceneGone(scene_id)
-            active = conn.execute(
-                select(jobs.c.id, jobs.c.state)
-                .where(jobs.c.tenant == tenant, jobs.c.scene_id == scene_id,
-                       jobs.c.state.in_(_ACTIVE_JOB_STATES))
-                .limit(1)
-            ).first()  # fmt: skip
+            active = job_rows.active_on_scene(conn, tenant, scene_id)
             if active is not None:
-                raise SceneBusy(scene_id, active.id, active.state)
-            conn.execute(
-                update(scenes)
-                .where(scenes.c.tenant == tenant, scenes.c.id == scene_id)
-                .values(state=DELETING, updated_at=datetime.now(UTC))
-            )
+                raise SceneBusy(scene_id, active["id"], active["state"])
+            scene_rows.set_deleting(conn, tenant, scene_id)
+            answer_records.delete_scene(conn, tenant, scene_id)  # gone with the scene, at once
         return _record_of(row)
 
     def purge(self, tenant: str, scene_id: str) -> None:
         """Drop a deleting scene's row once its objects are gone (a row in any other state stays)."""
-        with self.database.begin() as conn:
-            conn.execute(
-                delete(scenes).where(
-                    scenes.c.tenant == tenant, scenes.c.id == scene_id, scenes.c.state == DELETING
-                )
-            )
+        with records.begin(self.database) as conn:
+            scene_rows.purge(conn, tenant, scene_id)
 
     def deleting_scenes(self) -> builtins.list[DeletingScene]:
         """Every scene of every tenant whose delete was acknowledged and whose row remains."""
-        query = select(scenes.c.tenant, scenes.c.id, scenes.c.pending_uploads).where(
-            scenes.c.state == DELETING
-        )
-        with self.database.connect() as conn:
-            rows = conn.execute(query.order_by(scenes.c.id)).all()
-        return [DeletingScene(r.tenant, r.id, builtins.list(r.pending_uploads)) for r in rows]
+        with records.connect(self.database) as conn:
+            rows = scene_rows.deleting(conn)
+        return [DeletingScene(tenant, scene_id, pending) for tenant, scene_id, pending in rows]
 
     def listed_uploads(self, tenant: str, scene_ids: Sequence[str]) -> dict[str, frozenset[str]]:
         """The scenes of `scene_ids` that have a row (any state), each with the multipart upload
         ids its row lists as pending: one query for a tenant's share of a bucket sweep."""
         if not scene_ids:
             return {}
-        query = select(scenes.c.id, scenes.c.pending_uploads).where(
-            scenes.c.tenant == tenant, _any_of(scene_ids)
-        )
-        with self.database.connect() as conn:
-            rows = conn.execute(query).all()
-        return {r.id: frozenset(str(p.get("upload_id")) for p in r.pending_uploads) for r in rows}
+        with records.connect(self.database) as conn:
+            rows = scene_rows.pending_uploads(conn, tenant, scene_ids)
+        return {
+            scene_id: frozenset(str(p.get("upload_id")) for p in pending)
+            for scene_id, pending in rows.items()
+        }

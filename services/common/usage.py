@@ -26,10 +26,10 @@ from datetime import UTC, date, datetime, time, timedelta
 from typing import Any, Protocol
 
 from pydantic import BaseModel, Field, computed_field
-from sqlalchemy import Connection, Engine, Integer, cast, func, select, text
-from sqlalchemy.dialects.postgresql import insert as pg_insert
+from sqlalchemy import Connection, Engine
 
-from bayesian_fields_service.records.tables import usage_ledger
+from bayesian_fields_service import records
+from bayesian_fields_service.records import usage as ledger
 
 
 class JobUsage(BaseModel):
@@ -83,28 +83,11 @@ class EndedJob(Protocol):
     def state(self) -> Any: ...
 
 
-def _insert(conn: Connection, row: dict[str, Any]) -> None:
-    conn.execute(
-        pg_insert(usage_ledger).values(**row).on_conflict_do_nothing(index_elements=[usage_ledger.c.entry_id])
-    )
-
-
-#: The end rows of many jobs in one statement: arrays unnested (a multi-row VALUES of thousands of
-#: rows spends longer compiling than PostgreSQL spends inserting, and PostgreSQL binds at most
-#: 65,535 values a statement: a 50,000-job cancel ends them all in one transaction).
-_INSERT_ENDS = text(
-    "INSERT INTO usage_ledger (entry_id, tenant, job_id, kind, state, bytes_stored, recorded_at) "
-    "SELECT e, t, j, 'end', s, b, r FROM unnest(CAST(:e AS varchar[]), CAST(:t AS varchar[]), "
-    "CAST(:j AS varchar[]), CAST(:s AS varchar[]), CAST(:b AS bigint[]), CAST(:r AS timestamptz[])) "
-    "AS ends(e, t, j, s, b, r) ON CONFLICT (entry_id) DO NOTHING"
-)
-
-
 def record_stage(database: Engine, tenant: str, job_id: str, stage: str, run: int, cpu_s: float, gpu_s: float,
                  when: datetime) -> None:  # fmt: skip
     """One stage execution's row (entry ``<job>.<stage>.<run>``: written once however often tried)."""
-    with database.begin() as conn:
-        _insert(conn, {"entry_id": f"{job_id}.{stage}.{run}", "tenant": tenant, "job_id": job_id, "kind": "stage",
+    with records.begin(database) as conn:
+        ledger.insert_entry(conn, {"entry_id": f"{job_id}.{stage}.{run}", "tenant": tenant, "job_id": job_id, "kind": "stage",
                        "stage": stage, "cpu_s": cpu_s, "gpu_s": gpu_s, "recorded_at": when})  # fmt: skip
 
 
@@ -114,11 +97,11 @@ def record_job_ends(conn: Connection, ended: Sequence[EndedJob]) -> None:
     if not ended:
         return
     now = datetime.now(UTC)
-    conn.execute(_INSERT_ENDS, {
-        "e": [f"{job.id}.end" for job in ended], "t": [job.tenant for job in ended],
-        "j": [job.id for job in ended], "s": [str(getattr(job.state, "value", job.state)) for job in ended],
-        "b": [job.usage.bytes_stored for job in ended], "r": [job.finished_at or now for job in ended],
-    })  # fmt: skip
+    ledger.insert_ends(conn, [
+        (f"{job.id}.end", job.tenant, job.id, str(getattr(job.state, "value", job.state)), job.usage.bytes_stored,
+         job.finished_at or now)
+        for job in ended
+    ])  # fmt: skip
 
 
 def _empty() -> dict[str, Any]:
@@ -146,28 +129,8 @@ def tenant_usage(database: Engine, tenant: str, start: date, end: date) -> dict[
     aggregate over the tenant's ledger rows of the period."""
     low = datetime.combine(start, time(), UTC)
     high = datetime.combine(end + timedelta(days=1), time(), UTC)
-    day = func.date(func.timezone("UTC", usage_ledger.c.recorded_at)).label("day")
-    query = (
-        select(
-            day,
-            usage_ledger.c.kind,
-            usage_ledger.c.stage,
-            usage_ledger.c.state,
-            func.count(),
-            func.coalesce(func.sum(usage_ledger.c.cpu_s), 0.0),
-            func.coalesce(func.sum(usage_ledger.c.gpu_s), 0.0),
-            cast(func.coalesce(func.sum(usage_ledger.c.bytes_stored), 0), Integer),
-        )  # fmt: skip
-        .where(
-            usage_ledger.c.tenant == tenant,
-            usage_ledger.c.recorded_at >= low,
-            usage_ledger.c.recorded_at < high,
-        )
-        .group_by(day, usage_ledger.c.kind, usage_ledger.c.stage, usage_ledger.c.state)
-        .order_by(day)
-    )
-    with database.connect() as conn:
-        rows = conn.execute(query).all()
+    with records.connect(database) as conn:
+        rows = ledger.daily_totals(conn, tenant, low, high)
     days: dict[str, dict[str, Any]] = {}
     total = _empty()
     for when, kind, stage, state, n, cpu, gpu, size in rows:

@@ -26,6 +26,9 @@ CALLBACK_LEASE_MARGIN_S = 30.0
 #: Tenant names become storage prefixes (``tenants/<tenant>/``), so they are restricted to a safe set.
 TENANT_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$"
 
+#: A dotted Python module name: what `hooks_plugins` accepts (never a file path).
+MODULE_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)*")
+
 
 class ServiceSettings(BaseSettings):
     """Every knob of the batch service. Environment variable = ``BFIELDS_`` + upper-case field name;
@@ -427,20 +430,25 @@ class ServiceSettings(BaseSettings):
     )
 
     # ---- misc ------------------------------------------------------------------------------------
-    test_pause_points: bool = Field(
-        False,
-        description="Testing only: let a test pause scene routes at named points (through Redis keys) "
-        "to force race interleavings. Off in every deployment; inert unless a test sets the keys.",
-    )
-    test_encoder_call_log: Path | None = Field(
-        None,
-        description="Testing only: a worker appends one line to this file per encoder image batch "
-        "(counts perception work across processes). Unset in every deployment.",
+    hooks_plugins: list[str] = Field(
+        default_factory=list,
+        description="JSON list of Python modules (installed code, named by module) whose "
+        "install(registry, settings) registers functions on the service's hook points "
+        "(bayesian_fields_service.hooks: tracing, fault injection, the tests' pause points). "
+        "Empty: every hook point is a no-op.",
     )
     log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = Field(
         "INFO",
         description="Level of the services' own loggers (bayesian_fields_service.*, bayesian_fields_core.*).",
     )
+
+    @field_validator("hooks_plugins")
+    @classmethod
+    def _check_hooks_plugins(cls, v: list[str]) -> list[str]:
+        bad = [name for name in v if not MODULE_NAME.fullmatch(name)]
+        if bad:
+            raise ValueError(f"hooks_plugins takes Python module names (like 'package.module'), not {bad}")
+        return v
 
     @field_validator("redis_url")
     @classmethod

@@ -32,8 +32,8 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from typing import Any
 
 import redis
-from sqlalchemy import text
 
+from bayesian_fields_service import hooks
 from bayesian_fields_service.common.jobs import JobStore
 from bayesian_fields_service.common.scenes import SceneStore
 from bayesian_fields_service.config.settings import ServiceSettings, apply_log_level, get_settings
@@ -41,7 +41,7 @@ from bayesian_fields_service.control.bucket_sweep import sweep_bucket
 from bayesian_fields_service.control.dispatcher import Dispatcher
 from bayesian_fields_service.control.leadership import Leadership
 from bayesian_fields_service.control.recovery import Recovery
-from bayesian_fields_service.records.database import open_records
+from bayesian_fields_service.records.database import open_records, ping
 from bayesian_fields_service.storage.stores import build_store, direct_transfers
 from bayesian_fields_service.webhooks.callbacks import CallbackSender
 from bayesian_fields_service.worker.celery_app import make_celery
@@ -155,8 +155,7 @@ class ControlProcess:
 
     def ready(self) -> tuple[int, dict[str, Any]]:
         try:
-            with self.database.connect() as conn:
-                conn.execute(text("SELECT 1"))
+            ping(self.database)
         except Exception as exc:  # any failure to reach the database: not ready
             return 503, {"leader": self.leadership.held, "error": type(exc).__name__}
         return 200, {"leader": self.leadership.held}
@@ -193,6 +192,7 @@ def main() -> int:
     """The `bfields-service control` command."""
     settings = get_settings()
     apply_log_level(settings)
+    hooks.install(settings)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     control = ControlProcess(settings)
     server = serve_health(control, settings.control_port, settings.control_host)

@@ -13,6 +13,7 @@ import redis
 
 from bayesian_fields_core.job.stage_table import STAGES
 from bayesian_fields_service.common.jobs import JobRecord, JobState, JobStore, overall_progress, utcnow
+from bayesian_fields_service.jobs import answers
 from bayesian_fields_service.live.metrics import observe_job
 
 
@@ -58,13 +59,20 @@ def all_stages_done(record: JobRecord) -> bool:
 
 def finish(jobs: JobStore, record: JobRecord, state: JobState, error: str | None = None) -> JobRecord:
     """End the job as `state`; the saved record (a cancel accepted before a success turns it into
-    *cancelled*). The job-duration histogram counts the call that ended the job, once."""
+    *cancelled*). The job-duration histogram counts the call that ended the job, once.
+
+    A success writes the job's answers (`jobs.answers`, read from its result here, before the
+    write) in the transaction that marks it succeeded: the worker, recovery and the dispatcher
+    all end a job through this function, so none of them can succeed a job without its answers."""
     now = utcnow()
     update: dict[str, Any] = {"state": state, "error": error, "finished_at": now}
     if state == JobState.succeeded:
         update["progress"] = 100.0
     before = jobs.load(record.tenant, record.id)
-    saved = jobs.save(record.model_copy(update=update))
+    rows: list[dict[str, Any]] = []
+    if state == JobState.succeeded and (before is None or not before.state.terminal):
+        rows = answers.rows_for_finish(jobs.tenant(record.tenant), record, now)  # read before the write
+    saved = jobs.save(record.model_copy(update=update), answers=rows)
     if saved.state == state and (before is None or not before.state.terminal):  # this call ended it
         start = saved.started_at or saved.created_at
         try:

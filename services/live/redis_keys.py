@@ -3,8 +3,9 @@
 Why one module: a key written in one file and read in another (a live hash, a cancel flag that
 workers poll) is an interface; when each side spelled it, the job's live key ended up
 defined twice and written a third time inside a Lua script. What Redis holds is disposable:
-live progress, cancel flags (a cache of the row's), single-flight locks, metrics histograms and test pause
-points; the records (jobs, their queue, batches, scenes, callbacks, usage) are PostgreSQL's. The
+live progress, cancel flags (a cache of the row's), single-flight locks and metrics histograms (the
+tests' pause points keep their keys in their own plugin, tests/services/support/service_hooks.py);
+the records (jobs, their queue, batches, scenes, callbacks, usage) are PostgreSQL's. The
 Celery broker's own keys (one list per queue and priority, named after the queue) are Celery's.
 """
 
@@ -30,18 +31,3 @@ def flight_lock(tenant: str, key: str) -> str:
 STAGE_HISTOGRAM = "bf:metrics:stage:{stage}"
 JOB_HISTOGRAM = "bf:metrics:job:{outcome}"
 QUEUE_WAIT_HISTOGRAM = "bf:metrics:queue_wait:{tenant}"
-
-
-def pause_armed(point: str) -> str:
-    """Test pause points (`common.pause_points`): armed with a scene id by a test ..."""
-    return f"bf:test:pause:{point}"
-
-
-def pause_reached(point: str, scene_id: str) -> str:
-    """... set by the request when it arrives there ..."""
-    return f"bf:test:reached:{point}:{scene_id}"
-
-
-def pause_resume(point: str, scene_id: str) -> str:
-    """... and set by the test to let it go on."""
-    return f"bf:test:resume:{point}:{scene_id}"

@@ -109,3 +109,25 @@ def migrate(url: str, revision: str = "head") -> str | None:
         else:
             command.upgrade(config, revision)
         return MigrationContext.configure(conn).get_current_revision()
+
+
+def ping(database: Engine) -> None:
+    """``SELECT 1`` on a pooled connection (pre-pinged) or a new one within the connect timeout:
+    the readiness probes' check; raises whatever reaching the database raised."""
+    with database.connect() as conn:
+        conn.execute(text("SELECT 1"))
+
+
+def create_database(url: str) -> bool:
+    """Create the database `url` names when it does not exist (connecting to the server's
+    `postgres` database, outside a transaction: CREATE DATABASE cannot run inside one); True when
+    created."""
+    target = make_url(url)
+    name = target.database
+    admin = target.set(database="postgres")
+    eng = engine(admin.render_as_string(hide_password=False)).execution_options(isolation_level="AUTOCOMMIT")
+    with eng.connect() as conn:
+        if conn.execute(text("SELECT 1 FROM pg_database WHERE datname = :n"), {"n": name}).first():
+            return False
+        conn.execute(text(f'CREATE DATABASE "{name}"'))
+        return True

@@ -250,3 +250,37 @@ control_leases = Table(
     Column("token", BigInteger, nullable=False),
     Column("expires_at", DateTime(timezone=True), nullable=False),
 )
+
+answers = Table(
+    "answers",
+    metadata,
+    # A succeeded job's answers as rows (issue 42, revision 0009): per task, one row per ranked
+    # object (rank 1 = best) or one row with rank 0 and found = false when the task was answered
+    # "not found". Written with the success (`records.answers.replace_job`), read by the batch and
+    # fleet answer routes; the job's delete removes them (the foreign key), a scene's delete by
+    # `scene_id` (jobs keep no key to scenes: they outlive them). Coordinates are in the user's
+    # world frame (`frame` names which one the result had: world, capture or splat).
+    Column("job_id", ID, ForeignKey("jobs.id", ondelete="CASCADE"), primary_key=True),
+    Column("task_index", Integer, primary_key=True),
+    Column("rank", Integer, primary_key=True),
+    Column("tenant", TENANT, nullable=False),
+    Column("scene_id", ID, nullable=False),
+    Column("finished_at", DateTime(timezone=True), nullable=False),  # the job's: "latest" per scene
+    Column("task", Text, nullable=False),
+    Column("found", Boolean, nullable=False),
+    Column("object_id", Integer),
+    Column("content_key", String(64)),
+    Column("probability", Double),
+    Column("best_view_score", Double),
+    Column("score", Double),
+    Column("ranked_by", String(16)),
+    Column("num_gaussians", Integer),
+    Column("frame", String(8)),
+    *(Column(f"{what}_{axis}", Double) for what in ("centre", "extent", "centroid") for axis in "xyz"),
+    Column("rotation", Document),
+    Column("preview", String(255)),
+    Column("not_found_reason", Text),
+    CheckConstraint("rank >= 0 AND task_index >= 0", name="rank"),
+    Index(None, "tenant", "task", "scene_id", "finished_at"),
+    Index(None, "tenant", "scene_id"),
+)

@@ -46,17 +46,17 @@ import time
 from collections import Counter
 from concurrent.futures import Future, ThreadPoolExecutor
 from concurrent.futures import wait as wait_futures
-from datetime import datetime, timedelta
+from datetime import datetime
 from typing import Any, Protocol
 
 import httpcore
-from sqlalchemy import Connection, Engine, and_, func, select, update
-from sqlalchemy.dialects.postgresql import insert as pg_insert
+from sqlalchemy import Connection, Engine
 from sqlalchemy.exc import DBAPIError
 
 from bayesian_fields_core.errors import InputError
+from bayesian_fields_service import records
 from bayesian_fields_service.config.settings import ServiceSettings
-from bayesian_fields_service.records.tables import callback_outbox
+from bayesian_fields_service.records import outbox
 from bayesian_fields_service.webhooks.callback_delivery import TRANSPORT_ERRORS, post
 from bayesian_fields_service.webhooks.callback_destinations import (
     Resolver,
@@ -74,8 +74,6 @@ EVENT_HEADER = "X-BFields-Event-Id"
 #: backlog of up to SCAN_MAX of them for one slow receiver delays no one else's.
 SCAN_WINDOW = 256
 SCAN_MAX = 4096
-_OPEN = and_(callback_outbox.c.delivered_at.is_(None), callback_outbox.c.dropped_at.is_(None))
-"""An event neither delivered nor dropped."""
 
 
 # ---- URL rules -------------------------------------------------------------------------------
@@ -106,12 +104,7 @@ def verify(secret: str, timestamp: str, body: bytes, header: str, *, max_age_s: 
 def enqueue(conn: Connection, tenant: str, url: str, event: dict[str, Any]) -> bool:
     """Put one event in the outbox in `conn`'s transaction (False when an event of that id is
     already there)."""
-    statement = (
-        pg_insert(callback_outbox)
-        .values(tenant=tenant, url=url, event_id=event["event_id"], event=event)
-        .on_conflict_do_nothing(index_elements=[callback_outbox.c.event_id])
-    )
-    return bool(conn.execute(statement).rowcount)
+    return outbox.enqueue(conn, tenant, url, event["event_id"], event)
 
 
 class TerminalJob(Protocol):
@@ -221,34 +214,31 @@ def settle(database: Engine, settings: ServiceSettings, row_id: int, event_id: s
     """Record an attempt's outcome: mark a delivered event, reschedule a failed one with backoff,
     or drop it (marked, logged) after `callback_max_attempts`. Only an open row changes: one
     settled or removed while its attempt was in flight is not brought back."""
-    mine = and_(callback_outbox.c.id == row_id, _OPEN)
+    delay = 0.0
     if ok:
-        values: dict[str, Any] = {"delivered_at": func.now(), "attempts": attempts + 1}
         outcome = "delivered"
     elif attempts + 1 >= settings.callback_max_attempts:
         log.error("callback %s to %s dropped after %d attempts: %s", event_id, url, attempts + 1, why)
-        values = {"dropped_at": func.now(), "attempts": attempts + 1, "last_error": why}
         outcome = "dropped"
     else:
         delay = _backoff(settings, attempts + 1)
         log.warning("callback %s attempt %d failed (%s); next in %.1f s", event_id, attempts + 1, why, delay)
-        values = {"attempts": attempts + 1, "last_error": why,
-                  "next_attempt_at": func.now() + timedelta(seconds=delay)}  # fmt: skip
         outcome = "retry"
-    with database.begin() as conn:
-        changed = conn.execute(update(callback_outbox).where(mine).values(**values)).rowcount
+    with records.begin(database) as conn:
+        if outcome == "delivered":
+            changed = outbox.mark_delivered(conn, row_id, attempts + 1)
+        elif outcome == "dropped":
+            changed = outbox.mark_dropped(conn, row_id, attempts + 1, why)
+        else:
+            changed = outbox.reschedule(conn, row_id, attempts + 1, why, delay)
     return f"{event_id}: {outcome if changed else 'gone'}"
 
 
 def _deliver_claimed(database: Engine, settings: ServiceSettings, row_id: int, claimed_at: float,
                      resolve: Resolver | None) -> str:  # fmt: skip
     """Attempt and settle an event this process has just claimed (at monotonic `claimed_at`)."""
-    with database.connect() as conn:
-        row = (
-            conn.execute(select(callback_outbox).where(callback_outbox.c.id == row_id, _OPEN))
-            .mappings()
-            .first()
-        )
+    with records.connect(database) as conn:
+        row = outbox.load_open(conn, row_id)
     if row is None:  # settled by someone else meanwhile
         return f"{row_id}: gone"
     body = json.dumps(row["event"], sort_keys=True).encode()
@@ -260,27 +250,14 @@ def _deliver_claimed(database: Engine, settings: ServiceSettings, row_id: int, c
 def _claim(database: Engine, settings: ServiceSettings, row_id: int) -> bool:
     """Move a due row's next attempt `callback_lease_s` ahead, only if it is still due and open
     (another worker may have claimed it meanwhile)."""
-    with database.begin() as conn:
-        return bool(
-            conn.execute(
-                update(callback_outbox)
-                .where(callback_outbox.c.id == row_id, _OPEN, callback_outbox.c.next_attempt_at <= func.now())
-                .values(next_attempt_at=func.now() + timedelta(seconds=settings.callback_lease_s))
-            ).rowcount
-        )
+    with records.begin(database) as conn:
+        return outbox.claim(conn, row_id, settings.callback_lease_s)
 
 
 def _due(database: Engine, offset: int, limit: int) -> list[tuple[int, str]]:
     """(row id, url) of due events, oldest due first."""
-    with database.connect() as conn:
-        rows = conn.execute(
-            select(callback_outbox.c.id, callback_outbox.c.url)
-            .where(_OPEN, callback_outbox.c.next_attempt_at <= func.now())
-            .order_by(callback_outbox.c.next_attempt_at, callback_outbox.c.id)
-            .offset(offset)
-            .limit(limit)
-        )
-        return [(r.id, r.url) for r in rows]
+    with records.connect(database) as conn:
+        return outbox.due(conn, offset, limit)
 
 
 def deliver_one(

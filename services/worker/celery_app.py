@@ -15,11 +15,14 @@ from __future__ import annotations
 from celery import Celery
 
 from bayesian_fields_core.job.stage_table import STAGE_TABLE
+from bayesian_fields_service import hooks
 from bayesian_fields_service.config.settings import ServiceSettings, apply_log_level, get_settings
 
 
 def make_celery(settings: ServiceSettings, *, include_tasks: bool = False) -> Celery:
     apply_log_level(settings)
+    if include_tasks:  # the worker's own app: its process's start
+        hooks.install(settings)
     """A Celery app bound to the settings' Redis; `include_tasks` registers the stage tasks."""
     app = Celery(
         "bfields",

@@ -49,8 +49,8 @@ from bayesian_fields_core.job.stage_table import STAGE_TABLE, StageSpec
 from bayesian_fields_core.job.store import Store
 from bayesian_fields_core.params import PipelineParams
 from bayesian_fields_core.perception.models import Models, load_models
+from bayesian_fields_service import hooks
 from bayesian_fields_service.common.jobs import JobRecord, JobState, JobStore
-from bayesian_fields_service.common.pause_points import pause
 from bayesian_fields_service.config.settings import ServiceSettings
 from bayesian_fields_service.jobs import lifecycle
 from bayesian_fields_service.jobs.durable_writes import until_landed
@@ -107,8 +107,7 @@ class _Runtime:
                 device = _worker_device(self.settings.worker_device)
                 log.info("loading model profile %s on %s", profile, device)
                 models = load_models(source, device=device)
-                if self.settings.test_encoder_call_log is not None:
-                    models.encoder_wrapper = counting_encoder(self.settings.test_encoder_call_log)
+                models.encoder_wrapper = lambda encoder: hooks.wrap("encoder", encoder)
                 self._models[profile] = models
             return self._models[profile]
 
@@ -132,32 +131,6 @@ def scene_cache(settings: ServiceSettings) -> SceneCache:
     """The host's scene copies (BFIELDS_WORKER_SCENE_CACHE_DIR, bounded by ..._MAX_BYTES)."""
     root = settings.worker_scene_cache_dir or Path(tempfile.gettempdir()) / "bfields-scene-cache"
     return SceneCache(root, settings.worker_scene_cache_max_bytes)
-
-
-def counting_encoder(log_file: Path) -> Any:
-    """Testing only (BFIELDS_TEST_ENCODER_CALL_LOG): wrap the encoder so every image batch it
-    encodes appends one line ``<pid> <images>`` to `log_file` (O_APPEND: one whole line per
-    write, whatever the number of processes), which lets a test count perception work."""
-
-    def wrap(encoder: Any) -> Any:
-        class Counting:
-            model_id = encoder.model_id
-            dim = encoder.dim
-
-            def encode_images(self, images: list) -> Any:
-                fd = os.open(log_file, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
-                try:
-                    os.write(fd, f"{os.getpid()} {len(images)}\n".encode())
-                finally:
-                    os.close(fd)
-                return encoder.encode_images(images)
-
-            def encode_texts(self, texts: list[str]) -> Any:
-                return encoder.encode_texts(texts)
-
-        return Counting()
-
-    return wrap
 
 
 _runtime: _Runtime | None = None
@@ -352,7 +325,7 @@ def execute_stage(task: Task, stage: str, tenant: str, job_id: str, lock_waits: 
             # stage ran and is recorded; not counted as a stage run, and the chain goes on.
             return "skipped"
         # The message taken and the job claimed, the stage not started: a test kills the worker here.
-        pause(rt.redis, rt.settings.test_pause_points, f"stage:{stage}:before_lock", record.scene_id)
+        hooks.point("stage.before_lock", tenant=tenant, job_id=job_id, stage=stage, scene_id=record.scene_id)
         return _run_locked(rt, record, stage, lock)
     finally:
         lock.release()
@@ -391,8 +364,8 @@ def _run_locked(rt: _Runtime, record: JobRecord, stage: str, claim: StageClaim) 
     last = [0.0]
 
     def progress(name: str, fraction: float) -> None:
-        # a test can hold the stage here (e.g. cluster at 0.8: objects found, result not written)
-        pause(rt.redis, rt.settings.test_pause_points, f"progress:{name}:{fraction:g}", job_id)
+        # a plugin can act here (a test holds cluster at 0.8: objects found, result not written)
+        hooks.point("stage.progress", tenant=tenant, job_id=job_id, step=name, fraction=fraction)
         now = time.monotonic()
         if now - last[0] >= PROGRESS_INTERVAL_S or fraction >= 1.0:
             last[0] = now

@@ -17,6 +17,7 @@ import pytest
 from sqlalchemy import Engine
 
 from tests.integration.fixtures.postgres import create_database, drop_database, records_database
+from tests.services.support.service_hooks import PLUGIN_ENV
 
 #: Limits of the test API, small enough to trip with tiny uploads.
 MAX_UPLOAD = 2_000_000
@@ -37,8 +38,9 @@ SERVICE_ENV = {
     "BFIELDS_MAX_TASK_CHARS": "60",
     # Below the default (1,000) so a batch past the bound of GET /v1/batches/{id}?jobs=true is small.
     "BFIELDS_BATCH_JOBS_INLINE_MAX": "50",
-    # Lets the race tests hold a scene route at a named point (inert unless a test arms one).
-    "BFIELDS_TEST_PAUSE_POINTS": "true",
+    # The tests' plugin on the hook points: a race test holds a scene route or a stage at a named
+    # pause (inert unless a test arms one); a worker logs its encoder calls when asked.
+    **PLUGIN_ENV,
 }
 
 

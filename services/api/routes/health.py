@@ -5,11 +5,11 @@ from __future__ import annotations
 import redis
 from fastapi import APIRouter, Depends
 from fastapi.responses import JSONResponse
-from sqlalchemy import text
 
 from bayesian_fields_service.api.records_outage import OUTAGES
 from bayesian_fields_service.api.schemas import Health
 from bayesian_fields_service.api.state import AppState, get_state
+from bayesian_fields_service.records.database import ping
 
 router = APIRouter(tags=["health"])
 
@@ -23,8 +23,7 @@ def _postgresql(state: AppState) -> str:
     """``SELECT 1`` on the records database: a pooled connection (pre-pinged), or a new one within
     the engine's connect timeout (`records.database.CONNECT_TIMEOUT_S`)."""
     try:
-        with state.jobs.database.connect() as conn:
-            conn.execute(text("SELECT 1"))
+        ping(state.jobs.database)
         return "ok"
     except OUTAGES as exc:
         return f"error: {type(exc).__name__}"

@@ -12,6 +12,7 @@ from fastapi.concurrency import run_in_threadpool
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.job.store import ArtifactNotFound, PrefixedStore
 from bayesian_fields_core.scene.formats.registry import upload_description
+from bayesian_fields_service import hooks
 from bayesian_fields_service.api.archives import ArchiveLimits
 from bayesian_fields_service.api.multipart import clean_filename, receive_multipart
 from bayesian_fields_service.api.query import PAGE_LIMIT, SceneCursor
@@ -45,7 +46,6 @@ from bayesian_fields_service.api.state import (
 )
 from bayesian_fields_service.api.sweeper import upload_workdir
 from bayesian_fields_service.common.jobs import new_id, utcnow
-from bayesian_fields_service.common.pause_points import pause
 from bayesian_fields_service.common.scenes import SceneGone
 
 router = APIRouter(prefix="/v1/scenes", tags=["scenes"])
@@ -94,10 +94,6 @@ _MULTIPART_SCHEMA = {
         },
     }
 }
-
-
-def _pause(state: AppState, point: str, scene_id: str) -> None:
-    pause(state.redis, state.settings.test_pause_points, point, scene_id)
 
 
 def _deleted(state: AppState, tenant: str, scene_id: str) -> bool:
@@ -275,7 +271,7 @@ def _complete_files(
         raise HTTPException(status.HTTP_501_NOT_IMPLEMENTED, "the storage backend cannot presign URLs")
     work = upload_workdir("complete")
     try:
-        _pause(state, "complete:claimed", scene_id)
+        hooks.point("scene.complete.claimed", scene_id=scene_id)
         files = []
         for i, up in enumerate(record.pending_uploads):
             parts = None
@@ -303,7 +299,7 @@ def _complete_files(
             local = work / "parts" / f"part-{i:05d}"
             ts.get_file(up["key"], local)
             files.append(UploadedFile(up["field"], up["name"], local))
-        _pause(state, "complete:fetched", scene_id)
+        hooks.point("scene.complete.fetched", scene_id=scene_id)
         if _deleted(state, tenant, scene_id):  # deleted meanwhile: skip the copy (publishing checks again)
             raise gone(scene_id)
         try:
@@ -337,12 +333,12 @@ def _publish(
     which `delete` needs to mark the scene deleting."""
     scene_id = record.id
     ts = state.tenant(tenant)
-    _pause(state, "complete:before_publish", scene_id)
+    hooks.point("scene.complete.before_publish", scene_id=scene_id)
     with scene_refusals():  # published by another completion meanwhile: 409
         try:
             ready = state.scenes.publish_ready(
                 tenant, scene_id, files=n, size=size, summary=summary,
-                while_locked=lambda: _pause(state, "complete:publishing", scene_id),
+                while_locked=lambda: hooks.point("scene.complete.publishing", scene_id=scene_id),
             )  # fmt: skip
         except SceneGone:  # deleted after the copy began: what it copied goes too
             ts.delete_prefix(f"scenes/{scene_id}/")
@@ -382,7 +378,7 @@ def delete_scene(scene_id: str, tenant: Tenant, state: State) -> Response:
     check_id("scene", scene_id, "s_")
     with scene_refusals():
         record = state.scenes.mark_deleting(tenant, scene_id)
-    _pause(state, "delete:marked", scene_id)
+    hooks.point("scene.delete.marked", scene_id=scene_id)
     ts = state.tenant(tenant)
     transfers = state.transfers(tenant)
     if transfers is not None:  # a backend without them has no multipart upload to abort

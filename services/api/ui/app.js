@@ -324,19 +324,67 @@ async function initBatch() {
     if (art) rows[jobId].cells.thumb.replaceChildren(el("img", { class: "thumb", src: await artifactUrl(art.url), alt: `preview of ${jobId}` }));
   }
 
+  showAnswers(id).catch((e) => { $("answers-summary").textContent = e.message; });
+
   let events = 0;
   document.body.dataset.stream = "open";
   const onEvent = (name, data) => {
     document.body.dataset.events = String(++events);
     if (name === "job") show(data);
     else if (name === "counts") { $("batch-summary").textContent = summary(data); document.body.dataset.finished = String(data.finished); }
-    else if (name === "end") document.body.dataset.stream = "ended";
+    else if (name === "end") { document.body.dataset.stream = "ended"; showAnswers(id).catch(() => {}); }
   };
   // Reconnect until the batch ends (the server closes a stream after BFIELDS_EVENTS_MAX_S).
   while (document.body.dataset.stream !== "ended") {
     try { await readEvents(`/v1/batches/${encodeURIComponent(id)}/events`, onEvent); }
     catch (e) { $("batch-summary").textContent = e.message; await new Promise((r) => setTimeout(r, POLL_MS)); }
   }
+}
+
+// The batch's answers (GET /v1/batches/{id}/answers, each task's best object per job): per task,
+// the scenes where it was found, most probable first, each with its preview linking to the job,
+// and how many jobs answered it "not found".
+async function showAnswers(id) {
+  const rows = [];
+  for (let cursor = null; ;) {
+    const page = await api(`/v1/batches/${encodeURIComponent(id)}/answers?max_rank=1&limit=500` + (cursor ? `&cursor=${cursor}` : ""));
+    rows.push(...page.items);
+    if (!(cursor = page.next_cursor)) break;
+  }
+  // per task: each scene's best found answer (a scene asked twice shows once), and the scenes
+  // where no job of the batch found it
+  const tasks = new Map();
+  for (const r of rows) {
+    if (!tasks.has(r.task)) tasks.set(r.task, { best: new Map(), asked: new Set() });
+    const t = tasks.get(r.task);
+    t.asked.add(r.scene_id);
+    const had = t.best.get(r.scene_id);
+    if (r.found && (!had || r.probability > had.probability)) t.best.set(r.scene_id, r);
+  }
+  const blocks = [];
+  for (const [task, t] of tasks) {
+    t.found = [...t.best.values()].sort((a, b) => b.probability - a.probability);
+    t.missing = t.asked.size - t.found.length;
+    const body = t.found.map((r, i) => {
+      const thumb = el("td");
+      if (r.preview_url) {
+        const img = el("img", { class: "thumb", alt: `preview: ${task} in ${r.scene_name || r.scene_id}` });
+        thumb.append(el("a", { href: jobPage(r.job_id) }, img));
+        artifactUrl(r.preview_url).then((u) => { img.src = u; }).catch(() => {});
+      }
+      return el("tr", { "data-job": r.job_id, "data-scene": r.scene_id },
+        el("td", { text: `#${i + 1}` }), el("td", { text: r.scene_name || r.scene_id }),
+        el("td", { text: r.probability.toFixed(3) }), el("td", { text: String(r.object_id) }),
+        el("td", {}, el("a", { href: jobPage(r.job_id), text: r.job_id })), thumb);
+    });
+    const head = el("tr", {}, ...["rank", "scene", "p", "object", "job", "preview"].map((h) => el("th", { text: h })));
+    blocks.push(el("table", { class: "objects answers", "data-task": task },
+      el("caption", { text: `${task}: found in ${t.found.length} scene(s), not found in ${t.missing}` }),
+      el("thead", {}, head), el("tbody", {}, ...body)));
+  }
+  $("answers").replaceChildren(...blocks);
+  $("answers-summary").textContent = rows.length ? `${tasks.size} task(s)` : "none yet (answers appear as jobs succeed)";
+  document.body.dataset.answers = String(rows.length);
 }
 
 document.addEventListener("DOMContentLoaded", () => {

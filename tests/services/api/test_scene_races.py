@@ -9,8 +9,9 @@ Since scenes are rows (`common.scenes`), the row decides: a delete commits the r
 ``deleting`` state before it removes anything, a completion publishes in one transaction holding
 the row, and a job submission holds the row (``FOR SHARE``) while its jobs are inserted.
 
-Two kinds of test: forced interleavings (the API holds a request at a named pause point,
-`services/common/pause_points.py`, while the test sends the other one), and seeded random rounds
+Two kinds of test: forced interleavings (the API holds a request at a named pause point of
+the tests' hook plugin, `tests/services/support/service_hooks.py`, while the test sends the other
+one), and seeded random rounds
 that fire the requests from threads with random delays, in both orders.
 """
 
@@ -29,6 +30,7 @@ import pytest
 import redis
 
 from tests.integration.fixtures.services import ApiServer
+from tests.services.support.service_hooks import arm, resume, wait_reached
 
 TENANT = "tenant-a"
 
@@ -97,22 +99,6 @@ def in_thread(fn: Callable[[], httpx.Response]) -> tuple[threading.Thread, list[
     thread = threading.Thread(target=lambda: out.append(fn()), daemon=True)
     thread.start()
     return thread, out
-
-
-def arm(rdb: redis.Redis, point: str, scene_id: str) -> None:
-    rdb.set(f"bf:test:pause:{point}", scene_id, ex=120)
-
-
-def wait_reached(rdb: redis.Redis, point: str, scene_id: str, timeout_s: float = 20) -> None:
-    deadline = time.monotonic() + timeout_s
-    while not rdb.exists(f"bf:test:reached:{point}:{scene_id}"):
-        assert time.monotonic() < deadline, f"the API never reached pause point {point}"
-        time.sleep(0.02)
-
-
-def resume(rdb: redis.Redis, point: str, scene_id: str) -> None:
-    rdb.delete(f"bf:test:pause:{point}")
-    rdb.set(f"bf:test:resume:{point}:{scene_id}", b"1", ex=120)
 
 
 @pytest.fixture

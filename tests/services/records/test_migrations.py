@@ -27,6 +27,7 @@ TABLES = {
     "callback_outbox",
     "usage_ledger",
     "control_leases",
+    "answers",
 }
 
 

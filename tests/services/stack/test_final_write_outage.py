@@ -23,10 +23,10 @@ from sqlalchemy import create_engine, select
 
 from bayesian_fields_service.records.tables import callback_outbox, usage_ledger
 from tests.integration.fixtures.private_postgres import PrivatePostgres, postgres_bin
-from tests.services.api.test_scene_races import arm, resume, wait_reached
 from tests.services.stack.test_fleet_notify import FLEET_ENV, Receiver
 from tests.services.stack.test_workers import PARAMS, TASKS
 from tests.services.support.private_stack import PrivateStack, upload
+from tests.services.support.service_hooks import PLUGIN_ENV, arm, resume, wait_reached
 
 pytestmark = [
     pytest.mark.integration,
@@ -77,7 +77,7 @@ def test_a_final_write_racing_a_database_outage_ends_succeeded_once(
 ) -> None:
     stack: PrivateStack = private_stacks(
         "final-write",
-        {**FLEET_ENV, "BFIELDS_DATABASE_URL": private_pg.url(), "BFIELDS_TEST_PAUSE_POINTS": "true"},
+        {**FLEET_ENV, "BFIELDS_DATABASE_URL": private_pg.url(), **PLUGIN_ENV},
     )
     stack.start()
     assert stack.pool is not None and stack.api is not None

@@ -23,6 +23,7 @@ from tests.integration.fixtures.postgres import create_database, drop_database
 from tests.integration.fixtures.services import ApiServer, WorkerPool
 from tests.services.conftest import SERVICE_ENV, scene_form
 from tests.services.support.scene_factory import make_scene
+from tests.services.support.service_hooks import ENCODER_CALL_LOG_ENV
 
 # Longer than the default timeout (pyproject.toml): a fleet on prefork workers; its callback wait alone may take 240 s.
 pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.timeout(600)]
@@ -119,7 +120,7 @@ def fleet_workers(
     encoder_log: Path,
     fleet_database: str,
 ) -> Iterator[WorkerPool]:
-    env = {**SERVICE_ENV, **FLEET_ENV, **worker_env, "BFIELDS_TEST_ENCODER_CALL_LOG": str(encoder_log),
+    env = {**SERVICE_ENV, **FLEET_ENV, **worker_env, ENCODER_CALL_LOG_ENV: str(encoder_log),
            "BFIELDS_DATABASE_URL": fleet_database}  # fmt: skip
     started = [
         celery_workers.start("gpu", pool="prefork", concurrency=3, extra_env=env),

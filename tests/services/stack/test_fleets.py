@@ -32,6 +32,7 @@ from tests.integration.fixtures.s3_server import S3Server
 from tests.integration.fixtures.services import ApiServer, ControlServer
 from tests.services.conftest import SERVICE_ENV
 from tests.services.support.private_stack import PrivateStack, upload, wait_job
+from tests.services.support.service_hooks import armed_key, disarm, reached_key
 
 from .test_workers import _wait_for
 
@@ -491,14 +492,14 @@ def test_a_worker_killed_after_taking_a_message_before_the_stage_lock_loses_no_j
     point = "stage:perceive:before_lock"
     with busy.api.client("tenant-a") as a:
         scene = upload(a, scene_dir)
-        r.set(f"bf:test:pause:{point}", scene)
+        r.set(armed_key(point), scene)
         try:
             job_id = a.post("/v1/jobs", json={"scene_id": scene, "tasks": ["red blob"],
                                               "parameters": PARAMS}).json()["id"]  # fmt: skip
-            _wait_for(lambda: r.exists(f"bf:test:reached:{point}:{scene}"), 120, "the message taken")
+            _wait_for(lambda: r.exists(reached_key(point, scene)), 120, "the message taken")
             gpu.kill()  # the worker and its children: the message stays unacknowledged
         finally:
-            r.delete(f"bf:test:pause:{point}")
+            disarm(r, point)
         t0 = time.monotonic()
         busy.pool.start("gpu")
         final = wait_job(a, job_id, 240)

@@ -1,6 +1,6 @@
 """A cancel accepted while the cluster stage runs stops the job: cancelled, no result, slot freed.
 
-Real workers; the worker holds the job at a progress pause point (`common/pause_points.py`):
+Real workers; the worker holds the job at a progress pause point (`tests/services/support/service_hooks.py`):
 cluster at 0.8 (objects found, result not yet written) and at 1.0 (result written, job not yet
 marked succeeded), the two places where a cancel used to be ignored.
 """
@@ -17,9 +17,9 @@ import redis
 from bayesian_fields_service.common.job_queue import JobQueue
 from bayesian_fields_service.records.database import engine
 from tests.integration.fixtures.services import ApiServer
-from tests.services.api.test_scene_races import arm, resume, wait_reached
 from tests.services.stack.test_workers import PARAMS, TASKS, _upload
 from tests.services.support.private_stack import wait_job
+from tests.services.support.service_hooks import arm, resume, wait_reached
 
 # Longer than the default timeout (pyproject.toml): its own waits: 240 s for the pause point, then 120 s for the job.
 pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.timeout(600)]

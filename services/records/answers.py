@@ -1,0 +1,246 @@
+"""The statements of the `answers` table (issue 42): a succeeded job's answers written with its
+success, a scene's removed with its delete, a batch's paged in a stable order, a tenant's fleet
+searched for one task, and the backfill's list of succeeded jobs without answers.
+
+Why keyset paging everywhere (also for the streamed export): a page is one indexed range read
+whatever the batch's size, and an export is a loop of such pages, so the API's memory stays that
+of one page and no connection is held between pages (an OFFSET or a long-lived server-side cursor
+would cost either the batch's size in time or a connection for the export's duration).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from sqlalchemy import Connection, Engine, and_, delete, func, insert, literal, or_, select, tuple_
+from sqlalchemy.dialects.postgresql import distinct_on
+from sqlalchemy.sql import Select
+
+from bayesian_fields_service.records.tables import answers, batch_jobs, jobs, scenes
+
+#: The columns every answer listing returns, in this order (the CSV header; `answers_format`).
+COLUMNS: tuple[str, ...] = (
+    "job_id", "scene_id", "scene_name", "task", "task_index", "rank", "found", "object_id",
+    "content_key", "probability", "best_view_score", "score", "ranked_by", "num_gaussians", "frame",
+    "centre_x", "centre_y", "centre_z", "extent_x", "extent_y", "extent_z", "rotation",
+    "centroid_x", "centroid_y", "centroid_z", "preview", "not_found_reason",
+)  # fmt: skip
+
+
+@dataclass(frozen=True)
+class AnswerFilter:
+    """What a listing keeps: one task's exact text (resolved by `matching_tasks`), a least
+    probability, a greatest rank, found or not, one scene (by name or id)."""
+
+    task: str | None = None
+    min_probability: float | None = None
+    max_rank: int | None = None
+    found: bool | None = None
+    scene: str | None = None
+
+
+def replace_job(conn: Connection, job_id: str, rows: Sequence[dict[str, Any]]) -> None:
+    """The job's answers become `rows` (its earlier rows deleted first): a repeated finish or a
+    backfill run twice writes them once. Inside the caller's transaction."""
+    conn.execute(delete(answers).where(answers.c.job_id == job_id))
+    if rows:  # every row with every column: one executemany needs one shape ("not found" rows hold few)
+        names = [c.name for c in answers.columns]
+        conn.execute(insert(answers), [{n: row.get(n) for n in names} for row in rows])
+
+
+def delete_scene(conn: Connection, tenant: str, scene_id: str) -> int:
+    """Remove every answer of the scene's jobs (a scene's delete; jobs keep no key to scenes)."""
+    done = conn.execute(delete(answers).where(answers.c.tenant == tenant, answers.c.scene_id == scene_id))
+    return int(done.rowcount or 0)
+
+
+def _columns(position: Any) -> list[Any]:
+    named = [answers.c[c] for c in COLUMNS if c not in ("scene_name",)]
+    return [*named, scenes.c.name.label("scene_name"), position.label("position")]
+
+
+def _filtered(query: Select, wanted: AnswerFilter) -> Select:
+    if wanted.task is not None:
+        query = query.where(answers.c.task == wanted.task)
+    if wanted.min_probability is not None:
+        query = query.where(answers.c.probability >= wanted.min_probability)
+    if wanted.max_rank is not None:
+        query = query.where(answers.c.rank <= wanted.max_rank)
+    if wanted.found is not None:
+        query = query.where(answers.c.found.is_(wanted.found))
+    if wanted.scene is not None:
+        query = query.where(or_(scenes.c.name == wanted.scene, answers.c.scene_id == wanted.scene))
+    return query
+
+
+def batch_page(
+    database: Engine,
+    tenant: str,
+    batch_id: str,
+    wanted: AnswerFilter,
+    *,
+    after: tuple[int, int, int] | None,
+    limit: int,
+) -> list[dict[str, Any]]:
+    """Up to `limit` answers of the batch's jobs after the key `after` = (position in the batch,
+    task index, rank), in that order (the batch's submission order, then each job's tasks and
+    ranks): stable while jobs finish, since a row's key never changes."""
+    key = tuple_(batch_jobs.c.position, answers.c.task_index, answers.c.rank)
+    query = (
+        select(*_columns(batch_jobs.c.position))
+        .select_from(
+            batch_jobs.join(answers, answers.c.job_id == batch_jobs.c.job_id).outerjoin(
+                scenes, and_(scenes.c.id == answers.c.scene_id, scenes.c.tenant == answers.c.tenant)
+            )
+        )
+        .where(batch_jobs.c.batch_id == batch_id, answers.c.tenant == tenant)
+    )
+    query = _filtered(query, wanted)
+    if after is not None:
+        query = query.where(key > tuple_(*(literal(v) for v in after)))
+    query = query.order_by(batch_jobs.c.position, answers.c.task_index, answers.c.rank).limit(limit)
+    with database.connect() as conn:
+        return [dict(r) for r in conn.execute(query).mappings()]
+
+
+def matching_tasks(database: Engine, tenant: str, part: str, *, batch_id: str | None = None) -> list[str]:
+    """The answered tasks named `part`: its exact text if any answer has it, else the tasks whose
+    text contains it (case-insensitive; at most a few, enough to say "several")."""
+    scope = select(answers.c.task).where(answers.c.tenant == tenant)
+    if batch_id is not None:
+        scope = scope.where(
+            answers.c.job_id.in_(select(batch_jobs.c.job_id).where(batch_jobs.c.batch_id == batch_id))
+        )
+    with database.connect() as conn:
+        if conn.execute(scope.where(answers.c.task == part).limit(1)).first() is not None:
+            return [part]
+        escaped = part.replace("\\", "\\\\").replace("%", "\\%").replace("_", "\\_")
+        like = scope.where(answers.c.task.ilike(f"%{escaped}%", escape="\\")).distinct().limit(10)
+        return sorted(r.task for r in conn.execute(like))
+
+
+@dataclass(frozen=True)
+class FleetAnswers:
+    """A fleet search's page: `rows` ranked by probability, `asked` the scenes whose latest
+    succeeded job asked the task, `not_found` how many of those answered it "not found"."""
+
+    rows: list[dict[str, Any]]
+    asked: int
+    not_found: int
+
+
+def fleet(
+    database: Engine,
+    tenant: str,
+    task: str,
+    *,
+    batch_ids: Sequence[str] = (),
+    min_probability: float | None = None,
+    best_only: bool = True,
+    after: tuple[float, str, int] | None = None,
+    limit: int,
+) -> FleetAnswers:
+    """The answers to `task` of each scene's latest succeeded job that asked it (within
+    `batch_ids` when given), found ones ranked by probability (then job id and rank: a total
+    order for the keyset `after` = (probability, job id, rank)); with `best_only` each scene's
+    best row only."""
+    latest = select(answers.c.job_id, answers.c.scene_id).where(
+        answers.c.tenant == tenant, answers.c.task == task
+    )
+    if batch_ids:
+        latest = latest.where(
+            answers.c.job_id.in_(
+                select(batch_jobs.c.job_id).where(batch_jobs.c.batch_id.in_(list(batch_ids)))
+            )
+        )
+    latest = (
+        latest.ext(distinct_on(answers.c.scene_id))
+        .order_by(answers.c.scene_id, answers.c.finished_at.desc(), answers.c.job_id.desc())
+        .cte("latest")
+    )
+    chosen = answers.join(latest, latest.c.job_id == answers.c.job_id).outerjoin(
+        scenes, and_(scenes.c.id == answers.c.scene_id, scenes.c.tenant == answers.c.tenant)
+    )
+    query = (
+        select(*_columns(literal(0)))
+        .select_from(chosen)
+        .where(answers.c.task == task, answers.c.found.is_(True))
+    )
+    if best_only:
+        query = query.where(answers.c.rank == 1)
+    if min_probability is not None:
+        query = query.where(answers.c.probability >= min_probability)
+    if after is not None:
+        p, job, rank = after
+        query = query.where(
+            or_(
+                answers.c.probability < p,
+                and_(
+                    answers.c.probability == p,
+                    tuple_(answers.c.job_id, answers.c.rank) > tuple_(literal(job), literal(rank)),
+                ),
+            )
+        )
+    query = query.order_by(answers.c.probability.desc(), answers.c.job_id, answers.c.rank).limit(limit)
+    counts = select(
+        func.count(),
+        func.count().filter(
+            ~select(answers.c.job_id)
+            .where(answers.c.job_id == latest.c.job_id, answers.c.task == task, answers.c.found.is_(True))
+            .exists()
+        ),
+    ).select_from(latest)
+    with database.connect() as conn:
+        rows = [dict(r) for r in conn.execute(query).mappings()]
+        asked, missing = conn.execute(counts).one()
+    return FleetAnswers(rows, int(asked), int(missing))
+
+
+def unindexed_jobs(database: Engine, *, after: str = "", limit: int) -> list[tuple[str, str, str, Any]]:
+    """Up to `limit` succeeded jobs (tenant, id, scene, finished_at) with no answer rows, by id
+    after `after`: the backfill's next batch (resumable: an indexed job never shows again)."""
+    query = (
+        select(jobs.c.tenant, jobs.c.id, jobs.c.scene_id, jobs.c.finished_at)
+        .where(
+            jobs.c.state == "succeeded",
+            jobs.c.id > after,
+            ~select(answers.c.job_id).where(answers.c.job_id == jobs.c.id).exists(),
+        )
+        .order_by(jobs.c.id)
+        .limit(limit)
+    )
+    with database.connect() as conn:
+        return [(r.tenant, r.id, r.scene_id, r.finished_at) for r in conn.execute(query)]
+
+
+def count_unindexed(database: Engine) -> int:
+    """How many succeeded jobs have no answer rows yet (the backfill's progress total)."""
+    query = select(func.count()).where(
+        jobs.c.state == "succeeded",
+        ~select(answers.c.job_id).where(answers.c.job_id == jobs.c.id).exists(),
+    )
+    with database.connect() as conn:
+        return int(conn.execute(query).scalar_one())
+
+
+def write_job(database: Engine, job_id: str, rows: Sequence[dict[str, Any]]) -> None:
+    """`replace_job` in a transaction of its own, only while the job is still succeeded (the
+    backfill: a job deleted or changed meanwhile gets no rows)."""
+    with database.begin() as conn:
+        alive = conn.execute(
+            select(jobs.c.id).where(jobs.c.id == job_id, jobs.c.state == "succeeded").with_for_update()
+        ).first()
+        if alive is not None:
+            replace_job(conn, job_id, rows)
+
+
+def answer_probability(database: Engine, tenant: str, task: str, job_id: str, rank: int) -> float | None:
+    """The probability of one found answer (a fleet cursor's position), or None when it is gone."""
+    query = select(answers.c.probability).where(
+        answers.c.tenant == tenant, answers.c.job_id == job_id, answers.c.task == task,
+        answers.c.rank == rank, answers.c.found.is_(True),
+    )  # fmt: skip
+    with database.connect() as conn:
+        return conn.execute(query).scalar_one_or_none()

@@ -278,6 +278,14 @@ class ServiceSettings(BaseSettings):
         "records database is unreachable (backoff up to 8 s between tries); past it, recovery finishes "
         "the job from its row once the database answers.",
     )
+    message_wait_s: float = Field(
+        1800.0,
+        gt=0,
+        le=7 * 24 * 3600,
+        description="How long recovery trusts that a dispatched job no worker has claimed yet still has "
+        "its message waiting in a worker queue (its live progress says 'waiting'); past it the job is "
+        "put back in the queue. Longer than the longest wait of a stage message behind others.",
+    )
     max_recoveries: int = Field(
         5,
         ge=1,

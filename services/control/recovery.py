@@ -1,26 +1,31 @@
-"""Settle the dispatched jobs no worker runs: finish, requeue or fail each, by rule, from its row.
+"""Settle the dispatched jobs no worker runs: finish, wait, requeue or fail each, by rule, from its row.
 
 A waiting job cannot be lost: it is a row (`common.job_queue`). What can be lost is a dispatched
 job's stage message (Redis restarted without its data, a worker took the message and died, the
 dispatcher died between its stamp and its send) or the write that would have ended it (the
-records database unreachable at that moment for longer than the worker's retries). Whether a
-worker runs a job is read from its row: a running stage beats `heartbeat_at` every quarter of
-`stage_lock_ttl_s` (`records.job_heartbeats`), so a job whose heartbeat is fresh is alive
-whatever Redis holds. For each dispatched, unfinished job with no fresh heartbeat, one rule:
+records database unreachable for longer than the worker's retries). Whether a worker runs a job
+is read from its row: the worker that runs a stage claims the job there and beats `heartbeat_at`
+every quarter of `stage_lock_ttl_s` (`records.job_heartbeats`). One statement reads every
+dispatched, unfinished job; each with no fresh heartbeat is settled by one rule:
 
 - **finish**: every stage is done (its artifacts and stage reports are on the row and in the
   bucket; only the final write was lost): it is marked succeeded, with its callback and usage
   rows in that same transaction, once (`jobs.lifecycle.finish`). Before, such a job was requeued
   and the dispatcher had no stage left to send, forever;
-- **wait**: its next stage's message is queued for a worker (between two stages of a chain);
-- **requeue**: otherwise, after it has looked orphaned for `recovery_grace_s` on two scans (a
-  chain between two stages has its next message queued within moments): its dispatch stamp is
-  cleared, so it is the front of its tenant's queue, and `recoveries` counts the move;
+- **wait**: no worker claims it, its live progress says its next message was sent ('waiting'),
+  and it has been idle for less than `message_wait_s`: the message waits in a worker queue
+  (queues can be long between two stages). Nothing reads the broker's own keys: the live hash is
+  this service's progress display, and when Redis lost it (a restart) the job is a suspect at once;
+- **requeue**: otherwise (a claim gone silent: a worker died mid-stage, or after taking the
+  message; no live state: Redis lost the message; a message idle past `message_wait_s`), after it
+  has looked orphaned for `recovery_grace_s` on two scans: its dispatch stamp is cleared, so it is
+  the front of its tenant's queue, and `recoveries` counts the move;
 - **fail**: a job already requeued `max_recoveries` times fails with that reason instead.
 
 A duplicate that slips through is harmless: stages are idempotent (finished stages are skipped)
-and locked, so the cost is time, never a wrong result. A requeue is fenced by the leader's lease;
-a finish or a failure is right whoever writes it (a terminal state is written once).
+and a job is claimed by one delivery at a time, so the cost is time, never a wrong result. A
+requeue is fenced by the leader's lease; a finish or a failure is right whoever writes it (a
+terminal state is written once).
 
 Run by the control process's leader only, so the first-seen times of suspects live in its memory
 (a new leader starts them afresh, which only delays a requeue by one grace period).
@@ -37,7 +42,6 @@ from bayesian_fields_core.job.stage_table import STAGES
 from bayesian_fields_service.common.jobs import JobState, JobStore
 from bayesian_fields_service.config.settings import ServiceSettings
 from bayesian_fields_service.jobs import lifecycle
-from bayesian_fields_service.live.broker import jobs_with_queued_messages
 from bayesian_fields_service.records.job_heartbeats import DispatchedJob, dispatched_jobs
 from bayesian_fields_service.records.leases import Fence, LeaseLost
 
@@ -57,7 +61,6 @@ class Recovery:
         """One scan; returns the ids of the jobs it finished, requeued or failed."""
         grace_s = self.settings.recovery_grace_s if grace_s is None else grace_s
         now = time.time()
-        queued: set[str] | None = None
         moved: list[str] = []
         seen: set[tuple[str, str]] = set()
         for job in dispatched_jobs(self.jobs.database, self.settings.stage_lock_ttl_s):
@@ -67,13 +70,12 @@ class Recovery:
                 if self._finish(job):
                     moved.append(job.id)
                 continue
-            if self.jobs.live_phase(job.tenant, job.id) == "waiting":
-                if queued is None:  # read once per scan, and only when a job needs it
-                    queued = jobs_with_queued_messages(
-                        self.jobs.redis, {self.settings.gpu_queue, self.settings.cpu_queue}
-                    )
-                if job.id in queued:
-                    continue  # its next message waits for a worker
+            if (
+                not job.claimed
+                and job.idle_s < self.settings.message_wait_s
+                and self.jobs.live_phase(job.tenant, job.id) == "waiting"
+            ):
+                continue  # its next message waits for a worker
             pair = (job.tenant, job.id)
             seen.add(pair)
             first_seen = self.suspects.setdefault(pair, now)
@@ -110,7 +112,7 @@ class Recovery:
             log.warning("failed job %s/%s: %s", job.tenant, job.id, reason)
             return True
         if self.jobs.queue.requeue(job.tenant, job.id, self.fence(), recovered=True):
-            log.warning("requeued orphaned job %s/%s (no heartbeat on its row, no queued message)",
+            log.warning("requeued orphaned job %s/%s (no worker's heartbeat on its row, no message waiting)",
                         job.tenant, job.id)  # fmt: skip
             return True
         return False

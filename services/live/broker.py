@@ -10,10 +10,7 @@ queue, the jobs table (`common.job_queue`), until the control process's dispatch
 
 from __future__ import annotations
 
-import base64
-import json
-import re
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 
 import redis
 from celery import Celery, chain
@@ -53,42 +50,9 @@ def enqueue_stages(
 #: Celery's Redis transport keeps one list per priority step of a queue (priority 0 = the name).
 PRIORITY_SUFFIXES = ("", "\x06\x163", "\x06\x166", "\x06\x169")
 
-#: A job id as it appears in a stage message (the task's arguments, `argsrepr` in its headers).
-_JOB_ID = re.compile(rb"j_[0-9a-f]{22}")
-
-
 def queue_length(client: redis.Redis, queue: str) -> int:
     """Messages waiting in a Celery queue on the Redis broker (not those a worker reserved)."""
     pipe = client.pipeline()
     for sfx in PRIORITY_SUFFIXES:
         pipe.llen(queue + sfx)
     return int(sum(pipe.execute()))
-
-
-def jobs_with_queued_messages(client: redis.Redis, queues: Iterable[str]) -> set[str]:
-    """Ids of the jobs that have a stage message waiting in one of `queues` (any priority list).
-
-    Recovery needs it to tell a dispatched job whose message still waits for a worker from one
-    whose message a worker took and then died with (before it took the stage lock): the second
-    is in no list, holds no lock, and without this check would wait for the broker's visibility
-    timeout (hours). The lists are short (the dispatcher keeps the GPU queue a few messages deep;
-    the CPU queue holds at most one message per dispatched job), so reading them whole is cheap."""
-    pipe = client.pipeline()
-    for queue in queues:
-        for sfx in PRIORITY_SUFFIXES:
-            pipe.lrange(queue + sfx, 0, -1)
-    found: set[str] = set()
-    for messages in pipe.execute():
-        for raw in messages:
-            found.update(m.decode() for m in _JOB_ID.findall(_message_text(raw)))
-    return found
-
-
-def _message_text(raw: bytes) -> bytes:
-    """A kombu message on the Redis transport (JSON) with its base64 body decoded beside it, so
-    a job id is found whether the task's arguments sit in the headers or only in the body."""
-    try:
-        body = json.loads(raw).get("body", "")
-        return raw + b"\n" + base64.b64decode(body)
-    except (ValueError, TypeError, AttributeError):
-        return raw

@@ -1,5 +1,6 @@
-"""One Redis lock with a heartbeat, for work whose holder may die without a word: a stage's
-execution (`worker.tasks.StageLock`) and a cache fill (`live.single_flight`).
+"""One Redis lock with a heartbeat, for work whose holder may die without a word: a cache fill
+(`live.single_flight`). A stage's execution is claimed on the job's row instead
+(`records.job_heartbeats`): that is a record, this only saves duplicated work.
 
 The lock is a key holding its owner's token, set with a TTL; a heartbeat thread renews it every
 `ttl / beats` seconds while the holder lives, and puts it back if Redis lost it (a restart without

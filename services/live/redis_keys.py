@@ -1,10 +1,11 @@
 """Every Redis key the service reads or writes, in one place.
 
-Why one module: a key written in one file and read in another (a live hash, a stage lock that
-recovery looks for) is an interface; when each side spelled it, the job's live key ended up
+Why one module: a key written in one file and read in another (a live hash, a cancel flag that
+workers poll) is an interface; when each side spelled it, the job's live key ended up
 defined twice and written a third time inside a Lua script. What Redis holds is disposable:
-live progress, cancel flags, stage and single-flight locks and metrics histograms (the tests'
-pause points keep their keys in their own plugin, tests/services/support/service_hooks.py); the records (jobs, their queue, batches, scenes, callbacks, usage) are PostgreSQL's. The
+live progress, cancel flags (a cache of the row's), single-flight locks and metrics histograms (the
+tests' pause points keep their keys in their own plugin, tests/services/support/service_hooks.py);
+the records (jobs, their queue, batches, scenes, callbacks, usage) are PostgreSQL's. The
 Celery broker's own keys (one list per queue and priority, named after the queue) are Celery's.
 """
 
@@ -19,16 +20,6 @@ def live_job(tenant: str, job_id: str) -> str:
 def cancel_flag(tenant: str, job_id: str) -> str:
     """A set key while a cancel was accepted: workers look between frames."""
     return f"bf:cancel:{tenant}:{job_id}"
-
-
-def stage_lock(tenant: str, job_id: str, stage: str) -> str:
-    """The heartbeat lock of one stage execution (`live.heartbeat_lock`)."""
-    return f"bf:lock:{tenant}:{job_id}:{stage}"
-
-
-def stage_lock_pattern(tenant: str, job_id: str) -> str:
-    """SCAN pattern of every stage lock of one job (recovery: does a worker run it?)."""
-    return stage_lock(tenant, job_id, "*")
 
 
 def flight_lock(tenant: str, key: str) -> str:

@@ -91,7 +91,12 @@ def requeue(conn: Connection, tenant: str, job_id: str, *, recovered: bool) -> b
     moved = conn.execute(
         update(jobs)
         .where(jobs.c.tenant == tenant, jobs.c.id == job_id, DISPATCHED)
-        .values(dispatched_at=None, state="queued", recoveries=jobs.c.recoveries + (1 if recovered else 0))
+        .values(
+            dispatched_at=None,
+            state="queued",
+            recoveries=jobs.c.recoveries + (1 if recovered else 0),
+            worker=None,  # whatever held it is gone: its next delivery claims it afresh
+        )
     )
     return bool(moved.rowcount)
 

@@ -1,17 +1,21 @@
 """The stage tasks: one Celery task per pipeline stage, each idempotent and resumable.
 
-A task (tenant, job id) loads the job's record (its PostgreSQL row), skips a stage whose
-``stages/<name>.json`` marker exists, otherwise holds a per-(job, stage) Redis lock while it runs
-`run_stage`, reporting progress to Redis and the outcome to the job's row. Failure handling:
+A task (tenant, job id) loads the job's record (its row), skips a stage already in its
+`stages_done`, otherwise claims the job on its row (`StageClaim`: the worker's name and a
+heartbeat, beaten every quarter of the lease while the stage runs) and runs `run_stage`,
+reporting progress to Redis (display only) and the outcome to the row. Failure handling:
 - `InputError` (bad scene, bad parameter): the job fails with the message; no retry;
 - `CancelledError` (the cancel flag, checked between frames): the job is cancelled;
-- connection / storage errors: retried with exponential backoff, at most ``job_max_retries``;
-- a killed worker: the message was not acknowledged (acks_late), Redis redelivers it after the
-  visibility timeout, and the stage re-runs from its last finished marker;
+- connection / storage errors, or the records database unreachable at the stage's start: retried
+  with exponential backoff, at most ``job_max_retries``; the stage's and the job's end are retried
+  until they land (`jobs.durable_writes`);
+- a killed worker: its claim lapses after the lease and the control process's recovery, which
+  reads the row, puts the job back in the queue (`control.recovery`); the stage re-runs from its
+  last finished marker;
 - a killed pool child: Celery requeues its message at once (reject_on_worker_lost); the dead
-  child's stage lock is taken over as soon as its owner process is known dead (same host), else
-  the delivery waits, with a countdown of the lock's remaining TTL and no limit on such waits,
-  until the lock expires. Waiting for a lock never uses the transient-error retry budget.
+  child's claim is taken over as soon as its owner process is known dead (same host), else the
+  delivery waits, with a countdown of the claim's remaining lease and no limit on such waits,
+  until it lapses. Waiting for a claim never uses the transient-error retry budget.
 Models are built once per worker process, keyed by profile. The scene is read from one local copy
 per scene and content version, shared by the host's pool processes (`scene_cache`).
 """
@@ -50,10 +54,7 @@ from bayesian_fields_service.common.jobs import JobRecord, JobState, JobStore
 from bayesian_fields_service.config.settings import ServiceSettings
 from bayesian_fields_service.jobs import lifecycle
 from bayesian_fields_service.jobs.durable_writes import until_landed
-from bayesian_fields_service.live import redis_keys
-from bayesian_fields_service.live.heartbeat_lock import HeartbeatLock
 from bayesian_fields_service.live.metrics import observe_stage
-from bayesian_fields_service.live.redis_text import text
 from bayesian_fields_service.live.single_flight import RedisFlight
 from bayesian_fields_service.records import job_heartbeats
 from bayesian_fields_service.records.database import open_records
@@ -184,49 +185,95 @@ def _process_start(pid: int) -> str | None:
 _HOST = socket.gethostname()
 
 
-class StageLock:
-    """A lock on (job, stage) with a heartbeat (`live.heartbeat_lock`), so a redelivered
-    duplicate never runs the same stage concurrently; a crashed holder's lock expires after
-    `ttl_s` (`ServiceSettings.stage_lock_ttl_s`); the holder renews it every quarter of that.
+def worker_name() -> str:
+    """This process's name on a job's row: ``host:pid:process start:random`` (unique per claim,
+    so it fences its own beats; host, pid and start let a delivery on the same host see that a
+    holder is dead)."""
+    pid = os.getpid()
+    return f"{_HOST}:{pid}:{_process_start(pid)}:{secrets.token_hex(8)}"
 
-    The lock's value names its owner (``host:pid:process start:random``), so a delivery on the
-    same host can see that the owner is dead (a SIGKILLed pool child) and take the lock over at
-    once instead of waiting for the TTL."""
 
-    def __init__(self, client: redis.Redis, key: str, ttl_s: int) -> None:
-        pid = os.getpid()
-        self.lock = HeartbeatLock(
-            client, key, f"{_HOST}:{pid}:{_process_start(pid)}:{secrets.token_hex(8)}", ttl_s
-        )
+def _dead_on_this_host(holder: str | None) -> bool:
+    """`holder` ran on this host and that process is gone (a SIGKILLed pool child)."""
+    if not holder:
+        return False
+    host, _, rest = holder.partition(":")
+    pid, _, rest = rest.partition(":")
+    started = rest.partition(":")[0]
+    return host == _HOST and pid.isdigit() and _process_start(int(pid)) != started
+
+
+class StageClaim:
+    """The job claimed on its row for one stage execution, with a heartbeat while it runs
+    (`records.job_heartbeats`), so a duplicate delivery never runs a stage of the job at the same
+    time and recovery knows the job is alive without asking Redis. A crashed holder's claim
+    lapses `stage_lock_ttl_s` after its last beat; one on this host whose process is gone is taken
+    over at once. Each beat reads the job's cancel flag back (`cancel_requested`): a cancel
+    reaches the stage even with Redis away. A beat that fails (the database away) is tried again
+    at the next; one that finds the claim gone stops the beating, not the stage."""
+
+    def __init__(self, rt: _Runtime, tenant: str, job_id: str) -> None:
+        self.rt = rt
+        self.tenant, self.job_id = tenant, job_id
+        self.worker = worker_name()
+        self.lease_s = float(rt.settings.stage_lock_ttl_s)
+        self.cancel_requested = threading.Event()
+        self._remaining_s = 0.0
+        self.ended = False  # the job was no longer active when it was claimed
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
 
     def acquire(self) -> bool:
-        return self.lock.acquire() or self._take_over_from_dead()
+        """Claim the job; on success the heartbeat starts."""
+        db = self.rt.jobs.database
+        got = job_heartbeats.claim(db, self.tenant, self.job_id, self.worker, self.lease_s)
+        if not got.taken and not got.ended and _dead_on_this_host(got.holder):
+            got = job_heartbeats.claim(db, self.tenant, self.job_id, self.worker, self.lease_s,
+                                       dead_owner=got.holder)  # fmt: skip
+            if got.taken:
+                log.warning("job %s/%s: its holder %s is dead; taken over", self.tenant, self.job_id,
+                            self.holder_pid(got.holder))  # fmt: skip
+        if not got.taken:
+            self._remaining_s = got.remaining_s
+            self.ended = got.ended
+            return False
+        self._thread = threading.Thread(target=self._run, name="bf-stage-heartbeat", daemon=True)
+        self._thread.start()
+        return True
 
-    def _take_over_from_dead(self) -> bool:
-        """Take the lock over when its owner ran on this host and that process is gone."""
-        holder = self.lock.holder()
-        if holder is None:  # expired between the two calls
-            return self.lock.acquire()
-        host, _, rest = text(holder, errors="replace").partition(":")
-        pid, _, rest = rest.partition(":")
-        started = rest.partition(":")[0]
-        if host != _HOST or not pid.isdigit() or _process_start(int(pid)) == started:
-            return False  # another host's (cannot check) or alive
-        taken = self.lock.take_over(holder)
-        if taken:
-            log.warning("stage lock %s: owner pid %s is dead; taken over", self.lock.key, pid)
-        return taken
+    @staticmethod
+    def holder_pid(holder: str | None) -> str:
+        return (holder or "").split(":")[1] if holder and holder.count(":") >= 1 else "?"
 
     def wait_s(self) -> float:
-        """Seconds until the current holder's lock expires unless renewed (at least 1)."""
-        return max(1.0, self.lock.remaining_s() + 0.5)
+        """Seconds until the current holder's claim lapses unless it beats (at least 1)."""
+        return max(1.0, self._remaining_s + 0.5)
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.lease_s / 4):
+            try:
+                found = job_heartbeats.beat(self.rt.jobs.database, self.tenant, self.job_id, self.worker)
+            except Exception as exc:  # the database away for a moment: the next beat tries again
+                log.warning(
+                    "heartbeat of %s/%s not written (%s)", self.tenant, self.job_id, type(exc).__name__
+                )
+                continue
+            if found.cancel_requested:
+                self.cancel_requested.set()
+            if not found.held:
+                log.warning(
+                    "job %s/%s ended or was taken over; its heartbeat stops", self.tenant, self.job_id
+                )
+                return
 
     def release(self) -> None:
-        self.lock.release()
-
-
-def stage_lock_key(tenant: str, job_id: str, stage: str) -> str:
-    return redis_keys.stage_lock(tenant, job_id, stage)
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5)
+        try:
+            job_heartbeats.stage_ended(self.rt.jobs.database, self.tenant, self.job_id, self.worker)
+        except Exception as exc:  # the claim lapses by itself after the lease
+            log.warning("claim of %s/%s not given up (%s)", self.tenant, self.job_id, type(exc).__name__)
 
 
 def _finish(rt: _Runtime, record: JobRecord, state: JobState, error: str | None = None) -> JobRecord:
@@ -243,80 +290,43 @@ def _account(rt: _Runtime, record: JobRecord, stage: str, meter: StageMeter) -> 
                          write_budget_s=rt.settings.record_write_budget_s)  # fmt: skip
 
 
-class RowHeartbeat:
-    """While a stage runs, its worker's name and a heartbeat on the job's row, every quarter of
-    `stage_lock_ttl_s` (`records.job_heartbeats`): what recovery reads to know the job is alive.
-    A beat that fails (the database away) is tried again at the next; one that finds the job
-    ended or taken over by a later attempt stops the beating, not the stage."""
-
-    def __init__(self, rt: _Runtime, record: JobRecord) -> None:
-        self.rt = rt
-        self.record = record
-        pid = os.getpid()
-        self.worker = f"{_HOST}:{pid}:{_process_start(pid)}:{secrets.token_hex(4)}"
-        self.interval_s = rt.settings.stage_lock_ttl_s / 4
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="bf-row-heartbeat", daemon=True)
-
-    def _beat(self) -> bool:
-        r = self.record
-        try:
-            return job_heartbeats.beat(self.rt.jobs.database, r.tenant, r.id, self.worker, r.stage_runs)
-        except Exception as exc:  # the database away for a moment: the next beat tries again
-            log.warning("heartbeat of %s/%s not written (%s)", r.tenant, r.id, type(exc).__name__)
-            return True
-
-    def _run(self) -> None:
-        while not self._stop.wait(self.interval_s):
-            if not self._beat():
-                log.warning("job %s/%s ended or was taken over; its heartbeat stops", self.record.tenant,
-                            self.record.id)  # fmt: skip
-                return
-
-    def __enter__(self) -> RowHeartbeat:
-        self._beat()
-        self._thread.start()
-        return self
-
-    def __exit__(self, *_: object) -> None:
-        self._stop.set()
-        self._thread.join(timeout=5)
-        r = self.record
-        try:
-            job_heartbeats.stage_ended(self.rt.jobs.database, r.tenant, r.id, self.worker)
-        except Exception as exc:  # the heartbeat goes stale by itself
-            log.warning("stage end of %s/%s not marked on its row (%s)", r.tenant, r.id, type(exc).__name__)
-
-
 def execute_stage(task: Task, stage: str, tenant: str, job_id: str, lock_waits: int = 0) -> str:
     """The body of every stage task; returns what happened ('ran', 'skipped', 'cancelled', ...).
-    `lock_waits`: how many of this delivery's retries were waits for the stage lock."""
+    `lock_waits`: how many of this delivery's retries were waits for another delivery's claim.
+
+    The job is claimed on its row first thing after the message is read, so a worker that dies
+    from then on leaves a claim that lapses (and recovery takes the job back), never a job that
+    looks as if its message still waited. Reading the row and claiming it wait out a records
+    database outage (`durable_writes`) instead of spending the transient-error retries."""
     rt = runtime()
-    record = rt.jobs.load(tenant, job_id)
+    budget = rt.settings.record_write_budget_s
+    record = until_landed(lambda: rt.jobs.load(tenant, job_id), budget_s=budget, what=f"reading job {job_id}")
     if record is None:
         log.warning("job %s/%s has no record; dropping %s", tenant, job_id, stage)
         return "missing"
     if record.state.terminal:
         return f"already {record.state.value}"
-    if lifecycle.should_stop(rt.jobs, record):
-        _finish(rt, record, JobState.cancelled, "cancelled by request")
-        return "cancelled"
-    if stage in record.stages_done:
-        # A duplicate message (recovery's enqueue of a job the API had enqueued after all): the
-        # stage ran and is recorded; not counted as a stage run, and the chain goes on.
-        return "skipped"
-    # Between taking the message and taking the stage lock (a test kills the worker here).
-    hooks.point("stage.before_lock", tenant=tenant, job_id=job_id, stage=stage, scene_id=record.scene_id)
-    lock = StageLock(rt.redis, stage_lock_key(tenant, job_id, stage), rt.settings.stage_lock_ttl_s)
-    if not lock.acquire():
-        # Another delivery of this stage is running (or its holder died on another host): try
-        # again when its lock would have expired. Unlimited: a live holder renews its lock, and
-        # a dead one's lock expires within stage_lock_ttl_s, so this ends.
+    lock = StageClaim(rt, tenant, job_id)
+    if not until_landed(lock.acquire, budget_s=budget, what=f"claiming job {job_id}"):
+        if lock.ended:
+            return "ended"
+        # Another delivery runs a stage of this job (or its holder died on another host): try
+        # again when its claim would lapse. Unlimited: a live holder beats its claim, and a dead
+        # one's lapses within stage_lock_ttl_s, so this ends.
         countdown = lock.wait_s()
-        log.info("stage %s of %s is locked; retry in %.1fs", stage, job_id, countdown)
+        log.info("stage %s of %s is locked; retry in %.1fs", stage, job_id, countdown)  # claimed on its row
         raise task.retry(countdown=countdown, kwargs={"lock_waits": lock_waits + 1})
     try:
-        return _run_locked(rt, record, stage)
+        if lifecycle.should_stop(rt.jobs, record):
+            _finish(rt, record, JobState.cancelled, "cancelled by request")
+            return "cancelled"
+        if stage in record.stages_done:
+            # A duplicate message (recovery's enqueue of a job the API had enqueued after all): the
+            # stage ran and is recorded; not counted as a stage run, and the chain goes on.
+            return "skipped"
+        # The message taken and the job claimed, the stage not started: a test kills the worker here.
+        hooks.point("stage.before_lock", tenant=tenant, job_id=job_id, stage=stage, scene_id=record.scene_id)
+        return _run_locked(rt, record, stage, lock)
     finally:
         lock.release()
 
@@ -342,16 +352,15 @@ class SharedSceneCopy:
         return SceneOrigin(prefix=self.prefix)
 
 
-def _run_locked(rt: _Runtime, record: JobRecord, stage: str) -> str:
-    record = lifecycle.start_stage(rt.jobs, record, stage)
+def _run_locked(rt: _Runtime, record: JobRecord, stage: str, claim: StageClaim) -> str:
+    tenant, job_id = record.tenant, record.id
+    record = until_landed(
+        lambda: lifecycle.start_stage(rt.jobs, record, stage),
+        budget_s=rt.settings.record_write_budget_s,
+        what=f"the start of stage {stage} of job {tenant}/{job_id}",
+    )
     if record.state.terminal:
         return f"already {record.state.value}"
-    with RowHeartbeat(rt, record):
-        return _run_started(rt, record, stage)
-
-
-def _run_started(rt: _Runtime, record: JobRecord, stage: str) -> str:
-    tenant, job_id = record.tenant, record.id
     last = [0.0]
 
     def progress(name: str, fraction: float) -> None:
@@ -366,6 +375,9 @@ def _run_started(rt: _Runtime, record: JobRecord, stage: str) -> str:
                 log.warning("progress update for %s lost (Redis unavailable)", job_id)
 
     def should_cancel() -> bool:
+        """The row's flag as the last heartbeat read it, or Redis's copy (set at once by the API)."""
+        if claim.cancel_requested.is_set():
+            return True
         try:
             return rt.jobs.is_cancel_requested(tenant, job_id)
         except redis.RedisError:

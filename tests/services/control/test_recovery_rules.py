@@ -5,6 +5,7 @@ worker is put back in the queue and counted; one that lost it too often fails wi
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 import pytest
@@ -49,12 +50,50 @@ def _recovery(store: JobStore, **settings: object) -> Recovery:
 
 def test_a_job_whose_worker_beats_its_row_is_left_alone(store: JobStore) -> None:
     record = _dispatched(store, state="running", stage="perceive", stage_runs=1)
-    assert job_heartbeats.beat(store.database, "t", record.id, "host:1:2:ab", attempt=1)
+    assert job_heartbeats.claim(store.database, "t", record.id, "host:1:2:ab", lease_s=4).taken
+    assert job_heartbeats.beat(store.database, "t", record.id, "host:1:2:ab").held
     assert _recovery(store).scan(grace_s=0) == []
     assert _row(store.database, record.id)["dispatched_at"] is not None
-    assert not job_heartbeats.beat(
-        store.database, "t", record.id, "host:1:2:ab", attempt=0
-    )  # a stale attempt
+    assert not job_heartbeats.beat(store.database, "t", record.id, "host:9:9:cd").held  # not its claim
+
+
+def test_a_claim_keeps_other_deliveries_out_until_it_lapses_or_its_holder_is_dead(store: JobStore) -> None:
+    record = _dispatched(store, state="running", stage="fuse", stage_runs=2)
+    db = store.database
+    assert job_heartbeats.claim(db, "t", record.id, "host:1:2:ab", lease_s=2).taken
+    refused = job_heartbeats.claim(db, "t", record.id, "host:3:4:cd", lease_s=2)
+    assert not refused.taken and refused.holder == "host:1:2:ab" and 0 < refused.remaining_s <= 2
+    taken_over = job_heartbeats.claim(db, "t", record.id, "host:3:4:cd", lease_s=2, dead_owner="host:1:2:ab")
+    assert taken_over.taken  # the holder is known dead: no waiting
+    assert not job_heartbeats.beat(db, "t", record.id, "host:1:2:ab").held  # the old holder is fenced out
+    time.sleep(2.2)
+    assert job_heartbeats.claim(db, "t", record.id, "host:5:6:ef", lease_s=2).taken  # lapsed
+    job_heartbeats.stage_ended(db, "t", record.id, "host:5:6:ef")
+    assert _row(db, record.id)["worker"] is None
+
+
+def test_a_beat_reads_the_cancel_back_and_an_ended_job_cannot_be_claimed(store: JobStore) -> None:
+    record = _dispatched(store, state="running", stage="fuse", stage_runs=2)
+    db = store.database
+    assert job_heartbeats.claim(db, "t", record.id, "host:1:2:ab", lease_s=4).taken
+    assert not job_heartbeats.beat(db, "t", record.id, "host:1:2:ab").cancel_requested
+    store.request_cancel("t", record.id)
+    assert job_heartbeats.beat(db, "t", record.id, "host:1:2:ab").cancel_requested
+    store.save(record.model_copy(update={"state": JobState.failed, "error": "x"}))
+    assert job_heartbeats.claim(db, "t", record.id, "host:3:4:cd", lease_s=4).ended
+
+
+def test_an_unclaimed_job_whose_message_waits_is_left_alone_until_it_waited_too_long(store: JobStore) -> None:
+    record = _dispatched(store, state="queued")
+    store.touch_live(record)  # the dispatcher's mark: its message was sent ('waiting')
+    assert _recovery(store).scan(grace_s=0) == []
+    assert _recovery(store, message_wait_s=0.001).scan(grace_s=0) == [record.id]
+
+
+def test_a_dispatched_job_with_no_live_state_is_a_suspect_at_once(store: JobStore) -> None:
+    """Redis lost the message and the live hash with it: no waiting for `message_wait_s`."""
+    record = _dispatched(store, state="queued")
+    assert _recovery(store).scan(grace_s=0) == [record.id]
 
 
 def test_a_job_with_every_stage_done_and_no_end_is_finished_once(store: JobStore) -> None:
@@ -104,3 +143,17 @@ def test_a_suspect_waits_its_grace_over_two_scans(store: JobStore) -> None:
     assert recovery.scan(grace_s=60) == []  # still within its grace
     assert _row(store.database, record.id)["dispatched_at"] is not None
     assert recovery.scan(grace_s=0) == [record.id]
+
+
+def test_recovery_reads_none_of_the_brokers_keys() -> None:
+    """Recovery decides from the row (and the service's own live progress), never from the broker's
+    lists: its module imports nothing of the broker adapter and names no queue."""
+    import ast
+
+    import bayesian_fields_service.control.recovery as recovery
+
+    tree = ast.parse(Path(recovery.__file__).read_text())
+    imported = {n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
+    assert not any(m and (m.endswith("live.broker") or m.startswith("kombu")) for m in imported), imported
+    names = {n.attr for n in ast.walk(tree) if isinstance(n, ast.Attribute)}
+    assert not names & {"gpu_queue", "cpu_queue", "lrange", "llen"}, names

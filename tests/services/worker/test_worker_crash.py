@@ -1,9 +1,9 @@
-"""Stage locks against crashes, with real prefork workers on a private Redis and recovery scans
-switched off (so only the stage task's own retry logic can finish a job):
+"""A job's claim on its row against crashes, with real prefork workers on a private Redis and
+recovery scans switched off (so only the stage task's own retry logic can finish a job):
 - a pool child SIGKILLed mid-stage: Celery requeues the message at once; the new child sees that
-  the lock's owner process is dead and takes the lock over, and the job completes;
-- a lock held by a process on another host (which cannot be checked): the delivery waits with
-  countdowns of the lock's remaining TTL, however many that takes, and runs once it expired.
+  the claim's owner process is dead and takes the claim over, and the job completes;
+- a claim held by a process on another host (which cannot be checked): the delivery waits with
+  countdowns of the claim's remaining lease, however many that takes, and runs once it lapsed.
 Before, both waited at most 3 retries of a quarter TTL each, far less than the TTL, and then gave
 up with the job left 'running'."""
 
@@ -16,7 +16,10 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 
 import pytest
+from sqlalchemy import Engine, func, select, update
 
+from bayesian_fields_service.records.database import engine
+from bayesian_fields_service.records.tables import jobs
 from tests.services.conftest import SERVICE_ENV
 from tests.services.support.private_stack import PrivateStack, pool_children, upload, wait_job
 from tests.services.support.scene_factory import make_scene
@@ -26,6 +29,23 @@ pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.timeout(600
 
 TASKS = ["red blob", "green blob"]
 FOREIGN_LOCK_S = 20
+LEASE_S = 60
+
+
+def _database(stack: PrivateStack) -> Engine:
+    return engine(stack.env["BFIELDS_DATABASE_URL"])
+
+
+def _claim_for(stack: PrivateStack, job_id: str, worker: str, *, beaten_s_ago: float) -> None:
+    """Write a claim on the job's row as a worker elsewhere would have (`records.job_heartbeats`)."""
+    beaten = func.now() - func.make_interval(0, 0, 0, 0, 0, 0, beaten_s_ago)
+    with _database(stack).begin() as conn:
+        conn.execute(update(jobs).where(jobs.c.id == job_id).values(worker=worker, heartbeat_at=beaten))
+
+
+def _holder(stack: PrivateStack, job_id: str) -> str | None:
+    with _database(stack).connect() as conn:
+        return conn.execute(select(jobs.c.worker).where(jobs.c.id == job_id)).scalar()
 
 
 @pytest.fixture(scope="module")
@@ -40,7 +60,7 @@ def stack(private_stacks: Callable[[str, Mapping[str, str]], PrivateStack]) -> P
         **SERVICE_ENV,
         "BFIELDS_RECOVERY_GRACE_S": "36000",  # no rescue by recovery scans
         # the production TTL: a requeued delivery could not just outwait a short one by accident
-        "BFIELDS_STAGE_LOCK_TTL_S": "60",
+        "BFIELDS_STAGE_LOCK_TTL_S": str(LEASE_S),
     }
     stack = private_stacks("crash-stack", extra).start()
     assert stack.pool is not None
@@ -55,9 +75,9 @@ def test_lock_of_another_host_is_waited_out(stack: PrivateStack, big_scene: Path
         job_id = client.post(
             "/v1/jobs", json={"scene_id": scene_id, "tasks": TASKS, "parameters": {"max_frames": 4}}
         ).json()["id"]
-        # a holder on another machine (its liveness cannot be checked from here)
-        key = f"bf:lock:tenant-a:{job_id}:perceive"
-        stack.redis.set(key, f"another-host:4242:1:{'0' * 16}", ex=FOREIGN_LOCK_S)
+        # a holder on another machine (its liveness cannot be checked from here), whose claim on
+        # the job's row lapses FOREIGN_LOCK_S from now (its last beat LEASE_S - FOREIGN_LOCK_S ago)
+        _claim_for(stack, job_id, f"another-host:4242:1:{'0' * 16}", beaten_s_ago=LEASE_S - FOREIGN_LOCK_S)
         t0 = time.monotonic()
         gpu = stack.pool.start("gpu", pool="prefork")
         job = wait_job(client, job_id, timeout_s=FOREIGN_LOCK_S + 240)
@@ -75,9 +95,8 @@ def test_pool_child_killed_mid_stage_job_completes(stack: PrivateStack, big_scen
         job_id = client.post(
             "/v1/jobs", json={"scene_id": scene_id, "tasks": TASKS, "parameters": {"max_frames": 16}}
         ).json()["id"]
-        key = f"bf:lock:tenant-a:{job_id}:perceive"
         deadline = time.monotonic() + 120
-        while not stack.redis.exists(key):  # the child holds the perceive lock: it is mid-stage
+        while _holder(stack, job_id) is None:  # the child claimed the job: it is mid-stage
             assert time.monotonic() < deadline, "perceive never started"
             time.sleep(0.05)
         assert gpu.process.pid is not None

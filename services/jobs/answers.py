@@ -147,7 +147,7 @@ def index_existing(
     after = ""
     while batch := answer_records.unindexed_jobs(database, after=after, limit=chunk):
         for tenant, job_id, scene_id, finished_at in batch:
-            job = JobRecord.model_construct(id=job_id, tenant=tenant, scene_id=scene_id)
+            job = JobRecord.model_construct(id=job_id, tenant=tenant, scene_id=scene_id, tasks=[])
             try:
                 rows = answer_rows(tenant_store(bucket, tenant), job, finished_at or utcnow())
             except InputError as exc:

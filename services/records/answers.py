@@ -146,17 +146,17 @@ def fleet(
     `batch_ids` when given), found ones ranked by probability (then job id and rank: a total
     order for the keyset `after` = (probability, job id, rank)); with `best_only` each scene's
     best row only."""
-    latest = select(answers.c.job_id, answers.c.scene_id).where(
+    asked = select(answers.c.job_id, answers.c.scene_id).where(
         answers.c.tenant == tenant, answers.c.task == task
     )
     if batch_ids:
-        latest = latest.where(
+        asked = asked.where(
             answers.c.job_id.in_(
                 select(batch_jobs.c.job_id).where(batch_jobs.c.batch_id.in_(list(batch_ids)))
             )
         )
     latest = (
-        latest.ext(distinct_on(answers.c.scene_id))
+        asked.ext(distinct_on(answers.c.scene_id))
         .order_by(answers.c.scene_id, answers.c.finished_at.desc(), answers.c.job_id.desc())
         .cte("latest")
     )
@@ -194,8 +194,8 @@ def fleet(
     ).select_from(latest)
     with database.connect() as conn:
         rows = [dict(r) for r in conn.execute(query).mappings()]
-        asked, missing = conn.execute(counts).one()
-    return FleetAnswers(rows, int(asked), int(missing))
+        n_asked, n_missing = conn.execute(counts).one()
+    return FleetAnswers(rows, int(n_asked), int(n_missing))
 
 
 def unindexed_jobs(database: Engine, *, after: str = "", limit: int) -> list[tuple[str, str, str, Any]]:

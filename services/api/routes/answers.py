@@ -9,7 +9,7 @@ parameter (422). A batch of another tenant is 404, as everywhere.
 from __future__ import annotations
 
 from collections.abc import Iterator
-from typing import Annotated, Any
+from typing import Annotated, Any, cast
 
 from fastapi import APIRouter, Header, Query
 from fastapi.exceptions import RequestValidationError
@@ -172,13 +172,14 @@ def batch_answers(
         max_rank=max_rank, found=found, scene=scene,
     )  # fmt: skip
     kind = chosen_format(format, accept)
+    after = cast("tuple[int, int, int] | None", cursor)  # parsed by AnswerCursor's validator
     if kind != "json":
-        pages = _pages(state, tenant, batch.id, wanted, cursor)
+        pages = _pages(state, tenant, batch.id, wanted, after)
         writer = csv_lines if kind == "csv" else jsonl_lines
         name = f"{batch.id}-answers.{kind}"
         return StreamingResponse(writer(pages), media_type=MEDIA[kind],
                                  headers={"Content-Disposition": f'attachment; filename="{name}"'})  # fmt: skip
-    rows = records.batch_page(state.jobs.database, tenant, batch.id, wanted, after=cursor, limit=limit + 1)
+    rows = records.batch_page(state.jobs.database, tenant, batch.id, wanted, after=after, limit=limit + 1)
     nxt = None
     if len(rows) > limit:
         last = rows[limit - 1]

@@ -19,7 +19,7 @@ depends_on = None
 
 
 def upgrade() -> None:
-    coords = [
+    coords: list[sa.Column[float]] = [
         sa.Column(f"{what}_{axis}", sa.Double())
         for what in ("centre", "extent", "centroid")
         for axis in "xyz"

@@ -260,7 +260,7 @@ def install_handlers(app: FastAPI, retry_after_s: int) -> None:
     async def _scene_refused(request: Request, exc: SceneRefused) -> JSONResponse:
         """The scenes domain's refusals (`scenes.refusals`): each kind its status."""
         kind = next(k for k in type(exc).__mro__ if k in SCENE_REFUSAL_STATUS)
-        return problem(SCENE_REFUSAL_STATUS[kind], redact_locations(str(exc)))  # type: ignore[index]
+        return problem(SCENE_REFUSAL_STATUS[kind], redact_locations(str(exc)))
 
     async def _outage(request: Request, exc: Exception) -> JSONResponse:
         backend = "object storage" if isinstance(exc, StorageError) else "the queue (Redis)"

@@ -74,7 +74,7 @@ def main(argv: list[str] | None = None) -> int:
             print(current_revision(url) or "none", "(head:", head_revision() + ")")
             return 0
         if args.command == "import-scenes":
-            from bayesian_fields_service.common.scene_import import run_import
+            from bayesian_fields_service.scenes.legacy_import import run_import
 
             print(run_import(get_settings()).line())
             return 0

@@ -30,10 +30,16 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from bayesian_fields_service.api.bulk_lane import LaneUnavailable
 from bayesian_fields_service.api.records_outage import OUTAGES, cause
-from bayesian_fields_service.common.scenes import SceneBusy, SceneGone, SceneNotReady, SceneNotUploading
 from bayesian_fields_service.jobs.refusals import Busy, Conflict, Invalid, Missing, OverQuota, Refused
 from bayesian_fields_service.live.broker import BROKER_ERRORS
 from bayesian_fields_service.sanitize.text import redact_locations, scrub_text
+from bayesian_fields_service.scenes.refusals import (
+    NoDirectUploads,
+    SceneConflict,
+    SceneGone,
+    SceneRefused,
+    UploadTooLarge,
+)
 
 #: The HTTP status of each kind of the jobs domain's refusals.
 REFUSAL_STATUS: dict[type[Refused], int] = {
@@ -42,6 +48,14 @@ REFUSAL_STATUS: dict[type[Refused], int] = {
     Conflict: 409,
     Busy: 409,
     OverQuota: 429,
+}
+
+#: The HTTP status of each kind of the scenes domain's refusals (a subclass takes its base's).
+SCENE_REFUSAL_STATUS: dict[type[SceneRefused], int] = {
+    SceneGone: 404,
+    SceneConflict: 409,
+    UploadTooLarge: 413,
+    NoDirectUploads: 501,
 }
 
 log = logging.getLogger(__name__)
@@ -242,15 +256,11 @@ def install_handlers(app: FastAPI, retry_after_s: int) -> None:
         headers = {"Retry-After": str(exc.retry_after_s)} if isinstance(exc, OverQuota) else None
         return problem(REFUSAL_STATUS[type(exc)], redact_locations(str(exc)), headers=headers)
 
-    @app.exception_handler(SceneGone)
-    async def _scene_gone(request: Request, exc: SceneGone) -> JSONResponse:
-        return problem(404, f"scene {exc.scene_id!r} not found")
-
-    async def _scene_conflict(request: Request, exc: Exception) -> JSONResponse:
-        return problem(409, redact_locations(str(exc)))
-
-    for scene_refusal in (SceneNotReady, SceneNotUploading, SceneBusy):
-        app.add_exception_handler(scene_refusal, _scene_conflict)
+    @app.exception_handler(SceneRefused)
+    async def _scene_refused(request: Request, exc: SceneRefused) -> JSONResponse:
+        """The scenes domain's refusals (`scenes.refusals`): each kind its status."""
+        kind = next(k for k in type(exc).__mro__ if k in SCENE_REFUSAL_STATUS)
+        return problem(SCENE_REFUSAL_STATUS[kind], redact_locations(str(exc)))
 
     async def _outage(request: Request, exc: Exception) -> JSONResponse:
         backend = "object storage" if isinstance(exc, StorageError) else "the queue (Redis)"

@@ -10,7 +10,7 @@ the limit) the moment it passes `max_bytes`. The handler then works on plain fil
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path, PurePosixPath
+from pathlib import Path
 from typing import IO, TYPE_CHECKING
 
 from fastapi import HTTPException, Request, status
@@ -18,6 +18,7 @@ from python_multipart import MultipartParser
 from python_multipart.multipart import parse_options_header
 
 from bayesian_fields_core.errors import InputError
+from bayesian_fields_service.scenes.intake import clean_filename
 
 if TYPE_CHECKING:
     from python_multipart.multipart import MultipartCallbacks
@@ -50,16 +51,6 @@ def too_large(limit: int) -> HTTPException:
         status_code=status.HTTP_413_REQUEST_ENTITY_TOO_LARGE,
         detail=f"upload exceeds the limit of {limit} bytes (BFIELDS_MAX_UPLOAD_BYTES)",
     )
-
-
-def clean_filename(raw: str, *, field_name: str) -> str:
-    """The base name of a client-supplied file name; refuses names that are empty or hidden."""
-    name = PurePosixPath(raw.replace("\\", "/")).name.strip()
-    if not name or name in (".", "..") or name.startswith(".") or any(ord(c) < 32 for c in name):
-        raise InputError(f"unusable file name {raw!r}", source=field_name)
-    if len(name.encode("utf-8", "surrogatepass")) > 255:  # NAME_MAX counts bytes, not characters
-        raise InputError(f"file name longer than 255 bytes: {name[:40]!r}...", source=field_name)
-    return name
 
 
 class _Receiver:

@@ -1,11 +1,8 @@
-"""The API process's shared objects (settings, store, Redis, job and scene stores, key ring) and
-small helpers every route uses: id checks, tenant views, presigned links, the HTTP answers of the
-scenes domain's refusals."""
+"""The API process's shared objects (settings, store, Redis, the job store, the jobs and scenes
+domains, key ring) and small helpers every route uses: id checks, tenant views, presigned links."""
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Annotated, Any
 
@@ -15,17 +12,11 @@ from fastapi import Depends, HTTPException, Request, status
 from bayesian_fields_core.job.store import PrefixedStore, Store
 from bayesian_fields_service.api.bulk_lane import BulkLane
 from bayesian_fields_service.api.schemas import Problem
-from bayesian_fields_service.common.jobs import JobStore, is_id
-from bayesian_fields_service.common.scenes import (
-    SceneBusy,
-    SceneGone,
-    SceneNotReady,
-    SceneNotUploading,
-    SceneRecord,
-    SceneStore,
-)
+from bayesian_fields_service.common.jobs import JobStore, is_id, new_id
 from bayesian_fields_service.config.settings import ServiceSettings
 from bayesian_fields_service.jobs.service import JobService
+from bayesian_fields_service.scenes.lifecycle import Scenes
+from bayesian_fields_service.scenes.postgres import scene_store
 from bayesian_fields_service.security.api_keys import ApiKeyRing
 from bayesian_fields_service.security.auth import require_tenant
 from bayesian_fields_service.storage.stores import TenantTransfers, direct_transfers, tenant_store
@@ -40,12 +31,13 @@ class AppState:
     key_ring: ApiKeyRing
     metrics_registry: Any = None
     bulk_lane: BulkLane | None = None  # set while the app serves, where the lane is on
-    scenes: SceneStore = field(init=False)
+    scenes: Scenes = field(init=False)
     service: JobService = field(init=False)
 
     def __post_init__(self) -> None:
-        self.scenes = SceneStore(self.jobs.database)  # the one records engine of the process
-        self.service = JobService(self.settings, self.jobs, self.scenes, self.redis)
+        rows = scene_store(self.jobs.database)  # the one records engine of the process
+        self.scenes = Scenes(self.settings, self.store, rows, new_id=lambda: new_id("s_"))
+        self.service = JobService(self.settings, self.jobs, rows, self.redis)
 
     def tenant(self, tenant: str) -> PrefixedStore:
         return tenant_store(self.store, tenant)
@@ -94,25 +86,3 @@ BODY_ERRORS: dict[int | str, dict[str, Any]] = {
     **ERRORS,
     400: {"model": Problem, "description": "The request body could not be read"},
 }
-
-
-def load_scene(state: AppState, tenant: str, scene_id: str) -> SceneRecord:
-    """The tenant's scene; 404 when it has no record or is being deleted (`common.scenes`)."""
-    check_id("scene", scene_id, "s_")
-    record = state.scenes.get(tenant, scene_id)
-    if record is None:
-        raise not_found("scene", scene_id)
-    return record
-
-
-@contextmanager
-def scene_refusals() -> Iterator[None]:
-    """Answer the scenes domain's refusals as HTTP, the same from every route: a scene without
-    a record (or being deleted) 404, one not ready for a job 409, a delete while a job on the
-    scene is active 409 naming the job."""
-    try:
-        yield
-    except SceneGone as exc:
-        raise not_found("scene", exc.scene_id) from None
-    except (SceneNotReady, SceneNotUploading, SceneBusy) as exc:
-        raise HTTPException(status.HTTP_409_CONFLICT, str(exc)) from None

@@ -46,7 +46,6 @@ from bayesian_fields_service import records as db  # `records` names lists of jo
 from bayesian_fields_service.common import batch_records, usage
 from bayesian_fields_service.common.batch_records import BatchRecord
 from bayesian_fields_service.common.job_queue import JobQueue, Priority, admit
-from bayesian_fields_service.common.scenes import lock_ready
 from bayesian_fields_service.common.usage import JobUsage
 from bayesian_fields_service.live import redis_keys
 from bayesian_fields_service.live.redis_text import text
@@ -55,6 +54,7 @@ from bayesian_fields_service.records import jobs as job_rows
 from bayesian_fields_service.records import keys
 from bayesian_fields_service.records.leases import Fence
 from bayesian_fields_service.sanitize.text import redact_locations, scrub
+from bayesian_fields_service.scenes.postgres import lock_ready
 from bayesian_fields_service.storage.stores import tenant_store
 from bayesian_fields_service.webhooks.callbacks import on_batch_finished, on_job_terminal
 

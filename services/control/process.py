@@ -35,13 +35,13 @@ import redis
 
 from bayesian_fields_service import hooks
 from bayesian_fields_service.common.jobs import JobStore
-from bayesian_fields_service.common.scenes import SceneStore
 from bayesian_fields_service.config.settings import ServiceSettings, apply_log_level, get_settings
-from bayesian_fields_service.control.bucket_sweep import sweep_bucket
 from bayesian_fields_service.control.dispatcher import Dispatcher
 from bayesian_fields_service.control.leadership import Leadership
 from bayesian_fields_service.control.recovery import Recovery
 from bayesian_fields_service.records.database import open_records, ping
+from bayesian_fields_service.scenes.bucket_sweep import sweep_bucket
+from bayesian_fields_service.scenes.postgres import scene_store
 from bayesian_fields_service.storage.stores import build_store, direct_transfers
 from bayesian_fields_service.webhooks.callbacks import CallbackSender
 from bayesian_fields_service.worker.celery_app import make_celery
@@ -92,7 +92,7 @@ class ControlProcess:
         self.redis = redis.Redis.from_url(settings.redis_url, socket_timeout=10, socket_connect_timeout=5)
         self.database = open_records(settings.database_url, migrate_first=settings.migrate_on_start)
         self.jobs = JobStore(self.store, self.redis, self.database)
-        self.scenes = SceneStore(self.database)
+        self.scenes = scene_store(self.database)
         self.leadership = Leadership(self.database, lease_ttl_s=settings.control_lease_ttl_s)
         self.stop = threading.Event()
         self.alive_at = time.time()

@@ -27,12 +27,12 @@ import redis
 from bayesian_fields_service.common.batch_records import BatchRecord
 from bayesian_fields_service.common.job_queue import AdmissionRefused, Priority, admission_limit
 from bayesian_fields_service.common.jobs import JobRecord, JobState, JobStore, job_digest, new_id
-from bayesian_fields_service.common.scenes import SceneStore
 from bayesian_fields_service.config.settings import ServiceSettings
 from bayesian_fields_service.jobs.refusals import Busy, Invalid, Missing, OverQuota
 from bayesian_fields_service.jobs.validation import JobAsk, Validation, check_id, checked_callback
 from bayesian_fields_service.live.metrics import JOB_KEY, read_histogram
 from bayesian_fields_service.records.locks import LockBusy, session_lock
+from bayesian_fields_service.scenes.store import SceneStore
 
 T = TypeVar("T")
 

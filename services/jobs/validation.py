@@ -18,9 +18,10 @@ from bayesian_fields_core.job.task_list import normalise_tasks
 from bayesian_fields_core.params import PipelineParams
 from bayesian_fields_service.common.job_queue import Priority
 from bayesian_fields_service.common.jobs import JobRecord, is_id, new_id
-from bayesian_fields_service.common.scenes import SceneRecord, SceneStore
 from bayesian_fields_service.config.settings import ServiceSettings
 from bayesian_fields_service.jobs.refusals import Conflict, Invalid, Missing
+from bayesian_fields_service.scenes.model import SceneRecord
+from bayesian_fields_service.scenes.store import SceneStore
 from bayesian_fields_service.webhooks.callbacks import check_callback_url
 
 #: Model profiles a job may name. The workers map "default" to BFIELDS_MODEL_PROFILE.

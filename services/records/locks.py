@@ -1,7 +1,7 @@
 """Named locks held by a PostgreSQL session (`pg_advisory_lock`), for work that spans several
 transactions and must not run twice at once: the requests carrying one Idempotency-Key, the
-retries of one batch, the one completion of a scene (`api.scene_lifecycle`; the scene's fate
-itself is decided under its row's lock, `common.scenes`).
+retries of one batch, the one completion of a scene (`scenes.lifecycle`; the scene's fate
+itself is decided under its row's lock, `scenes.store`).
 
 Why PostgreSQL and not Redis: a Redis lock outlives a Redis restart with persistence (and dies
 with a restart without it), and one taken by an API process that is then killed stays until its

@@ -2,7 +2,7 @@
 page, publish, mark deleting, purge, and the sweeper's reads.
 
 Why the row lock is taken here but decided on in the domain: a scene's fate (ready, deleting, no
-row) is ordered by its row lock (`common.scenes` says how the three racing requests meet); the
+row) is ordered by its row lock (`scenes.store` says how the three racing requests meet); the
 domain opens the unit of work, loads the row locked through these functions and decides.
 """
 

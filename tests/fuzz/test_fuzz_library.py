@@ -28,7 +28,7 @@ from bayesian_fields_core.scene.loader import load_scene
 from bayesian_fields_core.scene.nerfstudio import read_transforms
 from bayesian_fields_core.scene.ply import read_ply, write_ply
 from bayesian_fields_core.scene.types import Gaussians
-from bayesian_fields_service.api.archives import ArchiveLimits, extract_archive
+from bayesian_fields_service.scenes.archives import ArchiveLimits, extract_archive
 
 from . import strategies as fz
 from .conftest import budget, count

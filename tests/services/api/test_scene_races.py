@@ -5,7 +5,7 @@ complete (every file in the bucket), or absent (404, not listed, no object left 
 prefix, no multipart upload); a DELETE that answered 204 stays done, and a job is never accepted
 on a scene whose delete answered 204.
 
-Since scenes are rows (`common.scenes`), the row decides: a delete commits the row's
+Since scenes are rows (`scenes.store`), the row decides: a delete commits the row's
 ``deleting`` state before it removes anything, a completion publishes in one transaction holding
 the row, and a job submission holds the row (``FOR SHARE``) while its jobs are inserted.
 
@@ -286,11 +286,12 @@ def test_the_sweeper_finishes_a_delete_that_stopped_after_its_mark(
     """A delete whose API died after the mark committed leaves the scene's objects, its multipart
     uploads and a deleting row: the sweeper removes them whatever their age and purges the row."""
     from bayesian_fields_service.common.jobs import new_id, utcnow
-    from bayesian_fields_service.common.scenes import SceneRecord, SceneStore
-    from bayesian_fields_service.control.bucket_sweep import sweep_bucket
     from bayesian_fields_service.records.database import engine
+    from bayesian_fields_service.scenes.bucket_sweep import sweep_bucket
+    from bayesian_fields_service.scenes.model import SceneRecord
+    from bayesian_fields_service.scenes.postgres import scene_store
 
-    scenes = SceneStore(engine(svc_env["BFIELDS_DATABASE_URL"]))
+    scenes = scene_store(engine(svc_env["BFIELDS_DATABASE_URL"]))
     tenant = "sweep-" + new_id("t")[-8:]
     scene_id, kept = new_id("s_"), new_id("s_")
     root = f"tenants/{tenant}/"

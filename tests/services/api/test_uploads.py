@@ -220,7 +220,7 @@ def test_scene_records_are_rows_not_bucket_objects(
     client_a: httpx.Client, s3_server: S3Server, scene_dir: Path
 ) -> None:
     """Upload, presigned upload + complete, list and delete leave no record object, listing
-    marker or tombstone in the bucket: a scene's record is its row (`common.scenes`), and a
+    marker or tombstone in the bucket: a scene's record is its row (`scenes.store`), and a
     delete leaves nothing of the scene behind."""
     store = s3_server.store()
     root = "tenants/tenant-a/"

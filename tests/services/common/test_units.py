@@ -10,8 +10,8 @@ from pathlib import Path
 import pytest
 
 from bayesian_fields_core.errors import InputError
-from bayesian_fields_service.api.archives import ArchiveLimits, extract_archive
 from bayesian_fields_service.common.jobs import JobRecord, JobState, _merge, overall_progress
+from bayesian_fields_service.scenes.archives import ArchiveLimits, extract_archive
 
 LIMITS = ArchiveLimits(max_members=10, max_bytes=1000)
 

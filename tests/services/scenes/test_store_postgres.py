@@ -1,4 +1,4 @@
-"""Scene rows (`common.scenes`) on a real PostgreSQL: keyset pages newest first without deleting
+"""Scene rows (`scenes.store` over `scenes.postgres`) on a real PostgreSQL: keyset pages newest first without deleting
 scenes, the life uploading -> ready -> deleting -> purged with its refusals, and the row locks
 that order a delete against a job submission and a completion (two threads, two connections)."""
 
@@ -13,17 +13,11 @@ import pytest
 from sqlalchemy import Engine, insert, update
 
 from bayesian_fields_service.common.jobs import new_id
-from bayesian_fields_service.common.scenes import (
-    SceneBusy,
-    SceneGone,
-    SceneNotReady,
-    SceneNotUploading,
-    SceneRecord,
-    SceneState,
-    SceneStore,
-    lock_ready,
-)
 from bayesian_fields_service.records.tables import jobs
+from bayesian_fields_service.scenes.model import SceneRecord, SceneState
+from bayesian_fields_service.scenes.postgres import lock_ready, scene_store
+from bayesian_fields_service.scenes.refusals import SceneBusy, SceneGone, SceneNotReady, SceneNotUploading
+from bayesian_fields_service.scenes.store import SceneStore
 
 T0 = datetime(2026, 1, 2, 3, 4, 5, 678901, tzinfo=UTC)
 
@@ -68,7 +62,7 @@ def _in_thread(fn: Callable[[], object]) -> tuple[threading.Thread, list[object]
 
 
 def test_a_page_is_newest_first_without_deleting_or_other_tenants_scenes(records_db: Engine) -> None:
-    scenes = SceneStore(records_db)
+    scenes = scene_store(records_db)
     made = [
         _scene(scenes, "acme", n=n, state=SceneState.uploading if n == 2 else SceneState.ready)
         for n in range(7)
@@ -91,14 +85,14 @@ def test_a_page_is_newest_first_without_deleting_or_other_tenants_scenes(records
 
 
 def test_a_record_reads_back_as_it_was_created(records_db: Engine) -> None:
-    scenes = SceneStore(records_db)
+    scenes = scene_store(records_db)
     record = _scene(scenes, "acme", state=SceneState.uploading)
     assert scenes.get("acme", record.id) == record
     assert scenes.get("other", record.id) is None  # another tenant's id is no scene of this one
 
 
 def test_publish_turns_an_uploading_scene_ready_once(records_db: Engine) -> None:
-    scenes = SceneStore(records_db)
+    scenes = scene_store(records_db)
     record = _scene(scenes, "acme", state=SceneState.uploading)
     ready = scenes.publish_ready("acme", record.id, files=6, size=999, summary={"frames": 4})
     assert ready.state == SceneState.ready and ready.pending_uploads == []
@@ -111,7 +105,7 @@ def test_publish_turns_an_uploading_scene_ready_once(records_db: Engine) -> None
 
 
 def test_a_deleted_scene_is_gone_for_good(records_db: Engine) -> None:
-    scenes = SceneStore(records_db)
+    scenes = scene_store(records_db)
     record = _scene(scenes, "acme", state=SceneState.uploading)
     assert scenes.mark_deleting("acme", record.id) == record  # as it was: its uploads to abort
     assert scenes.get("acme", record.id) is None
@@ -131,14 +125,14 @@ def test_a_deleted_scene_is_gone_for_good(records_db: Engine) -> None:
 
 
 def test_purge_leaves_a_scene_that_is_not_being_deleted(records_db: Engine) -> None:
-    scenes = SceneStore(records_db)
+    scenes = scene_store(records_db)
     record = _scene(scenes, "acme")
     scenes.purge("acme", record.id)
     assert scenes.get("acme", record.id) == record
 
 
 def test_delete_is_refused_while_a_job_on_the_scene_is_queued_or_running(records_db: Engine) -> None:
-    scenes = SceneStore(records_db)
+    scenes = scene_store(records_db)
     record = _scene(scenes, "acme")
     _job(records_db, "acme", record.id, "succeeded")  # a finished job never blocks
     job_id = _job(records_db, "acme", record.id, "queued")
@@ -158,7 +152,7 @@ def test_delete_is_refused_while_a_job_on_the_scene_is_queued_or_running(records
 
 
 def test_lock_ready_names_the_first_scene_that_is_missing_or_not_ready(records_db: Engine) -> None:
-    scenes = SceneStore(records_db)
+    scenes = scene_store(records_db)
     ready, other = _scene(scenes, "acme"), _scene(scenes, "acme", n=1)
     uploading = _scene(scenes, "acme", state=SceneState.uploading, n=2)
     missing = new_id("s_")
@@ -202,7 +196,7 @@ def test_a_submission_holding_the_scene_makes_the_delete_wait_and_then_see_its_j
 ) -> None:
     """The submission's transaction share-locks the row, inserts a job and holds on; the delete
     (another connection) waits for its commit, then finds the active job and is refused."""
-    scenes = SceneStore(records_db)
+    scenes = scene_store(records_db)
     record = _scene(scenes, "acme")
     job_id = new_id("j_")
 
@@ -224,7 +218,7 @@ def test_a_submission_holding_the_scene_makes_the_delete_wait_and_then_see_its_j
 
 def test_a_submission_after_the_delete_finds_the_scene_gone(records_db: Engine) -> None:
     """The delete committed first: the submission's share lock finds the row deleting."""
-    scenes = SceneStore(records_db)
+    scenes = scene_store(records_db)
     record = _scene(scenes, "acme")
     scenes.mark_deleting("acme", record.id)
     with records_db.begin() as conn, pytest.raises(SceneGone):
@@ -234,7 +228,7 @@ def test_a_submission_after_the_delete_finds_the_scene_gone(records_db: Engine) 
 def test_a_publishing_completion_makes_the_delete_wait_then_the_delete_wins(records_db: Engine) -> None:
     """The completion holds the row while it publishes (`while_locked`); the delete waits for the
     ready record and then marks the complete scene deleting."""
-    scenes = SceneStore(records_db)
+    scenes = scene_store(records_db)
     record = _scene(scenes, "acme", state=SceneState.uploading)
     published, deleted = _delete_while_held(
         scenes,

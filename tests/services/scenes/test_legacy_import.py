@@ -1,4 +1,4 @@
-"""The upgrade path from scene records kept in the bucket (`common.scene_import`,
+"""The upgrade path from scene records kept in the bucket (`scenes.legacy_import`,
 `bfields-service import-scenes`) on a real S3 server and a real PostgreSQL: every record becomes
 a row under the tenant its key names, a tombstoned scene a deleting row that the sweeper then
 finishes, nothing in the bucket is changed, and a second run inserts nothing."""
@@ -18,9 +18,10 @@ import pytest
 from sqlalchemy import Engine
 
 from bayesian_fields_service.common.jobs import new_id
-from bayesian_fields_service.common.scene_import import import_scenes
-from bayesian_fields_service.common.scenes import SceneState, SceneStore
-from bayesian_fields_service.control.bucket_sweep import sweep_bucket
+from bayesian_fields_service.scenes.bucket_sweep import sweep_bucket
+from bayesian_fields_service.scenes.legacy_import import import_scenes
+from bayesian_fields_service.scenes.model import SceneState
+from bayesian_fields_service.scenes.postgres import scene_store
 from bayesian_fields_service.storage.s3_store import S3Store
 from tests.integration.fixtures.s3_server import S3Server
 
@@ -68,7 +69,7 @@ def _old_release_bucket(store: S3Store) -> dict[str, str]:
 def test_import_makes_a_row_per_record_and_a_second_run_adds_none(
     own_bucket: S3Server, records_db: Engine
 ) -> None:
-    store, scenes = own_bucket.store(), SceneStore(records_db)
+    store, scenes = own_bucket.store(), scene_store(records_db)
     ids = _old_release_bucket(store)
     # upgraded but not yet imported: the sweeper keeps every folder holding an old record
     early = sweep_bucket(store, scenes, max_age_s=0)
@@ -118,7 +119,7 @@ def test_the_import_scenes_command_prints_its_counts(own_bucket: S3Server, recor
     first = subprocess.run(command, env=env, capture_output=True, text=True, timeout=120)
     assert first.returncode == 0, first.stderr
     assert "scenes: 4 imported (1 of them deleted" in first.stdout and "1 unreadable" in first.stdout
-    assert SceneStore(records_db).get("acme", ids["ready"]) is not None
+    assert scene_store(records_db).get("acme", ids["ready"]) is not None
     second = subprocess.run(command, env=env, capture_output=True, text=True, timeout=120)
     assert second.returncode == 0, second.stderr
     assert "scenes: 0 imported (0 of them deleted, left to the sweeper), 4 already had a row" in second.stdout

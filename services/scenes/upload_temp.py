@@ -5,7 +5,7 @@ An upload is received into a local temp folder, validated, then copied to the bu
 ``bfields-complete-<pid>-*`` of a dead process. Each API process removes such folders at start and
 every BFIELDS_ORPHAN_SWEEP_INTERVAL_S once their owner is dead and their last write is older than
 BFIELDS_ORPHAN_MAX_AGE_S, so an upload in progress is never touched. What such a kill leaves in the
-bucket is the control process's to remove (`control.bucket_sweep`).
+bucket is the control process's to remove (`bucket_sweep`).
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ import shutil
 import tempfile
 import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 log = logging.getLogger(__name__)
@@ -28,6 +29,16 @@ def upload_workdir(kind: str) -> Path:
     """A new temp folder for one request, named after this process so the sweeper can tell a
     live owner from a dead one: ``<tmp>/bfields-<kind>-<pid>-<random>``."""
     return Path(tempfile.mkdtemp(prefix=f"bfields-{kind}-{os.getpid()}-"))
+
+
+@contextlib.contextmanager
+def workdir(kind: str) -> Iterator[Path]:
+    """`upload_workdir` for the ``with`` body, removed when it ends whatever happened."""
+    folder = upload_workdir(kind)
+    try:
+        yield folder
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
 
 
 def _owner_pid(name: str) -> int | None:

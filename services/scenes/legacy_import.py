@@ -1,6 +1,6 @@
 """Import the scene records that earlier releases kept in the bucket into the `scenes` table.
 
-Why: before scenes became rows (`common.scenes`), a scene's record was the object
+Why: before scenes became rows (`store`), a scene's record was the object
 ``tenants/<t>/scenes/<id>/scene.json`` and a delete wrote ``tenants/<t>/tombstones/scenes/<id>``
 before removing the scene's objects. A deployment upgraded from such a release has those objects
 and no rows, so its scenes would answer 404 and the orphan sweeper would take their files for an
@@ -26,14 +26,19 @@ from dataclasses import dataclass, field
 from pydantic import ValidationError
 
 from bayesian_fields_core.job.store import ArtifactNotFound, Store
-from bayesian_fields_service.common.scenes import SceneRecord, SceneStore
 from bayesian_fields_service.config.settings import ServiceSettings
 from bayesian_fields_service.records.database import open_records
 from bayesian_fields_service.sanitize.text import scrub
+from bayesian_fields_service.scenes.layout import (
+    LEGACY_RECORD_NAME,
+    bucket_scenes_of,
+    legacy_record_of,
+    legacy_tombstone,
+)
+from bayesian_fields_service.scenes.model import SceneRecord
+from bayesian_fields_service.scenes.postgres import scene_store
+from bayesian_fields_service.scenes.store import SceneStore
 from bayesian_fields_service.storage.stores import TENANTS_ROOT, build_store
-
-RECORD_NAME = "scene.json"
-"""The name of the record object under ``tenants/<t>/scenes/<id>/`` in earlier releases."""
 
 
 @dataclass
@@ -57,7 +62,7 @@ def run_import(settings: ServiceSettings) -> ImportReport:
     """`import_scenes` on the deployment's bucket and records database (brought to the newest
     schema first unless BFIELDS_MIGRATE_ON_START is off)."""
     database = open_records(settings.database_url, migrate_first=settings.migrate_on_start)
-    return import_scenes(build_store(settings), SceneStore(database))
+    return import_scenes(build_store(settings), scene_store(database))
 
 
 def import_scenes(store: Store, scenes: SceneStore) -> ImportReport:
@@ -72,7 +77,7 @@ def import_scenes(store: Store, scenes: SceneStore) -> ImportReport:
         if record is None:
             report.unreadable.append(key)
             continue
-        deleting = store.exists(f"{TENANTS_ROOT}/{tenant}/tombstones/scenes/{scene_id}")
+        deleting = store.exists(legacy_tombstone(tenant, scene_id))
         if scenes.adopt(record, deleting=deleting):
             report.imported += 1
             report.deleting += deleting
@@ -89,14 +94,14 @@ def _record_keys(store: Store) -> Iterator[tuple[str, str, str]]:
 
     if isinstance(store, S3Store):
         for tenant_root in store.list_prefixes(f"{TENANTS_ROOT}/"):
-            for scene_root in store.list_prefixes(tenant_root + "scenes/"):
+            for scene_root in store.list_prefixes(bucket_scenes_of(tenant_root)):
                 parts = scene_root.split("/")
-                yield parts[1], parts[3], scene_root + RECORD_NAME
+                yield parts[1], parts[3], scene_root + LEGACY_RECORD_NAME
         return
     for key in store.list(f"{TENANTS_ROOT}/"):
-        parts = key.split("/")
-        if len(parts) == 5 and parts[2] == "scenes" and parts[4] == RECORD_NAME:
-            yield parts[1], parts[3], key
+        found = legacy_record_of(key)
+        if found is not None:
+            yield found[0], found[1], key
 
 
 def _parsed(raw: bytes, tenant: str, scene_id: str) -> SceneRecord | None:

@@ -14,14 +14,16 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 from typing import Any
 
 from bayesian_fields_core.errors import InputError, input_boundary
 from bayesian_fields_core.job.store import Store
 from bayesian_fields_core.scene.formats import check_upload_name
 from bayesian_fields_core.scene.trainer_transforms import DATAPARSER_TRANSFORMS, SPLAT_TRANSFORM
-from bayesian_fields_service.api.archives import ArchiveLimits, extract_archive, is_archive_name
+from bayesian_fields_service.config.settings import ServiceSettings
+from bayesian_fields_service.scenes.archives import ArchiveLimits, extract_archive, is_archive_name
+from bayesian_fields_service.scenes.layout import input_prefix
 
 #: Camera files by name -> the folder they go to inside the scene (COLMAP's usual layout).
 CAMERA_FILES: dict[str, str] = {
@@ -47,11 +49,62 @@ TRANSFORM_FILES = (DATAPARSER_TRANSFORMS, SPLAT_TRANSFORM)
 ROLES = ("splat", "cameras", "images", "transform")
 
 
+NAME_LIMIT = 200
+"""Longest scene name, in characters."""
+
+
 @dataclass(frozen=True)
 class UploadedFile:
     role: str  # one of ROLES
     name: str  # client file name (already reduced to a base name)
     path: Path
+
+
+def clean_filename(raw: str, *, field_name: str) -> str:
+    """The base name of a client-supplied file name; refuses names that are empty or hidden."""
+    name = PurePosixPath(raw.replace("\\", "/")).name.strip()
+    if not name or name in (".", "..") or name.startswith(".") or any(ord(c) < 32 for c in name):
+        raise InputError(f"unusable file name {raw!r}", source=field_name)
+    if len(name.encode("utf-8", "surrogatepass")) > 255:  # NAME_MAX counts bytes, not characters
+        raise InputError(f"file name longer than 255 bytes: {name[:40]!r}...", source=field_name)
+    return name
+
+
+def checked_name(name: str | None) -> str | None:
+    """A scene's optional name as stored: at most `NAME_LIMIT` characters, no control characters
+    (a NUL is refused by PostgreSQL's text, and none belongs in a name); InputError otherwise."""
+    if not name:
+        return None
+    if len(name) > NAME_LIMIT or any(ord(c) < 0x20 or ord(c) == 0x7F for c in name):
+        raise InputError(f"at most {NAME_LIMIT} characters, and no control characters", source="name")
+    return name
+
+
+def archive_limits(settings: ServiceSettings) -> ArchiveLimits:
+    """The deployment's bounds on an image archive (BFIELDS_MAX_ARCHIVE_*)."""
+    return ArchiveLimits(
+        max_members=settings.max_archive_members, max_bytes=settings.max_archive_uncompressed_bytes
+    )
+
+
+def ingest(
+    settings: ServiceSettings,
+    store: Store,
+    scene_id: str,
+    files: Sequence[UploadedFile],
+    work: Path,
+    *,
+    alignment: bool = True,
+) -> tuple[int, int, dict[str, Any]]:
+    """Assemble and validate the files in `work`, then copy the scene to its ``input/`` in the
+    tenant's `store` (blocking: the API runs it in a thread). Returns (files, bytes, summary)."""
+    scene_dir = work / "scene"
+    assemble_scene(files, scene_dir, archive_limits(settings))
+    summary = validate_scene(
+        scene_dir, max_gaussians=settings.max_gaussians, max_frames=settings.max_frames, alignment=alignment
+    )
+    n, size = upload_scene_folder(store, scene_dir, input_prefix(scene_id))
+    return n, size, summary
 
 
 def _one_splat(files: Sequence[UploadedFile]) -> UploadedFile:

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from bayesian_fields_core.errors import InputError
-from bayesian_fields_service.api.archives import MAX_MEMBER_DEPTH, NAME_MAX, ArchiveLimits, extract_archive
+from bayesian_fields_service.scenes.archives import MAX_MEMBER_DEPTH, NAME_MAX, ArchiveLimits, extract_archive
 
 LIMITS = ArchiveLimits(max_members=50, max_bytes=100_000)
 

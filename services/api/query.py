@@ -15,7 +15,7 @@ from typing import Annotated
 from fastapi import Query
 from pydantic import AfterValidator, StringConstraints
 
-from bayesian_fields_service.common.jobs import id_pattern
+from bayesian_fields_service.records.ids import id_pattern
 
 #: The most items a listing route answers in one page (its `limit`).
 PAGE_LIMIT = 500

@@ -7,12 +7,11 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from bayesian_fields_service.common.job_queue import Priority
-from bayesian_fields_service.common.jobs import JobRecord, JobState
-
 # A scene is a record of the scenes domain; re-exported here, where the API's bodies live.
 from bayesian_fields_service.common.scenes import SCENE_EXAMPLE_ID, SceneRecord
 from bayesian_fields_service.common.scenes import SceneState as SceneState
+from bayesian_fields_service.jobs.model import JobRecord, JobState
+from bayesian_fields_service.jobs.queue import Priority
 
 JOB_EXAMPLE_ID = "j_0192f3a1b2c3d4e5f6a7b8"
 

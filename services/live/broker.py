@@ -20,6 +20,7 @@ from celery import Celery, chain
 from kombu.exceptions import OperationalError
 
 from bayesian_fields_core.job.stage_table import stage as stage_spec
+from bayesian_fields_service.records.ids import ID_DIGITS, JOB_ID
 
 #: What an unreachable broker raises: the broker is Redis (Celery's Redis transport), reached
 #: directly (a queue's length) or through kombu (sending a stage). The API answers these 503
@@ -54,7 +55,7 @@ def enqueue_stages(
 PRIORITY_SUFFIXES = ("", "\x06\x163", "\x06\x166", "\x06\x169")
 
 #: A job id as it appears in a stage message (the task's arguments, `argsrepr` in its headers).
-_JOB_ID = re.compile(rb"j_[0-9a-f]{22}")
+_JOB_ID = re.compile((re.escape(JOB_ID) + ID_DIGITS).encode())
 
 
 def queue_length(client: redis.Redis, queue: str) -> int:

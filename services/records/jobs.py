@@ -15,10 +15,10 @@ from typing import Any
 from sqlalchemy import JSON, Connection, RowMapping, func, insert, select, update
 from sqlalchemy.dialects.postgresql import JSONB
 
-from bayesian_fields_service.records.tables import jobs
+from bayesian_fields_service.records.tables import ACTIVE_JOB_STATES, jobs
 
 #: Row states of a job that has not ended.
-ACTIVE_STATES = ("queued", "running")
+ACTIVE_STATES = ACTIVE_JOB_STATES
 
 
 def load(conn: Connection, tenant: str, job_id: str, *, lock: bool = False) -> RowMapping | None:

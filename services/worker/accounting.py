@@ -17,9 +17,9 @@ from types import TracebackType
 from sqlalchemy import Engine
 
 from bayesian_fields_core.job.store import Store
-from bayesian_fields_service.common import usage
-from bayesian_fields_service.common.jobs import JobRecord, utcnow
+from bayesian_fields_service.jobs import usage
 from bayesian_fields_service.jobs.durable_writes import until_landed
+from bayesian_fields_service.jobs.model import JobRecord, utcnow
 from bayesian_fields_service.storage.stores import tenant_store
 from bayesian_fields_service.worker.scene_cache import list_input
 

@@ -19,9 +19,10 @@ from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, generate_l
 from prometheus_client.core import GaugeMetricFamily, HistogramMetricFamily
 from prometheus_client.registry import Collector
 
+from bayesian_fields_core.job.stage_table import STAGES
 from bayesian_fields_service.api.state import AppState, get_state
-from bayesian_fields_service.common.jobs import STAGES, JobState
 from bayesian_fields_service.config.settings import ServiceSettings
+from bayesian_fields_service.jobs.model import JobState
 from bayesian_fields_service.live.broker import queue_length
 from bayesian_fields_service.live.metrics import (
     JOB_KEY,

@@ -45,8 +45,9 @@ from bayesian_fields_service.api.state import (
     scene_refusals,
 )
 from bayesian_fields_service.api.sweeper import upload_workdir
-from bayesian_fields_service.common.jobs import new_id, utcnow
 from bayesian_fields_service.common.scenes import SceneGone
+from bayesian_fields_service.jobs.model import utcnow
+from bayesian_fields_service.records.ids import new_id
 
 router = APIRouter(prefix="/v1/scenes", tags=["scenes"])
 

@@ -15,7 +15,7 @@ from pydantic import BaseModel, Field
 
 from bayesian_fields_service.api.query import Day
 from bayesian_fields_service.api.state import ERRORS, State, Tenant
-from bayesian_fields_service.common.usage import tenant_usage
+from bayesian_fields_service.jobs.usage import tenant_usage
 
 router = APIRouter(prefix="/v1", tags=["usage"])
 

@@ -17,10 +17,10 @@ from pathlib import Path
 import pytest
 from sqlalchemy import Engine
 
-from bayesian_fields_service.common.jobs import new_id
 from bayesian_fields_service.common.scene_import import import_scenes
 from bayesian_fields_service.common.scenes import SceneState, SceneStore
 from bayesian_fields_service.control.bucket_sweep import sweep_bucket
+from bayesian_fields_service.records.ids import new_id
 from bayesian_fields_service.storage.s3_store import S3Store
 from tests.integration.fixtures.s3_server import S3Server
 

@@ -12,7 +12,6 @@ from datetime import UTC, datetime, timedelta
 import pytest
 from sqlalchemy import Engine, insert, update
 
-from bayesian_fields_service.common.jobs import new_id
 from bayesian_fields_service.common.scenes import (
     SceneBusy,
     SceneGone,
@@ -23,6 +22,7 @@ from bayesian_fields_service.common.scenes import (
     SceneStore,
     lock_ready,
 )
+from bayesian_fields_service.records.ids import new_id
 from bayesian_fields_service.records.tables import jobs
 
 T0 = datetime(2026, 1, 2, 3, 4, 5, 678901, tzinfo=UTC)

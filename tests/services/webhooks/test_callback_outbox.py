@@ -12,8 +12,10 @@ import redis
 from sqlalchemy import Engine, select
 
 from bayesian_fields_core.job.store import LocalStore
-from bayesian_fields_service.common.batch_records import BatchRecord
-from bayesian_fields_service.common.jobs import JobRecord, JobState, JobStore, new_id
+from bayesian_fields_service.jobs.batches import BatchRecord
+from bayesian_fields_service.jobs.model import JobRecord, JobState
+from bayesian_fields_service.jobs.store import JobStore
+from bayesian_fields_service.records.ids import new_id
 from bayesian_fields_service.records.tables import callback_outbox
 from tests.integration.fixtures.redis_server import RedisServer
 

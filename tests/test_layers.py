@@ -56,8 +56,9 @@ SERVICE_LAYERS: list[set[str]] = [
 ]
 """The service's packages, top down, as their imports stand: the control process sends stages
 through the worker's Celery app and sits beside the API (neither imports the other); both and the
-workers call the jobs domain (`jobs`), which works over the rules still in `common`, which call
-the records' repositories; below them the adapters, one job each and none importing another: the
+workers call the jobs domain (`jobs`: the job model and its rules, reaching the records and the
+live state through its ports), which reads the scenes' readiness from `common` (scenes, until
+they move to their own domain), which calls the records' repositories; below them the adapters, one job each and none importing another: the
 callbacks (`webhooks`, which write their outbox rows through `records`), Redis and the broker
 (`live`, the only package that knows either; the worker builds the Celery app and hands it in, so
 `live` never imports `worker`), object storage (`storage`), API keys (`security`) and text safe to

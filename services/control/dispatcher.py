@@ -1,4 +1,4 @@
-"""Release waiting jobs to the worker queues, fairly between tenants (`common.job_queue`).
+"""Release waiting jobs to the worker queues, fairly between tenants (`jobs.queue`).
 
 Run by the control process's leader only. A round tops the GPU queue up to
 `dispatch_queue_depth` messages: it reads the backlog once (two grouped index scans), then per

@@ -5,7 +5,7 @@ its jobs, the cancel of its active jobs, a retry's replacements and the decision
 Why statements: a batch of 50,000 jobs is submitted with one multi-row INSERT of its jobs and one
 of its links, a page is an index range over (batch, position), cancel is one UPDATE, and the
 batch's end is decided by the database (`mark_finished`) in the transaction of the change that
-ends it. The batch model and its status stay in the domain (`common.batch_records`).
+ends it. The batch model and its status stay in the domain (`jobs.batches`).
 """
 
 from __future__ import annotations

@@ -4,7 +4,7 @@ Delivery is *at least once*, never on the job's path, through a **transactional 
 records database (`callback_outbox`):
 - an event row is inserted in the same transaction as the state change that causes it: a job's row
   turning terminal (`on_job_terminal`), or the batch's end that the same transaction decides
-  (`on_batch_finished`, `batch_records.finished_batches`); ``event_id`` is unique, so a repeated
+  (`on_batch_finished`, `records.batches.mark_finished`); ``event_id`` is unique, so a repeated
   transition adds nothing, and a crash before the commit loses both or neither;
 - every worker runs a `CallbackSender`: a dispatcher thread that reads due rows and *claims* one
   (an UPDATE that moves its ``next_attempt_at`` `callback_lease_s` ahead only while it is still

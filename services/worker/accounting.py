@@ -1,4 +1,4 @@
-"""The worker's side of accounting (`common/usage.py`): measure a stage, put it on the job record
+"""The worker's side of accounting (`jobs/usage.py`): measure a stage, put it on the job record
 and in the tenant's usage ledger.
 
 A `StageMeter` wraps the stage call: CPU-seconds are the process's CPU time over it (the pool

@@ -1,6 +1,6 @@
 """``GET /v1/usage``: what the caller's tenant used per day (UTC) and over a period.
 
-The totals come from the usage ledger (`common/usage.py`): CPU-seconds and GPU-seconds of every
+The totals come from the usage ledger (`jobs/usage.py`): CPU-seconds and GPU-seconds of every
 stage execution by stage, jobs ended by outcome, and the bytes the ended jobs left stored. A key
 sees only its own tenant's usage, like every other route.
 """

@@ -84,7 +84,7 @@ class ServiceCollector(Collector):
             for stage in STAGES:
                 if (h := read_histogram(s.redis, STAGE_KEY.format(stage=stage))) is not None:
                     stage_h.add_metric([stage], h[0], h[1])
-            for outcome in (JobState.succeeded, JobState.failed, JobState.cancelled):
+            for outcome in (state for state in JobState if state.terminal):
                 if (h := read_histogram(s.redis, JOB_KEY.format(outcome=outcome.value))) is not None:
                     job_h.add_metric([outcome.value], h[0], h[1])
             counts = s.jobs.queue.waiting_by_tenant()

@@ -47,7 +47,6 @@ SERVICE_LAYERS: list[set[str]] = [
     {"api", "control"},
     {"worker"},
     {"jobs"},
-    {"common"},
     {"scenes"},
     {"webhooks", "live", "storage", "security", "sanitize"},
     {"records"},
@@ -57,10 +56,11 @@ SERVICE_LAYERS: list[set[str]] = [
 ]
 """The service's packages, top down, as their imports stand: the control process sends stages
 through the worker's Celery app and sits beside the API (neither imports the other); both and the
-workers call the jobs domain (`jobs`), which works over the rules still in `common`; below them
-the scenes domain (`scenes`: a job is submitted on a ready scene, so the jobs side reads and
-share-locks scene rows through it, never the other way), which reaches the rows through its
-records port and the bucket through `storage`; below them the adapters, one job each and none importing another: the
+workers call the jobs domain (`jobs`: the job model and its rules, reaching the records and the
+live state through its ports); below it the scenes domain (`scenes`: a job is submitted on a ready
+scene, so the jobs side reads and share-locks scene rows through it, never the other way), which
+reaches the rows through its records port and the bucket through `storage`; below them the
+adapters, one job each and none importing another: the
 callbacks (`webhooks`, which write their outbox rows through `records`), Redis and the broker
 (`live`, the only package that knows either; the worker builds the Celery app and hands it in, so
 `live` never imports `worker`), object storage (`storage`), API keys (`security`) and text safe to

@@ -29,8 +29,8 @@ from bayesian_fields_service.api.routes import answers, events, health, jobs, me
 from bayesian_fields_service.api.routes.metrics import metrics_registry
 from bayesian_fields_service.api.schemas import BatchRequest
 from bayesian_fields_service.api.state import AppState
-from bayesian_fields_service.common.jobs import JobStore
 from bayesian_fields_service.config.settings import ServiceSettings, apply_log_level, get_settings
+from bayesian_fields_service.jobs.store import JobStore
 from bayesian_fields_service.records.database import open_records
 from bayesian_fields_service.scenes.upload_temp import Sweeper
 from bayesian_fields_service.security.api_keys import ApiKeyRing

@@ -15,7 +15,7 @@ from typing import Annotated
 from fastapi import Query
 from pydantic import AfterValidator, StringConstraints
 
-from bayesian_fields_service.common.jobs import id_pattern
+from bayesian_fields_service.records.ids import id_pattern
 
 #: The most items a listing route answers in one page (its `limit`).
 PAGE_LIMIT = 500
@@ -48,7 +48,7 @@ def _in_years(value: date | None) -> date | None:
 
 
 def id_filter(prefix: str, what: str) -> Query:  # type: ignore[valid-type]
-    """A query parameter that must be one of the service's ids (`common.jobs.id_pattern`)."""
+    """A query parameter that must be one of the service's ids (`records.ids.id_pattern`)."""
     return Query(pattern=id_pattern(prefix), description=what)
 
 

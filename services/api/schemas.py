@@ -7,8 +7,8 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from bayesian_fields_service.common.job_queue import Priority
-from bayesian_fields_service.common.jobs import JobRecord, JobState
+from bayesian_fields_service.jobs.model import JobRecord, JobState
+from bayesian_fields_service.jobs.queue import Priority
 
 # A scene is a record of the scenes domain; re-exported here, where the API's bodies live.
 from bayesian_fields_service.scenes.model import SCENE_EXAMPLE_ID, SceneRecord

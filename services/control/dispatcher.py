@@ -1,4 +1,4 @@
-"""Release waiting jobs to the worker queues, fairly between tenants (`common.job_queue`).
+"""Release waiting jobs to the worker queues, fairly between tenants (`jobs.queue`).
 
 Run by the control process's leader only. A round tops the GPU queue up to
 `dispatch_queue_depth` messages: it reads the backlog once (two grouped index scans), then per
@@ -21,12 +21,14 @@ from collections.abc import Callable
 import redis
 from celery import Celery
 
-from bayesian_fields_service.common.job_queue import StrideClock, TenantBacklog, choose
-from bayesian_fields_service.common.jobs import JobRecord, JobState, JobStore, id_age_s
 from bayesian_fields_service.config.settings import ServiceSettings
 from bayesian_fields_service.jobs import lifecycle
+from bayesian_fields_service.jobs.model import JobRecord, JobState
+from bayesian_fields_service.jobs.queue import StrideClock, TenantBacklog, choose
+from bayesian_fields_service.jobs.store import JobStore
 from bayesian_fields_service.live.broker import enqueue_stages, queue_length
 from bayesian_fields_service.live.metrics import observe_queue_wait
+from bayesian_fields_service.records.ids import id_age_s
 from bayesian_fields_service.records.leases import Fence, LeaseLost
 
 log = logging.getLogger(__name__)

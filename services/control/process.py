@@ -34,11 +34,11 @@ from typing import Any
 import redis
 
 from bayesian_fields_service import hooks
-from bayesian_fields_service.common.jobs import JobStore
 from bayesian_fields_service.config.settings import ServiceSettings, apply_log_level, get_settings
 from bayesian_fields_service.control.dispatcher import Dispatcher
 from bayesian_fields_service.control.leadership import Leadership
 from bayesian_fields_service.control.recovery import Recovery
+from bayesian_fields_service.jobs.store import JobStore
 from bayesian_fields_service.records.database import open_records, ping
 from bayesian_fields_service.scenes.bucket_sweep import sweep_bucket
 from bayesian_fields_service.scenes.postgres import scene_store

@@ -39,9 +39,10 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from bayesian_fields_core.job.stage_table import STAGES
-from bayesian_fields_service.common.jobs import JobState, JobStore
 from bayesian_fields_service.config.settings import ServiceSettings
 from bayesian_fields_service.jobs import lifecycle
+from bayesian_fields_service.jobs.model import JobState
+from bayesian_fields_service.jobs.store import JobStore
 from bayesian_fields_service.records.job_heartbeats import DispatchedJob, dispatched_jobs
 from bayesian_fields_service.records.leases import Fence, LeaseLost
 

@@ -30,7 +30,7 @@ from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.job.store import Store
 from bayesian_fields_core.results.format import SelectedObject
 from bayesian_fields_core.results.reader import read_result, read_summary
-from bayesian_fields_service.common.jobs import JobRecord, utcnow
+from bayesian_fields_service.jobs.model import JobRecord, utcnow
 from bayesian_fields_service.records import answers as answer_records
 from bayesian_fields_service.storage.stores import tenant_store
 

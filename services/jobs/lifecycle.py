@@ -12,8 +12,9 @@ from typing import Any
 import redis
 
 from bayesian_fields_core.job.stage_table import STAGES
-from bayesian_fields_service.common.jobs import JobRecord, JobState, JobStore, overall_progress, utcnow
 from bayesian_fields_service.jobs import answers
+from bayesian_fields_service.jobs.model import JobRecord, JobState, overall_progress, utcnow
+from bayesian_fields_service.jobs.store import JobStore
 from bayesian_fields_service.live.metrics import observe_job
 
 

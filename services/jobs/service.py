@@ -4,7 +4,7 @@ A submission is checked (`validation`), then stored in one transaction that hold
 rows (a scene deleted since the check is `Missing`), admits it against the tenant's bound
 (`OverQuota` past it, exact under any number of API processes) and inserts the jobs with their
 batch, links and Idempotency-Key rows: committed, a job waits in its tenant's queue
-(`common.job_queue`); refused, nothing is left behind, so a client's retry never runs work twice.
+(`jobs.queue`); refused, nothing is left behind, so a client's retry never runs work twice.
 
 Idempotency-Keys (the IETF draft's rule): a key is unique per tenant and endpoint and stands for
 one request. Requests carrying the same key run one after another (a PostgreSQL session lock,
@@ -18,19 +18,21 @@ from __future__ import annotations
 import hashlib
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from datetime import UTC, datetime, timedelta
 from typing import Any, TypeVar
 
 import redis
 
-from bayesian_fields_service.common.batch_records import BatchRecord
-from bayesian_fields_service.common.job_queue import AdmissionRefused, Priority, admission_limit
-from bayesian_fields_service.common.jobs import JobRecord, JobState, JobStore, job_digest, new_id
 from bayesian_fields_service.config.settings import ServiceSettings
+from bayesian_fields_service.jobs.batches import BatchRecord
+from bayesian_fields_service.jobs.model import JobRecord, JobState, job_digest
+from bayesian_fields_service.jobs.queue import AdmissionRefused, Priority, admission_limit
 from bayesian_fields_service.jobs.refusals import Busy, Invalid, Missing, OverQuota
+from bayesian_fields_service.jobs.store import JobStore, NewJobs
 from bayesian_fields_service.jobs.validation import JobAsk, Validation, check_id, checked_callback
 from bayesian_fields_service.live.metrics import JOB_KEY, read_histogram
+from bayesian_fields_service.records.ids import BATCH_ID, JOB_ID, SCENE_ID, new_id
 from bayesian_fields_service.records.locks import LockBusy, session_lock
 from bayesian_fields_service.scenes.store import SceneStore
 
@@ -38,8 +40,6 @@ T = TypeVar("T")
 
 #: How long a request waits for another request holding the same Idempotency-Key or batch retry.
 KEY_LOCK_WAIT_S = 60.0
-JOB_ID = "j_"
-BATCH_ID = "b_"
 
 
 def _found(kind: str, ident: str, value: T | None) -> T:
@@ -122,7 +122,7 @@ class JobService:
         key = ask.idempotency_key
         if not key:
             record = Validation(self.settings, self.scenes, tenant).job(ask)
-            self._store([record], scene_ids=[ask.scene_id])
+            self._store([record], NewJobs(scene_ids=[ask.scene_id]))
             return record, True
         digest = job_digest(ask.scene_id, ask.tasks, ask.parameters, ask.model_profile)
         with self._key_lock(tenant, "jobs", key):
@@ -132,7 +132,7 @@ class JobService:
             if existing is not None and (earlier := self.jobs.get(tenant, existing[0])) is not None:
                 return earlier, False
             record = Validation(self.settings, self.scenes, tenant).job(ask)
-            self._store([record], digests={record.id: digest}, scene_ids=[ask.scene_id])
+            self._store([record], NewJobs(digests={record.id: digest}, scene_ids=[ask.scene_id]))
             return record, True
 
     def submit_batch(self, tenant: str, ask: BatchAsk, idempotency_key: str | None) -> BatchSubmitted:
@@ -149,7 +149,7 @@ class JobService:
             raise Invalid("items: an idempotency_key appears twice in the batch")
         checked_callback(self.settings, ask.callback_url)  # a refused URL before any work
         for item in ask.items:  # before any lock: an id that cannot exist is a plain `Missing`
-            check_id("scene", item.scene_id, "s_")
+            check_id("scene", item.scene_id, SCENE_ID)
         if not idempotency_key:
             return self._new_batch(tenant, ask, None)
         with self._key_lock(tenant, "batches", idempotency_key):
@@ -185,8 +185,8 @@ class JobService:
         batch = BatchRecord(id=batch_id, tenant=tenant, total=len(records), priority=ask.priority,
                             idempotency_key=batch_key, callback_url=checked_callback(self.settings, ask.callback_url))  # fmt: skip
         by_new = {r.id: d for r, d in zip(records, digests, strict=True) if r.batch_id == batch_id and d}
-        self._store(new, digests=by_new, batch=batch, batch_job_ids=[r.id for r in records],
-                    batch_digest=ask.body_sha256, scene_ids=[r.scene_id for r in new])  # fmt: skip
+        self._store(new, NewJobs(digests=by_new, batch=batch, batch_job_ids=[r.id for r in records],
+                                 batch_digest=ask.body_sha256, scene_ids=[r.scene_id for r in new]))  # fmt: skip
         return BatchSubmitted(batch, records, len(new))
 
     def retry_batch(self, tenant: str, batch_id: str) -> int:
@@ -206,18 +206,19 @@ class JobService:
             ]  # fmt: skip
             digests = {r.id: job_digest(None, r.tasks, f.parameters, r.model_profile)
                        for r, f in zip(again, failed, strict=True) if r.idempotency_key}  # fmt: skip
-            self._store(again, digests=digests, retry_in=batch.id,  # each item's key -> its new job
-                        scene_ids=[r.scene_id for r in again])  # fmt: skip
+            self._store(again, NewJobs(digests=digests, retry_in=batch.id,  # each item's key -> its new job
+                                       scene_ids=[r.scene_id for r in again]))  # fmt: skip
             return len(again)
 
-    def _store(self, records: Sequence[JobRecord], **create: Any) -> None:
-        """The one transaction of a submission (module docstring)."""
+    def _store(self, records: Sequence[JobRecord], new: NewJobs) -> None:
+        """The one transaction of a submission (module docstring), admitted against the tenant's
+        bound."""
         if not records:
             return
         s = self.settings
         limit = admission_limit(s.max_waiting_jobs_per_tenant, s.max_active_jobs_per_tenant)
         try:
-            self.jobs.create_many(list(records), admit_limit=limit, **create)
+            self.jobs.create_many(list(records), replace(new, admit_limit=limit))
         except AdmissionRefused as refused:
             raise OverQuota(
                 f"{refused.active} jobs are waiting or running; at most {limit} are allowed per tenant "

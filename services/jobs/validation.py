@@ -16,10 +16,11 @@ from pydantic import ValidationError
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.job.task_list import normalise_tasks
 from bayesian_fields_core.params import PipelineParams
-from bayesian_fields_service.common.job_queue import Priority
-from bayesian_fields_service.common.jobs import JobRecord, is_id, new_id
 from bayesian_fields_service.config.settings import ServiceSettings
+from bayesian_fields_service.jobs.model import JobRecord
+from bayesian_fields_service.jobs.queue import Priority
 from bayesian_fields_service.jobs.refusals import Conflict, Invalid, Missing
+from bayesian_fields_service.records.ids import JOB_ID, SCENE_ID, is_id, new_id
 from bayesian_fields_service.scenes.model import SceneRecord
 from bayesian_fields_service.scenes.store import SceneStore
 from bayesian_fields_service.webhooks.callbacks import check_callback_url
@@ -93,7 +94,7 @@ class Validation:
 
     def scene(self, scene_id: str) -> SceneRecord:
         if scene_id not in self._scenes:
-            check_id("scene", scene_id, "s_")
+            check_id("scene", scene_id, SCENE_ID)
             record = self.scenes.get(self.tenant, scene_id)
             if record is None:
                 raise Missing(f"scene {scene_id!r} not found")
@@ -119,7 +120,7 @@ class Validation:
                 f"model_profile {ask.model_profile!r} is unknown; available: {', '.join(MODEL_PROFILES)}"
             )
         return JobRecord(
-            id=new_id("j_"), tenant=self.tenant, scene_id=ask.scene_id, tasks=tasks,
+            id=new_id(JOB_ID), tenant=self.tenant, scene_id=ask.scene_id, tasks=tasks,
             parameters=dict(self._params[ask.scene_id]), model_profile=ask.model_profile, batch_id=batch_id,
             idempotency_key=ask.idempotency_key, priority=ask.priority,
             callback_url=checked_callback(s, ask.callback_url),

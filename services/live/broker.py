@@ -4,7 +4,7 @@ Kept apart from `tasks.py` so the control process can send without importing the
 (torch, models): it only needs the task names and queues, which the stage table
 (`job.stage_table`) gives. The chain is perceive -> fuse on the GPU queue, then cluster on the
 CPU queue; a resumed job sends only its unfinished stages. Submitted jobs wait in their tenant's
-queue, the jobs table (`common.job_queue`), until the control process's dispatcher
+queue, the jobs table (`jobs.queue`), until the control process's dispatcher
 (`control.dispatcher`) sends them here.
 """
 

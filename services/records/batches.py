@@ -5,7 +5,7 @@ its jobs, the cancel of its active jobs, a retry's replacements and the decision
 Why statements: a batch of 50,000 jobs is submitted with one multi-row INSERT of its jobs and one
 of its links, a page is an index range over (batch, position), cancel is one UPDATE, and the
 batch's end is decided by the database (`mark_finished`) in the transaction of the change that
-ends it. The batch model and its status stay in the domain (`common.batch_records`).
+ends it. The batch model and its status stay in the domain (`jobs.batches`).
 """
 
 from __future__ import annotations
@@ -15,9 +15,8 @@ from typing import Any
 
 from sqlalchemy import ARRAY, Connection, RowMapping, and_, case, cast, func, insert, select, text, update
 
-from bayesian_fields_service.records.tables import ID, batch_jobs, batches, jobs
+from bayesian_fields_service.records.tables import ACTIVE_JOB_STATES, ID, batch_jobs, batches, jobs
 
-_ACTIVE_STATES = ("queued", "running")
 _INSERT_LINKS = text(
     "INSERT INTO batch_jobs (batch_id, position, job_id) SELECT :batch_id, n - 1, job_id "
     "FROM unnest(CAST(:job_ids AS varchar[])) WITH ORDINALITY AS ids(job_id, n)"
@@ -90,7 +89,7 @@ def cancel_jobs(
         .where(
             jobs.c.id == func.any(cast(ids, ARRAY(ID))),
             jobs.c.tenant == tenant,
-            jobs.c.state.in_(_ACTIVE_STATES),
+            jobs.c.state.in_(ACTIVE_JOB_STATES),
         )
         .values(
             cancel_requested=True,

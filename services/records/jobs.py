@@ -1,7 +1,7 @@
 """The statements over `jobs` rows: load (plain or locked), insert, write, page, count.
 
 Why here and not beside `JobRecord`: the rules (the merge, a cancel winning over a success, what a
-job's end writes) belong to the jobs domain (`common.jobs`), which opens the unit of work
+job's end writes) belong to the jobs domain (`jobs.store`), which opens the unit of work
 (`records.begin`) and calls these with its connection; this module only knows the table. Rows go
 in as column dicts and come back as SQLAlchemy row mappings.
 """
@@ -15,10 +15,10 @@ from typing import Any
 from sqlalchemy import JSON, Connection, RowMapping, func, insert, select, update
 from sqlalchemy.dialects.postgresql import JSONB
 
-from bayesian_fields_service.records.tables import jobs
+from bayesian_fields_service.records.tables import ACTIVE_JOB_STATES, jobs
 
 #: Row states of a job that has not ended.
-ACTIVE_STATES = ("queued", "running")
+ACTIVE_STATES = ACTIVE_JOB_STATES
 
 
 def load(conn: Connection, tenant: str, job_id: str, *, lock: bool = False) -> RowMapping | None:

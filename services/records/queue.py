@@ -1,4 +1,4 @@
-"""The statements of the waiting queue, which is the `jobs` table (`common.job_queue` says why):
+"""The statements of the waiting queue, which is the `jobs` table (`jobs.queue` says why):
 the backlog per tenant, taking a tenant's head, putting a job back, a job's position, the recent
 dispatches, and the admission count under its tenant's transaction lock.
 

@@ -42,8 +42,11 @@ metadata = MetaData(
     }
 )
 
-JOB_STATES = ("queued", "running", "succeeded", "failed", "cancelled")
+#: A job's states, each spelled once for the whole service: the schema's check and batch counter
+#: columns here, `jobs.model.JobState` (whose `terminal` reads `TERMINAL_JOB_STATES`) above.
+ACTIVE_JOB_STATES = ("queued", "running")
 TERMINAL_JOB_STATES = ("succeeded", "failed", "cancelled")
+JOB_STATES = ACTIVE_JOB_STATES + TERMINAL_JOB_STATES
 SCENE_STATES = ("uploading", "ready", "deleting")
 PRIORITIES = ("interactive", "bulk")
 ID = String(40)

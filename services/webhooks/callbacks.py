@@ -4,7 +4,7 @@ Delivery is *at least once*, never on the job's path, through a **transactional 
 records database (`callback_outbox`):
 - an event row is inserted in the same transaction as the state change that causes it: a job's row
   turning terminal (`on_job_terminal`), or the batch's end that the same transaction decides
-  (`on_batch_finished`, `batch_records.finished_batches`); ``event_id`` is unique, so a repeated
+  (`on_batch_finished`, `records.batches.mark_finished`); ``event_id`` is unique, so a repeated
   transition adds nothing, and a crash before the commit loses both or neither;
 - every worker runs a `CallbackSender`: a dispatcher thread that reads due rows and *claims* one
   (an UPDATE that moves its ``next_attempt_at`` `callback_lease_s` ahead only while it is still
@@ -137,31 +137,49 @@ def _iso(when: datetime | None) -> str | None:
     return when.isoformat() if when is not None else None
 
 
-def on_job_terminal(conn: Connection, job: TerminalJob) -> None:
-    """The job's event, when it has a callback_url (in the transaction of its terminal write)."""
+#: An event for the outbox: (tenant, callback URL, event with its `event_id`).
+Event = tuple[str, str, dict[str, Any]]
+
+
+def job_event(job: TerminalJob) -> Event | None:
+    """The job's ``job.finished`` event, when it has a callback_url (None otherwise). Pure: the
+    jobs domain queues it in the transaction of the job's terminal write."""
     if not job.callback_url:
-        return
+        return None
     state = str(getattr(job.state, "value", job.state))
     finished = _iso(job.finished_at)
-    enqueue(conn, job.tenant, job.callback_url, {
+    return job.tenant, job.callback_url, {
         "event_id": f"job:{job.id}:{state}:{finished}", "type": "job.finished",
         "job_id": job.id, "tenant": job.tenant, "scene_id": job.scene_id, "batch_id": job.batch_id,
         "state": state, "error": job.error, "finished_at": finished,
-    })  # fmt: skip
+    }  # fmt: skip
 
 
-def on_batch_finished(conn: Connection, batch: FinishedBatch) -> None:
-    """The batch's event, when it has a callback_url. The records decide that the batch finished
-    (`batch_records.finished_batches`, once per finish: a retry opens it again), so the event id
-    carries the finish time and a retried batch that finishes again sends a second event."""
+def batch_event(batch: FinishedBatch) -> Event | None:
+    """The batch's ``batch.finished`` event, when it has a callback_url. The records decide that
+    the batch finished (`records.batches.mark_finished`, once per finish: a retry opens it
+    again), so the event id carries the finish time and a retried batch that finishes again
+    sends a second event."""
     if not batch.callback_url:
-        return
+        return None
     finished = _iso(batch.finished_at)
-    enqueue(conn, batch.tenant, batch.callback_url, {
+    return batch.tenant, batch.callback_url, {
         "event_id": f"batch:{batch.id}:finished:{finished}", "type": "batch.finished",
         "batch_id": batch.id, "tenant": batch.tenant, "jobs": batch.total,
         "counts": {k: v for k, v in batch.counts.items() if v}, "finished_at": finished,
-    })  # fmt: skip
+    }  # fmt: skip
+
+
+def on_job_terminal(conn: Connection, job: TerminalJob) -> None:
+    """`job_event` put in the outbox in `conn`'s transaction (the job's terminal write)."""
+    if (event := job_event(job)) is not None:
+        enqueue(conn, *event)
+
+
+def on_batch_finished(conn: Connection, batch: FinishedBatch) -> None:
+    """`batch_event` put in the outbox in `conn`'s transaction."""
+    if (event := batch_event(batch)) is not None:
+        enqueue(conn, *event)
 
 
 def _backoff(settings: ServiceSettings, attempts: int) -> float:

@@ -1,4 +1,4 @@
-"""The worker's side of accounting (`common/usage.py`): measure a stage, put it on the job record
+"""The worker's side of accounting (`jobs/usage.py`): measure a stage, put it on the job record
 and in the tenant's usage ledger.
 
 A `StageMeter` wraps the stage call: CPU-seconds are the process's CPU time over it (the pool
@@ -17,9 +17,9 @@ from types import TracebackType
 from sqlalchemy import Engine
 
 from bayesian_fields_core.job.store import Store
-from bayesian_fields_service.common import usage
-from bayesian_fields_service.common.jobs import JobRecord, utcnow
+from bayesian_fields_service.jobs import usage
 from bayesian_fields_service.jobs.durable_writes import until_landed
+from bayesian_fields_service.jobs.model import JobRecord, utcnow
 from bayesian_fields_service.storage.stores import tenant_store
 from bayesian_fields_service.worker.scene_cache import list_input
 

@@ -50,10 +50,11 @@ from bayesian_fields_core.job.store import Store
 from bayesian_fields_core.params import PipelineParams
 from bayesian_fields_core.perception.models import Models, load_models
 from bayesian_fields_service import hooks
-from bayesian_fields_service.common.jobs import JobRecord, JobState, JobStore
 from bayesian_fields_service.config.settings import ServiceSettings
 from bayesian_fields_service.jobs import lifecycle
 from bayesian_fields_service.jobs.durable_writes import until_landed
+from bayesian_fields_service.jobs.model import JobRecord, JobState
+from bayesian_fields_service.jobs.store import JobStore
 from bayesian_fields_service.live.metrics import observe_stage
 from bayesian_fields_service.live.single_flight import RedisFlight
 from bayesian_fields_service.records import job_heartbeats

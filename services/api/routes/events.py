@@ -31,13 +31,14 @@ from starlette.concurrency import run_in_threadpool
 
 from bayesian_fields_service.api.routes.jobs import counted_status
 from bayesian_fields_service.api.state import ERRORS, AppState, State, Tenant, check_id, not_found
-from bayesian_fields_service.common.batch_records import BatchRecord
-from bayesian_fields_service.common.jobs import JobStore
+from bayesian_fields_service.jobs.batches import BatchRecord, progress_of_jobs
+from bayesian_fields_service.jobs.model import JobState
+from bayesian_fields_service.jobs.store import JobStore
+from bayesian_fields_service.records.ids import BATCH_ID
 
 router = APIRouter(prefix="/v1", tags=["batches"])
 
 KEEPALIVE_S = 15.0
-TERMINAL = ("succeeded", "failed", "cancelled")
 
 JobView = tuple[str, str, int]  # state, stage, whole percent
 
@@ -49,7 +50,7 @@ def snapshot(jobs: JobStore, batch: BatchRecord) -> dict[str, JobView]:
         job.id: (
             job.state.value,
             job.stage or "",
-            100 if job.state.value == "succeeded" else int(job.progress),
+            100 if job.state == JobState.succeeded else int(job.progress),
         )
         for _, job in jobs.batch_jobs(batch)
     }
@@ -108,15 +109,12 @@ async def stream(request: Request, state: AppState, batch: BatchRecord) -> Async
             yield _event(
                 "job", seq, {"id": job_id, "state": job_state, "stage": stage or None, "progress": pct}
             )
-        finished = len(known) == batch.total and all(v[0] in TERMINAL for v in known.values())
+        now = progress_of_jobs((v[0], v[2]) for v in known.values())
+        finished = len(known) == batch.total and now.finished
         if changed or seq == 0:
-            counts: dict[str, int] = {}
-            for v in known.values():
-                counts[v[0]] = counts.get(v[0], 0) + 1
-            progress = sum(100 if v[0] in TERMINAL else v[2] for v in known.values()) / max(len(known), 1)
             seq += 1
             yield _event("counts", seq, {
-                "counts": counts, "total": batch.total, "progress": round(progress, 2), "finished": finished,
+                "counts": now.counts, "total": batch.total, "progress": now.progress, "finished": finished,
             })  # fmt: skip
             last_sent = time.monotonic()
         if finished:
@@ -136,7 +134,7 @@ async def stream(request: Request, state: AppState, batch: BatchRecord) -> Async
     responses={**ERRORS, 200: {"content": {"text/event-stream": {}}, "description": "The event stream"}},
 )
 async def batch_events(batch_id: str, request: Request, tenant: Tenant, state: State) -> StreamingResponse:
-    check_id("batch", batch_id, "b_")
+    check_id("batch", batch_id, BATCH_ID)
     batch = await run_in_threadpool(state.jobs.load_batch, tenant, batch_id)
     if batch is None:
         raise not_found("batch", batch_id)

@@ -34,8 +34,8 @@ from bayesian_fields_service.api.schemas import (
     Problem,
 )
 from bayesian_fields_service.api.state import BODY_ERRORS, ERRORS, AppState, State, Tenant, not_found
-from bayesian_fields_service.common.batch_records import BatchRecord
-from bayesian_fields_service.common.jobs import JobRecord, JobState
+from bayesian_fields_service.jobs.batches import BatchRecord, batch_progress, progress_of_jobs
+from bayesian_fields_service.jobs.model import JobRecord, JobState
 from bayesian_fields_service.jobs.service import BatchAsk, body_digest
 from bayesian_fields_service.jobs.validation import JobAsk
 
@@ -252,13 +252,10 @@ def _status_of(batch: BatchRecord, jobs: Sequence[JobRecord | None], *, created:
                with_jobs: bool = True) -> BatchStatus:  # fmt: skip
     """A batch's status from its jobs' records (when the answer lists them anyway)."""
     present = [j for j in jobs if j is not None]
-    counts: dict[str, int] = {}
-    for j in present:
-        counts[j.state.value] = counts.get(j.state.value, 0) + 1
-    progress = sum(100.0 if j.state.terminal else j.progress for j in present) / max(len(present), 1)
+    now = progress_of_jobs((j.state.value, j.progress) for j in present)
     return BatchStatus(
-        id=batch.id, created_at=batch.created_at or datetime.now(UTC), progress=round(progress, 2),
-        counts=counts, finished=all(j.state.terminal for j in present), total=batch.total, created=created,
+        id=batch.id, created_at=batch.created_at or datetime.now(UTC), progress=now.progress,
+        counts=now.counts, finished=now.finished, total=batch.total, created=created,
         jobs=[BatchJob(id=j.id, scene_id=j.scene_id, tasks=j.tasks, state=j.state, stage=j.stage,
                        progress=j.progress, error=j.error) for j in present] if with_jobs else [],
     )  # fmt: skip
@@ -268,12 +265,10 @@ def counted_status(state: AppState, batch: BatchRecord, *, created: int = 0) -> 
     """A batch's status from its row's counts (kept by the records) and its dispatched jobs' live
     progress: a few reads whatever the batch's size."""
     live = state.jobs.live_batch(batch)
-    counts = {k: v for k, v in live.counts.items() if v}
-    terminal = sum(v for k, v in counts.items() if JobState(k).terminal)
-    progress = (100.0 * terminal + live.active_progress) / max(live.total, 1)
+    now = batch_progress(live.counts, live.active_progress, live.total)
     return BatchStatus(
-        id=batch.id, created_at=batch.created_at or datetime.now(UTC), progress=round(progress, 2),
-        counts=counts, finished=live.finished, total=live.total, created=created, jobs=[],
+        id=batch.id, created_at=batch.created_at or datetime.now(UTC), progress=now.progress,
+        counts=now.counts, finished=now.finished, total=live.total, created=created, jobs=[],
     )  # fmt: skip
 
 

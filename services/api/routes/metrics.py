@@ -19,9 +19,10 @@ from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, generate_l
 from prometheus_client.core import GaugeMetricFamily, HistogramMetricFamily
 from prometheus_client.registry import Collector
 
+from bayesian_fields_core.job.stage_table import STAGES
 from bayesian_fields_service.api.state import AppState, get_state
-from bayesian_fields_service.common.jobs import STAGES, JobState
 from bayesian_fields_service.config.settings import ServiceSettings
+from bayesian_fields_service.jobs.model import JobState
 from bayesian_fields_service.live.broker import queue_length
 from bayesian_fields_service.live.metrics import (
     JOB_KEY,
@@ -83,7 +84,7 @@ class ServiceCollector(Collector):
             for stage in STAGES:
                 if (h := read_histogram(s.redis, STAGE_KEY.format(stage=stage))) is not None:
                     stage_h.add_metric([stage], h[0], h[1])
-            for outcome in (JobState.succeeded, JobState.failed, JobState.cancelled):
+            for outcome in (state for state in JobState if state.terminal):
                 if (h := read_histogram(s.redis, JOB_KEY.format(outcome=outcome.value))) is not None:
                     job_h.add_metric([outcome.value], h[0], h[1])
             counts = s.jobs.queue.waiting_by_tenant()

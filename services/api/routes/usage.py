@@ -1,6 +1,6 @@
 """``GET /v1/usage``: what the caller's tenant used per day (UTC) and over a period.
 
-The totals come from the usage ledger (`common/usage.py`): CPU-seconds and GPU-seconds of every
+The totals come from the usage ledger (`jobs/usage.py`): CPU-seconds and GPU-seconds of every
 stage execution by stage, jobs ended by outcome, and the bytes the ended jobs left stored. A key
 sees only its own tenant's usage, like every other route.
 """
@@ -15,7 +15,7 @@ from pydantic import BaseModel, Field
 
 from bayesian_fields_service.api.query import Day
 from bayesian_fields_service.api.state import ERRORS, State, Tenant
-from bayesian_fields_service.common.usage import tenant_usage
+from bayesian_fields_service.jobs.usage import tenant_usage
 
 router = APIRouter(prefix="/v1", tags=["usage"])
 

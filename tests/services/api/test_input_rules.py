@@ -8,7 +8,7 @@ import httpx
 import pytest
 
 from bayesian_fields_core.errors import InputError
-from bayesian_fields_service.common.jobs import JobRecord, JobState
+from bayesian_fields_service.jobs.model import JobRecord, JobState
 from bayesian_fields_service.records.database import engine
 from bayesian_fields_service.records.tables import jobs
 

@@ -9,7 +9,8 @@ import httpx
 import pytest
 import redis
 
-from bayesian_fields_service.common.jobs import JobState, JobStore
+from bayesian_fields_service.jobs.model import JobState
+from bayesian_fields_service.jobs.store import JobStore
 from bayesian_fields_service.records.database import engine
 from tests.integration.fixtures.s3_server import S3Server
 

@@ -285,8 +285,9 @@ def test_the_sweeper_finishes_a_delete_that_stopped_after_its_mark(
 ) -> None:
     """A delete whose API died after the mark committed leaves the scene's objects, its multipart
     uploads and a deleting row: the sweeper removes them whatever their age and purges the row."""
-    from bayesian_fields_service.common.jobs import new_id, utcnow
+    from bayesian_fields_service.jobs.model import utcnow
     from bayesian_fields_service.records.database import engine
+    from bayesian_fields_service.records.ids import new_id
     from bayesian_fields_service.scenes.bucket_sweep import sweep_bucket
     from bayesian_fields_service.scenes.model import SceneRecord
     from bayesian_fields_service.scenes.postgres import scene_store

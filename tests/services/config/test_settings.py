@@ -122,7 +122,7 @@ def test_no_service_module_reads_the_environment_itself() -> None:
 
 def test_stages_are_defined_once() -> None:
     from bayesian_fields_core.job.stage_table import STAGES
-    from bayesian_fields_service.common import jobs
+    from bayesian_fields_service.jobs import model as jobs
 
     assert jobs.STAGES is STAGES
     assert list(jobs.STAGE_WEIGHTS) == list(STAGES)

@@ -13,9 +13,9 @@ from collections.abc import Iterator
 import pytest
 from sqlalchemy import Engine, create_engine, func, insert, select
 
-from bayesian_fields_service.common.job_queue import JobQueue
 from bayesian_fields_service.control.leadership import Leadership
 from bayesian_fields_service.control.process import STANDBY_POLL_S, Loop
+from bayesian_fields_service.jobs.queue import JobQueue
 from bayesian_fields_service.records.leases import (
     CONTROL_LEADER,
     Fence,

@@ -14,10 +14,12 @@ from sqlalchemy import Engine, func, select, update
 
 from bayesian_fields_core.job.stage_table import STAGES
 from bayesian_fields_core.job.store import LocalStore
-from bayesian_fields_service.common.jobs import JobRecord, JobState, JobStore, new_id
 from bayesian_fields_service.config.settings import ServiceSettings
 from bayesian_fields_service.control.recovery import Recovery
+from bayesian_fields_service.jobs.model import JobRecord, JobState
+from bayesian_fields_service.jobs.store import JobStore
 from bayesian_fields_service.records import job_heartbeats
+from bayesian_fields_service.records.ids import new_id
 from bayesian_fields_service.records.tables import callback_outbox, jobs, usage_ledger
 from tests.integration.fixtures.redis_server import RedisServer
 

@@ -11,15 +11,24 @@ from collections.abc import Iterator
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from sqlalchemy import Engine, func, insert, select, text, update
+from sqlalchemy import Connection, Engine, func, insert, select, text, update
 
-from bayesian_fields_service.common import batch_records
-from bayesian_fields_service.common.batch_records import BatchRecord
+from bayesian_fields_service.jobs.batches import BatchRecord, batch_of_row
+from bayesian_fields_service.records import batches as batch_rows
 from bayesian_fields_service.records.database import engine, migrate
 from bayesian_fields_service.records.tables import JOB_STATES, batch_jobs, batches, jobs
 from tests.integration.fixtures.postgres import records_database
 
 STATES = st.sampled_from(JOB_STATES)
+
+
+def _insert_batch(conn: Connection, batch: BatchRecord, job_count: int) -> None:
+    batch_rows.insert_row(conn, id=batch.id, tenant=batch.tenant, priority=batch.priority,
+                          callback_url=batch.callback_url, job_count=job_count, idempotency_key=None)  # fmt: skip
+
+
+def _finished_batches(conn: Connection, job_ids: list[str]) -> list[BatchRecord]:
+    return [batch_of_row(r) for r in batch_rows.mark_finished(conn, job_ids)]
 
 
 @pytest.fixture(scope="module")
@@ -72,10 +81,10 @@ def test_counts_equal_a_recount_after_any_changes(db: Engine, changes: list, see
     with db.begin() as conn:
         conn.execute(text("DELETE FROM batch_jobs; DELETE FROM jobs; DELETE FROM batches"))
         for b in (b0, b1):
-            batch_records.insert_batch(conn, BatchRecord(id=b, tenant="t"), 8)
+            _insert_batch(conn, BatchRecord(id=b, tenant="t"), 8)
         conn.execute(insert(jobs), [_job(j, b0 if i < 8 else b1) for i, j in enumerate(ids)])
-        batch_records.insert_links(conn, b0, ids[:8])
-        batch_records.insert_links(conn, b1, ids[8:] + ids[2:6])  # four jobs in both batches
+        batch_rows.insert_links(conn, b0, ids[:8])
+        batch_rows.insert_links(conn, b1, ids[8:] + ids[2:6])  # four jobs in both batches
     retries = 0
     for kind, at, state, progress in changes:
         with db.begin() as conn:
@@ -86,7 +95,7 @@ def test_counts_equal_a_recount_after_any_changes(db: Engine, changes: list, see
                     update(jobs).where(jobs.c.id.in_(ids[: at + 1])).values(state=state, progress=progress)
                 )
             elif kind == "cancel":
-                batch_records.cancel_jobs(conn, "t", (b0, b1)[at])
+                batch_rows.cancel_jobs(conn, "t", (b0, b1)[at])
             else:  # a retry: a new job takes the slot of ids[at] in every batch that holds it
                 retries += 1
                 new = f"{ids[at]}_r{retries}"
@@ -96,7 +105,7 @@ def test_counts_equal_a_recount_after_any_changes(db: Engine, changes: list, see
                     for r in conn.execute(select(batch_jobs.c.batch_id).where(batch_jobs.c.job_id == ids[at]))
                 ]
                 for holder in holders:
-                    batch_records.replace_jobs(conn, holder, {ids[at]: new})
+                    batch_rows.replace_jobs(conn, holder, {ids[at]: new})
                 ids[at] = new
         with db.connect() as conn:
             for b in (b0, b1):
@@ -106,25 +115,25 @@ def test_counts_equal_a_recount_after_any_changes(db: Engine, changes: list, see
 def test_finished_batches_marks_a_batch_once_per_finish(db: Engine) -> None:
     with db.begin() as conn:
         conn.execute(text("DELETE FROM batch_jobs; DELETE FROM jobs; DELETE FROM batches"))
-        batch_records.insert_batch(conn, BatchRecord(id="b_f", tenant="t", callback_url="https://x.test/"), 2)
+        _insert_batch(conn, BatchRecord(id="b_f", tenant="t", callback_url="https://x.test/"), 2)
         conn.execute(insert(jobs), [_job("j_f1", "b_f"), _job("j_f2", "b_f")])
-        batch_records.insert_links(conn, "b_f", ["j_f1", "j_f2"])
+        batch_rows.insert_links(conn, "b_f", ["j_f1", "j_f2"])
     with db.begin() as conn:
         conn.execute(update(jobs).where(jobs.c.id == "j_f1").values(state="succeeded"))
-        assert batch_records.finished_batches(conn, ["j_f1"]) == []  # j_f2 still waits
+        assert _finished_batches(conn, ["j_f1"]) == []  # j_f2 still waits
     with db.begin() as conn:
         conn.execute(update(jobs).where(jobs.c.id == "j_f2").values(state="failed"))
-        (done,) = batch_records.finished_batches(conn, ["j_f2"])
+        (done,) = _finished_batches(conn, ["j_f2"])
         assert done.counts == {**dict.fromkeys(JOB_STATES, 0), "succeeded": 1, "failed": 1}
         assert done.finished_at is not None and done.total == 2
     with db.begin() as conn:  # a late duplicate of the same end marks nothing
-        assert batch_records.finished_batches(conn, ["j_f1", "j_f2"]) == []
+        assert _finished_batches(conn, ["j_f1", "j_f2"]) == []
     with db.begin() as conn:  # a retry opens the batch again; its end is a new finish
         conn.execute(insert(jobs), [_job("j_f3", "b_f")])
-        batch_records.replace_jobs(conn, "b_f", {"j_f2": "j_f3"})
-        assert batch_records.finished_batches(conn, ["j_f3"]) == []
+        batch_rows.replace_jobs(conn, "b_f", {"j_f2": "j_f3"})
+        assert _finished_batches(conn, ["j_f3"]) == []
         conn.execute(update(jobs).where(jobs.c.id == "j_f3").values(state="succeeded"))
-        (again,) = batch_records.finished_batches(conn, ["j_f3"])
+        (again,) = _finished_batches(conn, ["j_f3"])
         assert again.counts["succeeded"] == 2 and again.counts["failed"] == 0
 
 

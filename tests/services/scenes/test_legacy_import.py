@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 from sqlalchemy import Engine
 
-from bayesian_fields_service.common.jobs import new_id
+from bayesian_fields_service.records.ids import new_id
 from bayesian_fields_service.scenes.bucket_sweep import sweep_bucket
 from bayesian_fields_service.scenes.legacy_import import import_scenes
 from bayesian_fields_service.scenes.model import SceneState

@@ -12,7 +12,7 @@ from datetime import UTC, datetime, timedelta
 import pytest
 from sqlalchemy import Engine, insert, update
 
-from bayesian_fields_service.common.jobs import new_id
+from bayesian_fields_service.records.ids import new_id
 from bayesian_fields_service.records.tables import jobs
 from bayesian_fields_service.scenes.model import SceneRecord, SceneState
 from bayesian_fields_service.scenes.postgres import lock_ready, scene_store

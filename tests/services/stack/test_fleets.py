@@ -24,8 +24,10 @@ from sqlalchemy import func, insert, select
 from bayesian_fields_core.params import PipelineParams
 from bayesian_fields_service.client import BFieldsClient
 from bayesian_fields_service.client.api import ClientError, RetryPolicy
-from bayesian_fields_service.common.jobs import JobState, JobStore, new_id
+from bayesian_fields_service.jobs.model import JobState
+from bayesian_fields_service.jobs.store import JobStore
 from bayesian_fields_service.records.database import engine
+from bayesian_fields_service.records.ids import new_id
 from bayesian_fields_service.records.leases import CONTROL_LEADER, current_token
 from bayesian_fields_service.records.tables import jobs as jobs_table
 from tests.integration.fixtures.s3_server import S3Server

@@ -19,7 +19,7 @@ import httpx
 import pytest
 import redis
 
-from bayesian_fields_service.common.jobs import JobStore
+from bayesian_fields_service.jobs.store import JobStore
 from bayesian_fields_service.records.database import engine
 from tests.integration.fixtures.postgres import create_database, drop_database
 from tests.integration.fixtures.redis_server import RedisServer

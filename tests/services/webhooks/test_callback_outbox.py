@@ -12,8 +12,10 @@ import redis
 from sqlalchemy import Engine, select
 
 from bayesian_fields_core.job.store import LocalStore
-from bayesian_fields_service.common.batch_records import BatchRecord
-from bayesian_fields_service.common.jobs import JobRecord, JobState, JobStore, new_id
+from bayesian_fields_service.jobs.batches import BatchRecord
+from bayesian_fields_service.jobs.model import JobRecord, JobState
+from bayesian_fields_service.jobs.store import JobStore, NewJobs
+from bayesian_fields_service.records.ids import new_id
 from bayesian_fields_service.records.tables import callback_outbox
 from tests.integration.fixtures.redis_server import RedisServer
 
@@ -39,7 +41,7 @@ def test_a_batch_event_survives_a_redis_loss_between_its_jobs(
                   callback_url="https://hooks.example.com/j" if i == 0 else None)
         for i in range(2)
     ]  # fmt: skip
-    jobs.create_many(records, batch=batch)
+    jobs.create_many(records, NewJobs(batch=batch))
 
     first = jobs.save(records[0].model_copy(update={"state": JobState.succeeded}))
     events = _events(db)

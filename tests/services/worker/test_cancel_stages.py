@@ -14,7 +14,7 @@ from typing import Any
 import pytest
 import redis
 
-from bayesian_fields_service.common.job_queue import JobQueue
+from bayesian_fields_service.jobs.queue import JobQueue
 from bayesian_fields_service.records.database import engine
 from tests.integration.fixtures.services import ApiServer
 from tests.services.stack.test_workers import PARAMS, TASKS, _upload

@@ -13,10 +13,12 @@ import redis
 from sqlalchemy import Engine
 
 from bayesian_fields_core.job.store import LocalStore
-from bayesian_fields_service.common import usage
-from bayesian_fields_service.common.batch_records import BatchRecord
-from bayesian_fields_service.common.jobs import JobRecord, JobState, JobStore, new_id
-from bayesian_fields_service.common.usage import JobUsage
+from bayesian_fields_service.jobs import usage
+from bayesian_fields_service.jobs.batches import BatchRecord
+from bayesian_fields_service.jobs.model import JobRecord, JobState
+from bayesian_fields_service.jobs.store import JobStore, NewJobs
+from bayesian_fields_service.jobs.usage import JobUsage
+from bayesian_fields_service.records.ids import new_id
 from tests.integration.fixtures.redis_server import RedisServer
 
 
@@ -42,7 +44,7 @@ def test_every_end_counts_once_whoever_ends_the_job(
     in_batch = [_job("t", batch.id) for _ in range(3)]
     other = _job("u")
     jobs.create_many([ran, waiting, other])
-    jobs.create_many(in_batch, batch=batch)
+    jobs.create_many(in_batch, NewJobs(batch=batch))
 
     # a worker ran two stages of `ran` (the second write of a stage retried: counted once), then it ended
     when = datetime.now(UTC)

@@ -12,7 +12,7 @@ and crashed runs that reached the end of their stage included: they used the mac
 
 Per tenant and day (UTC): the ``usage_ledger`` table of the records database. Every stage
 execution is one row written by the worker that ran it (`record_stage`); every job end is one row
-written in the same transaction as the job's terminal state (`record_job_ends`, called by the jobs
+written in the same transaction as the job's terminal state (`end_rows`, queued by the jobs
 domain whoever ends the job: a worker, a cancel of a waiting job, a batch cancel, recovery), so a
 job cancelled before any worker saw it is counted like any other. Each row has a unique
 ``entry_id``, so a retried write never counts twice; the totals are one aggregate query over the
@@ -26,7 +26,7 @@ from datetime import UTC, date, datetime, time, timedelta
 from typing import Any, Protocol
 
 from pydantic import BaseModel, Field, computed_field
-from sqlalchemy import Connection, Engine
+from sqlalchemy import Engine
 
 from bayesian_fields_service import records
 from bayesian_fields_service.records import usage as ledger
@@ -72,7 +72,7 @@ class JobUsage(BaseModel):
 
 
 class EndedJob(Protocol):
-    """What `record_job_ends` reads of a job record."""
+    """What `end_rows` reads of a job record."""
 
     id: str
     tenant: str
@@ -91,17 +91,16 @@ def record_stage(database: Engine, tenant: str, job_id: str, stage: str, run: in
                        "stage": stage, "cpu_s": cpu_s, "gpu_s": gpu_s, "recorded_at": when})  # fmt: skip
 
 
-def record_job_ends(conn: Connection, ended: Sequence[EndedJob]) -> None:
-    """The jobs' ends (outcome, the bytes each leaves stored), in `conn`'s transaction: the one
-    that made them terminal (entry ``<job>.end``: once per job). One statement however many."""
-    if not ended:
-        return
+def end_rows(ended: Sequence[EndedJob]) -> list[tuple[str, str, str, str, int, datetime]]:
+    """The ledger rows of the jobs' ends (outcome, the bytes each leaves stored), for the unit of
+    work that made them terminal (entry ``<job>.end``: once per job, a duplicate entry id is
+    dropped by the records). One statement however many."""
     now = datetime.now(UTC)
-    ledger.insert_ends(conn, [
+    return [
         (f"{job.id}.end", job.tenant, job.id, str(getattr(job.state, "value", job.state)), job.usage.bytes_stored,
          job.finished_at or now)
         for job in ended
-    ])  # fmt: skip
+    ]  # fmt: skip
 
 
 def _empty() -> dict[str, Any]:

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from bayesian_fields_core.errors import InputError
-from bayesian_fields_service.common.jobs import JobRecord, JobState, _merge, overall_progress
+from bayesian_fields_service.jobs.model import JobRecord, JobState, merge, overall_progress
 from bayesian_fields_service.scenes.archives import ArchiveLimits, extract_archive
 
 LIMITS = ArchiveLimits(max_members=10, max_bytes=1000)
@@ -25,10 +25,10 @@ def test_terminal_state_and_cancel_request_survive_a_late_writer() -> None:
         state=JobState.cancelled, cancel_requested=True, stages_done=["perceive"], error="cancelled"
     )
     late = _record(state=JobState.running, stages_done=["fuse"], timings={"fuse": 2.0})
-    merged = _merge(stored, late)
+    merged = merge(stored, late)
     assert merged.state == JobState.cancelled and merged.cancel_requested and merged.error == "cancelled"
     assert merged.stages_done == ["perceive", "fuse"] and merged.timings == {"fuse": 2.0}
-    assert _merge(_record(state=JobState.queued), _record(state=JobState.running)).state == JobState.running
+    assert merge(_record(state=JobState.queued), _record(state=JobState.running)).state == JobState.running
 
 
 def test_overall_progress_weights_stages() -> None:

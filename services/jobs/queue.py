@@ -27,16 +27,16 @@ import time
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from datetime import datetime
-from typing import Any, Literal
+from typing import Any, Literal, Protocol
 
-from sqlalchemy import Connection, Engine
+from sqlalchemy import Engine
 
 from bayesian_fields_service import records
 from bayesian_fields_service.records import queue
 from bayesian_fields_service.records.leases import Fence, assert_lease
 
 Priority = Literal["interactive", "bulk"]
-PRIORITIES: tuple[Priority, ...] = ("interactive", "bulk")
+PRIORITIES: tuple[Priority, ...] = ("interactive", "bulk")  # the order within a tenant's queue
 
 #: Seconds of dispatch history used for a tenant's dispatch rate (the estimated start).
 RATE_WINDOW_S = 600.0
@@ -55,11 +55,17 @@ def admission_limit(max_waiting: int, max_dispatched: int) -> int:
     return max_waiting + max_dispatched
 
 
-def admit(conn: Connection, tenant: str, asked: int, limit: int) -> int:
+class AdmissionCount(Protocol):
+    """What `admit` needs of the unit of work (`ports.JobTx`)."""
+
+    def admission_count(self, tenant: str) -> int: ...
+
+
+def admit(tx: AdmissionCount, tenant: str, asked: int, limit: int) -> int:
     """In the caller's inserting transaction: hold the tenant's admission lock (until commit) and
     count its unfinished jobs; `AdmissionRefused` when `asked` more would pass `limit`. Returns
     the count before the new jobs."""
-    active = queue.admission_count(conn, tenant)
+    active = tx.admission_count(tenant)
     if active + asked > limit:
         raise AdmissionRefused(active, limit, asked)
     return active

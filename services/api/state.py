@@ -15,6 +15,7 @@ from fastapi import Depends, HTTPException, Request, status
 from bayesian_fields_core.job.store import PrefixedStore, Store
 from bayesian_fields_service.api.bulk_lane import BulkLane
 from bayesian_fields_service.api.schemas import Problem
+from bayesian_fields_service.api.tenant_gate import TenantGate
 from bayesian_fields_service.common.jobs import JobStore, is_id
 from bayesian_fields_service.common.scenes import (
     SceneBusy,
@@ -38,6 +39,7 @@ class AppState:
     redis: redis.Redis
     jobs: JobStore
     key_ring: ApiKeyRing
+    tenant_gate: TenantGate
     metrics_registry: Any = None
     bulk_lane: BulkLane | None = None  # set while the app serves, where the lane is on
     scenes: SceneStore = field(init=False)

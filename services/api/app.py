@@ -21,6 +21,7 @@ from redis.retry import Retry
 from starlette.datastructures import Headers
 from starlette.types import Scope
 
+from bayesian_fields_core.errors import InputError
 from bayesian_fields_service import hooks
 from bayesian_fields_service.api.body_deadline import BodyDeadline
 from bayesian_fields_service.api.bulk_lane import BulkLane, settle_child
@@ -111,7 +112,10 @@ def _tenant_of(ring: ApiKeyRing) -> Callable[[Scope], str | None]:
 
     def tenant_of(scope: Scope) -> str | None:
         headers = Headers(scope=scope)
-        return ring.tenant_for(key_in_headers(headers.get("x-api-key"), headers.get("authorization")))
+        try:
+            return ring.tenant_for(key_in_headers(headers.get("x-api-key"), headers.get("authorization")))
+        except InputError:  # an unreadable keys file: the route's authentication answers it
+            return None
 
     return tenant_of
 

@@ -18,6 +18,8 @@ import select
 import socket
 import time
 from collections.abc import Iterator
+from contextlib import ExitStack
+from pathlib import Path
 
 import httpx
 import pytest
@@ -25,11 +27,13 @@ import pytest
 from tests.integration.fixtures.redis_server import RedisServer
 from tests.integration.fixtures.s3_server import S3Server
 from tests.integration.fixtures.services import ApiServer, build_service_env
+from tests.services.conftest import scene_form
 
 pytestmark = pytest.mark.integration
 
 CONCURRENCY = 2
 QUEUE = 3
+STREAMS = 1
 RETRY_AFTER_S = 7
 WAIT_S = 30.0  # the longest any step may take on a loaded machine (a generous bound, not a timing)
 
@@ -43,6 +47,8 @@ def fair_api(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ApiServer]:
     extra = {
         "BFIELDS_API_TENANT_CONCURRENCY": str(CONCURRENCY),
         "BFIELDS_API_TENANT_QUEUE": str(QUEUE),
+        "BFIELDS_API_TENANT_STREAMS": str(STREAMS),
+        "BFIELDS_EVENTS_POLL_S": "0.2",  # a closed stream is noticed (and its slot freed) soon
         "BFIELDS_RETRY_AFTER_S": str(RETRY_AFTER_S),
         "BFIELDS_METRICS_PER_TENANT": "true",
         "BFIELDS_API_BULK_LANE": "false",
@@ -97,16 +103,17 @@ def _gauge(api: ApiServer, name: str, tenant: str) -> float:
     return float(found.group(1)) if found else 0.0
 
 
-def _load(api: ApiServer, tenant: str) -> tuple[float, float]:
-    return (
+def _load(api: ApiServer, tenant: str, streams: bool = False) -> tuple[float, ...]:
+    load = (
         _gauge(api, "bfields_api_tenant_requests_in_flight", tenant),
         _gauge(api, "bfields_api_tenant_requests_waiting", tenant),
     )
+    return (*load, _gauge(api, "bfields_api_tenant_streams_open", tenant)) if streams else load
 
 
-def _until_load(api: ApiServer, tenant: str, want: tuple[int, int]) -> None:
+def _until_load(api: ApiServer, tenant: str, want: tuple[int, ...]) -> None:
     deadline = time.monotonic() + WAIT_S
-    while (now := _load(api, tenant)) != want:
+    while (now := _load(api, tenant, streams=len(want) == 3)) != want:
         assert time.monotonic() < deadline, f"{tenant}: in flight / waiting {now}, expected {want}"
         time.sleep(0.05)
 
@@ -174,3 +181,44 @@ def test_a_single_well_behaved_client_never_notices(fair_api: ApiServer) -> None
             assert "Retry-After" not in resp.headers
     assert _gauge(api, "bfields_api_tenant_refused_total", "tenant-b") == before == 0
     assert _load(api, "tenant-b") == (0, 0)
+
+
+def test_a_stream_gives_its_slot_back_up_to_the_stream_bound(fair_api: ApiServer, scene_dir: Path) -> None:
+    """An open event stream is counted among the tenant's streams, not its request slots; one past
+    `STREAMS` keeps its slot, so the tenant's own requests wait until it ends."""
+    api = fair_api
+    with api.client("tenant-a") as a, ExitStack() as streams:
+        upload = a.post("/v1/scenes", files=scene_form(scene_dir), data={"name": "fairness"})
+        assert upload.status_code == 201, upload.text
+        batch = a.post("/v1/batches", json={"items": [{"scene_id": upload.json()["id"], "tasks": ["cup"]}]})
+        assert batch.status_code == 202, batch.text
+        events = f"/v1/batches/{batch.json()['id']}/events"
+        readers: list[Iterator[str]] = []  # kept: a line reader that is dropped closes its connection
+
+        def open_stream() -> httpx.Response:
+            resp = streams.enter_context(a.stream("GET", events))
+            assert resp.status_code == 200
+            readers.append(resp.iter_lines())
+            assert any(line.startswith("event:") for line in readers[-1])  # its first event has arrived
+            return resp
+
+        open_stream()
+        _until_load(api, "tenant-a", (0, 0, STREAMS))
+        past_bound = open_stream()
+        _until_load(api, "tenant-a", (1, 0, STREAMS))
+        held = HeldPost(api, "tenant-a")  # the tenant's last free slot
+        try:
+            _until_load(api, "tenant-a", (CONCURRENCY, 0, STREAMS))
+            waiting = HeldPost(api, "tenant-a")
+            waiting.finish()
+            _until_load(api, "tenant-a", (CONCURRENCY, 1, STREAMS))
+            assert not waiting.answered(0.5)
+            past_bound.close()  # the stream past the bound ends: its slot goes to the waiting request
+            assert waiting.status() == 422
+            held.finish()
+            assert held.status() == 422
+            _until_load(api, "tenant-a", (0, 0, STREAMS))
+        finally:
+            held.close()
+            waiting.close()
+        a.post(f"/v1/batches/{batch.json()['id']}/cancel")

@@ -16,7 +16,11 @@ during the polling, their ratio (goal: p99 within 2x), and A's polls per second 
 `--list-jobs` measures the old behaviour for comparison: the bound raised to the batch's size and
 A polling with `jobs=true` (every job in every answer).
 
+`--tenant-concurrency N` sets the API's per-tenant bound (BFIELDS_API_TENANT_CONCURRENCY; the
+API's fairness gate, docs/service/api.md "Fairness between tenants") to compare bounds.
+
     python -m bench.bench_batch_poll --size 20000
+    python -m bench.bench_batch_poll --size 20000 --tenant-concurrency 1
     python -m bench.bench_batch_poll --size 5000 --list-jobs
 """
 

@@ -16,7 +16,11 @@ during the polling, their ratio (goal: p99 within 2x), and A's polls per second 
 `--list-jobs` measures the old behaviour for comparison: the bound raised to the batch's size and
 A polling with `jobs=true` (every job in every answer).
 
+`--tenant-concurrency N` sets the API's per-tenant bound (BFIELDS_API_TENANT_CONCURRENCY; the
+API's fairness gate, docs/service/api.md "Fairness between tenants") to compare bounds.
+
     python -m bench.bench_batch_poll --size 20000
+    python -m bench.bench_batch_poll --size 20000 --tenant-concurrency 1
     python -m bench.bench_batch_poll --size 5000 --list-jobs
 """
 
@@ -87,6 +91,8 @@ def main() -> None:
                         help="each thread's pause between polls (0: back to back; `bfields batch` waits 2 s)")  # fmt: skip
     parser.add_argument("--list-jobs", action="store_true",
                         help="the old behaviour: jobs=true with the bound raised to --size")  # fmt: skip
+    parser.add_argument("--tenant-concurrency", type=int,
+                        help="BFIELDS_API_TENANT_CONCURRENCY of the API (unset: the setting's default)")  # fmt: skip
     parser.add_argument("--json", type=Path, help="write the figures here")
     args = parser.parse_args()
 
@@ -94,6 +100,8 @@ def main() -> None:
     from tests.services.support.scene_factory import make_scene
 
     env = {"BFIELDS_BATCH_JOBS_INLINE_MAX": str(args.size)} if args.list_jobs else {}
+    if args.tenant_concurrency is not None:
+        env["BFIELDS_API_TENANT_CONCURRENCY"] = str(args.tenant_concurrency)
     with (
         tempfile.TemporaryDirectory(prefix="bench-batch-poll-") as tmp,
         batch_stack(Path(tmp), args.size, env=env) as stack,
@@ -108,7 +116,7 @@ def main() -> None:
                                         params={"jobs": "true"} if args.list_jobs else {})).content)  # fmt: skip
         figures = measure(stack, batch["id"], args)
         figures.update(size=args.size, threads=args.threads, list_jobs=args.list_jobs, answer_bytes=size_b,
-                       load_1min=os.getloadavg()[0])  # fmt: skip
+                       tenant_concurrency=args.tenant_concurrency, load_1min=os.getloadavg()[0])  # fmt: skip
         with _client(stack, "tenant-a", 600) as client:
             _ok(client.post(f"/v1/batches/{batch['id']}/cancel"))
     mode = "jobs=true (old default)" if args.list_jobs else "aggregate (default)"

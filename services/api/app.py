@@ -18,7 +18,10 @@ import redis
 from fastapi import FastAPI
 from redis.backoff import ConstantBackoff
 from redis.retry import Retry
+from starlette.datastructures import Headers
+from starlette.types import Scope
 
+from bayesian_fields_core.errors import InputError
 from bayesian_fields_service import hooks
 from bayesian_fields_service.api.body_deadline import BodyDeadline
 from bayesian_fields_service.api.bulk_lane import BulkLane, settle_child
@@ -29,11 +32,13 @@ from bayesian_fields_service.api.routes import answers, events, health, jobs, me
 from bayesian_fields_service.api.routes.metrics import metrics_registry
 from bayesian_fields_service.api.schemas import BatchRequest
 from bayesian_fields_service.api.state import AppState
+from bayesian_fields_service.api.tenant_gate import TenantFairness, TenantGate
 from bayesian_fields_service.config.settings import ServiceSettings, apply_log_level, get_settings
 from bayesian_fields_service.jobs.store import JobStore
 from bayesian_fields_service.records.database import open_records
 from bayesian_fields_service.scenes.upload_temp import Sweeper
 from bayesian_fields_service.security.api_keys import ApiKeyRing
+from bayesian_fields_service.security.auth import key_in_headers
 from bayesian_fields_service.storage.stores import build_store
 
 DESCRIPTION = """
@@ -101,6 +106,20 @@ def create_lane_app() -> FastAPI:
     return create_app(get_settings().model_copy(update={"api_bulk_lane": False}))
 
 
+def _tenant_of(ring: ApiKeyRing) -> Callable[[Scope], str | None]:
+    """The tenant of a request's API key, from its raw headers (the fairness middleware runs
+    before any route); None for no key or an unknown one."""
+
+    def tenant_of(scope: Scope) -> str | None:
+        headers = Headers(scope=scope)
+        try:
+            return ring.tenant_for(key_in_headers(headers.get("x-api-key"), headers.get("authorization")))
+        except InputError:  # an unreadable keys file: the route's authentication answers it
+            return None
+
+    return tenant_of
+
+
 def create_app(settings: ServiceSettings | None = None) -> FastAPI:
     settings = settings or get_settings()
     apply_log_level(settings)
@@ -115,6 +134,9 @@ def create_app(settings: ServiceSettings | None = None) -> FastAPI:
             store, client, open_records(settings.database_url, migrate_first=settings.migrate_on_start)
         ),
         key_ring=ApiKeyRing.from_settings(settings),
+        tenant_gate=TenantGate(
+            settings.api_tenant_concurrency, settings.api_tenant_queue, settings.api_tenant_streams
+        ),
     )
     state.metrics_registry = metrics_registry(state)
     app = FastAPI(
@@ -133,10 +155,17 @@ def create_app(settings: ServiceSettings | None = None) -> FastAPI:
     add_body_schemas(app, [BatchRequest])  # the bodies routes parse themselves (json_body.py)
     install_handlers(app, settings.retry_after_s)
     app.add_middleware(Utf8Guard)
-    # added last, so it is the outermost of the app's middlewares: every read of a body, the
-    # UTF-8 check's included, has its deadline (body_deadline.py says why)
+    # every read of a body, the UTF-8 check's included, has its deadline (body_deadline.py says why)
     app.add_middleware(
         BodyDeadline, timeout_s=settings.api_body_timeout_s, min_rate_bytes=settings.api_body_min_rate_bytes
+    )
+    # added last, so it is the outermost: a tenant's request past its bound waits (or is refused)
+    # before anything else works on it (tenant_gate.py says why)
+    app.add_middleware(
+        TenantFairness,
+        gate=state.tenant_gate,
+        tenant_of=_tenant_of(state.key_ring),
+        retry_after_s=settings.retry_after_s,
     )
     return app
 

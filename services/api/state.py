@@ -12,6 +12,7 @@ from fastapi import Depends, HTTPException, Request, status
 from bayesian_fields_core.job.store import PrefixedStore, Store
 from bayesian_fields_service.api.bulk_lane import BulkLane
 from bayesian_fields_service.api.schemas import Problem
+from bayesian_fields_service.api.tenant_gate import TenantGate
 from bayesian_fields_service.config.settings import ServiceSettings
 from bayesian_fields_service.jobs.refusals import Missing
 from bayesian_fields_service.jobs.service import JobService
@@ -32,6 +33,7 @@ class AppState:
     redis: redis.Redis
     jobs: JobStore
     key_ring: ApiKeyRing
+    tenant_gate: TenantGate
     metrics_registry: Any = None
     bulk_lane: BulkLane | None = None  # set while the app serves, where the lane is on
     scenes: Scenes = field(init=False)

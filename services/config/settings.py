@@ -173,6 +173,31 @@ class ServiceSettings(BaseSettings):
         "refused with 422 (read its jobs a page at a time from GET /v1/batches/{id}/jobs). Without "
         "jobs=true the answer is the batch's counts and progress only, whatever its size.",
     )
+    api_tenant_concurrency: int = Field(
+        4,
+        ge=1,
+        le=1000,
+        description="Requests of one tenant an API process serves at once (api/tenant_gate.py); the "
+        "tenant's further requests wait in its own first-in-first-out queue, so other tenants' "
+        "requests never wait behind them. Sized for one uvicorn process: its sync routes share one "
+        "interpreter and a 20-connection records pool, and a request of another tenant waits for "
+        "at most this many of a busy tenant's (see docs/service/api.md, 'Fairness between tenants').",
+    )
+    api_tenant_queue: int = Field(
+        64,
+        ge=0,
+        le=100_000,
+        description="Requests of one tenant that may wait for its api_tenant_concurrency slots on an "
+        "API process; past that the request is answered 429 + Retry-After at once.",
+    )
+    api_tenant_streams: int = Field(
+        8,
+        ge=0,
+        le=10_000,
+        description="Streamed answers of one tenant (SSE events, CSV / JSON Lines exports, result "
+        "zips) an API process keeps open without holding a request slot; a stream past this keeps "
+        "one of the tenant's api_tenant_concurrency slots until it ends.",
+    )
     api_body_timeout_s: float = Field(
         30.0,
         gt=0,

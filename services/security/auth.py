@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from fastapi import Depends, HTTPException, Request, status
 from fastapi.security import APIKeyHeader, HTTPAuthorizationCredentials, HTTPBearer
+from fastapi.security.utils import get_authorization_scheme_param
 
 from bayesian_fields_service.security.api_keys import ApiKeyRing
 
@@ -27,6 +28,20 @@ def presented_key(
     if header_key:
         return header_key
     return bearer.credentials if bearer is not None else None
+
+
+def key_in_headers(x_api_key: str | None, authorization: str | None) -> str | None:
+    """The key a request presents, read from its raw headers by the same rules as `presented_key`
+    (FastAPI's ``APIKeyHeader`` and ``HTTPBearer``): a non-empty ``X-API-Key`` first, else the
+    credentials of ``Authorization: Bearer <key>`` (scheme in any case). Why a second reading: the
+    tenant fairness middleware (api/tenant_gate.py) needs the tenant before any route or dependency
+    runs; tests/services/security checks that both readings agree."""
+    if x_api_key:
+        return x_api_key
+    scheme, credentials = get_authorization_scheme_param(authorization)
+    if authorization and scheme and credentials and scheme.lower() == "bearer":
+        return credentials
+    return None
 
 
 def require_tenant(request: Request, key: str | None = Depends(presented_key)) -> str:

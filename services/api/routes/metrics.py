@@ -16,7 +16,7 @@ from collections.abc import Iterator
 import redis
 from fastapi import APIRouter, Depends, HTTPException, Request, Response, status
 from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, generate_latest
-from prometheus_client.core import GaugeMetricFamily, HistogramMetricFamily
+from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, HistogramMetricFamily
 from prometheus_client.registry import Collector
 
 from bayesian_fields_core.job.stage_table import STAGES
@@ -55,6 +55,7 @@ class ServiceCollector(Collector):
         s = self.state
         per_tenant = s.settings.metrics_per_tenant
         tenant_label = ["tenant"] if per_tenant else []
+        yield from self._tenant_gate(per_tenant)
         depth = GaugeMetricFamily(
             "bfields_queue_depth", "Messages waiting in a Celery queue.", labels=["queue"]
         )
@@ -108,6 +109,35 @@ class ServiceCollector(Collector):
                 wait_h.add_metric([], total[0], total[1])
         active.add_metric([], s.jobs.count_active())
         yield from (depth, active, stage_h, job_h, waiting, wait_h)
+
+    def _tenant_gate(self, per_tenant: bool) -> Iterator:
+        """This process's tenant fairness gate (api/tenant_gate.py): requests in flight, waiting and
+        streams open, and the 429s it answered; per tenant only where the operator turned that on."""
+        labels = ["tenant"] if per_tenant else []
+        load = self.state.tenant_gate.load()
+        refused = self.state.tenant_gate.refused
+        families = {
+            "in_flight": GaugeMetricFamily("bfields_api_tenant_requests_in_flight",
+                                           "Tenants' requests this API process serves now.", labels=labels),
+            "waiting": GaugeMetricFamily("bfields_api_tenant_requests_waiting",
+                                         "Tenants' requests waiting for a slot (BFIELDS_API_TENANT_CONCURRENCY).",
+                                         labels=labels),
+            "streams": GaugeMetricFamily("bfields_api_tenant_streams_open",
+                                         "Tenants' streamed answers open without a request slot.", labels=labels),
+        }  # fmt: skip
+        refusals = CounterMetricFamily("bfields_api_tenant_refused",
+                                       "Requests answered 429 because the tenant's queue was full.", labels=labels)  # fmt: skip
+        if per_tenant:
+            for tenant, now in sorted(load.items()):
+                for name, family in families.items():
+                    family.add_metric([tenant], getattr(now, name))
+            for tenant, n in sorted(refused.items()):
+                refusals.add_metric([tenant], n)
+        else:
+            for name, family in families.items():
+                family.add_metric([], sum(getattr(now, name) for now in load.values()))
+            refusals.add_metric([], sum(refused.values()))
+        yield from (*families.values(), refusals)
 
 
 def metrics_registry(state: AppState) -> CollectorRegistry:

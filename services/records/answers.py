@@ -99,7 +99,10 @@ def batch_page(
     )
     query = _filtered(query, wanted)
     if after is not None:
-        query = query.where(key > tuple_(*(literal(v) for v in after)))
+        # The row-value comparison spans two tables, so it cannot bound an index scan by itself:
+        # without the first column's own bound every page re-read the batch from its first job
+        # (an export was quadratic in the batch's size: bench/bench_answers.py).
+        query = query.where(batch_jobs.c.position >= after[0], key > tuple_(*(literal(v) for v in after)))
     query = query.order_by(batch_jobs.c.position, answers.c.task_index, answers.c.rank).limit(limit)
     with database.connect() as conn:
         return [dict(r) for r in conn.execute(query).mappings()]

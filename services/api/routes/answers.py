@@ -119,16 +119,19 @@ def _resolve_task(state: AppState, tenant: str, part: str | None, batch_id: str 
 
 def _with_links(state: AppState, tenant: str, rows: list[dict[str, Any]]) -> list[Answer]:
     transfers = state.transfers(tenant)
+    links: dict[str, str] = {}  # a job's task preview is shared by its ranks: one presign each
     out = []
     for row in rows:
         shown = public(row)
         if row.get("preview"):
             key = f"jobs/{row['job_id']}/{row['preview']}"
-            shown["preview_url"] = (
-                transfers.link(key)
-                if transfers is not None
-                else f"/v1/jobs/{row['job_id']}/artifacts/{row['preview']}"
-            )
+            if key not in links:
+                links[key] = (
+                    transfers.link(key)
+                    if transfers is not None
+                    else f"/v1/jobs/{row['job_id']}/artifacts/{row['preview']}"
+                )
+            shown["preview_url"] = links[key]
         out.append(Answer(**shown))
     return out
 

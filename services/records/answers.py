@@ -149,8 +149,12 @@ def fleet(
     `batch_ids` when given), found ones ranked by probability (then job id and rank: a total
     order for the keyset `after` = (probability, job id, rank)); with `best_only` each scene's
     best row only."""
-    latest = select(answers.c.job_id, answers.c.scene_id).where(
-        answers.c.tenant == tenant, answers.c.task == task
+    # Each job that asked the task has one row of rank <= 1 (its best object, or its "not found"
+    # row): the partial index `ix_answers_latest` holds just those, in the order DISTINCT ON
+    # reads them backwards (a scene's newest job first), so "each scene's latest job" is one
+    # index scan of a row per job, not a sort of every ranked row of the task.
+    latest = select(answers.c.job_id, answers.c.scene_id, answers.c.found).where(
+        answers.c.tenant == tenant, answers.c.task == task, answers.c.rank <= 1
     )
     if batch_ids:
         latest = latest.where(
@@ -160,7 +164,7 @@ def fleet(
         )
     latest = (
         latest.ext(distinct_on(answers.c.scene_id))
-        .order_by(answers.c.scene_id, answers.c.finished_at.desc(), answers.c.job_id.desc())
+        .order_by(answers.c.scene_id.desc(), answers.c.finished_at.desc(), answers.c.job_id.desc())
         .cte("latest")
     )
     chosen = answers.join(latest, latest.c.job_id == answers.c.job_id).outerjoin(
@@ -187,14 +191,7 @@ def fleet(
             )
         )
     query = query.order_by(answers.c.probability.desc(), answers.c.job_id, answers.c.rank).limit(limit)
-    counts = select(
-        func.count(),
-        func.count().filter(
-            ~select(answers.c.job_id)
-            .where(answers.c.job_id == latest.c.job_id, answers.c.task == task, answers.c.found.is_(True))
-            .exists()
-        ),
-    ).select_from(latest)
+    counts = select(func.count(), func.count().filter(latest.c.found.is_(False))).select_from(latest)
     with database.connect() as conn:
         rows = [dict(r) for r in conn.execute(query).mappings()]
         asked, missing = conn.execute(counts).one()

@@ -68,8 +68,8 @@ def sample_batch(
         resp = client.post("/v1/scenes", files=scene_form(folder), data={"name": "tabletop"})
         assert resp.status_code == 201, resp.text
         scene_id = resp.json()["id"]
-        items = [{"scene_id": scene_id, "tasks": TASKS, "parameters": PARAMS} for _ in range(JOBS)]
-        resp = client.post("/v1/batches", json={"items": items})
+        items = [{"scene_id": scene_id, "tasks": TASKS} for _ in range(JOBS)]
+        resp = client.post("/v1/batches", json={"items": items, "parameters": PARAMS})
         assert resp.status_code == 202, resp.text
         batch = resp.json()
         t0 = time.monotonic()

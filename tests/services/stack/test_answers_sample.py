@@ -35,7 +35,7 @@ ROOT = Path(__file__).resolve().parents[3]
 SAMPLE = ROOT / "samples" / "tabletop"
 TASKS = [str(t["task"]) for t in yaml.safe_load((SAMPLE / "tasks.yaml").read_text())["tasks"]]
 PARAMS = {"max_frames": 4}
-JOBS = 4
+JOBS = 20
 
 
 @pytest.fixture(scope="module")

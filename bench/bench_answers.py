@@ -272,6 +272,41 @@ def measure_reads(client: httpx.Client, batch_id: str, task: str, n_jobs: int, r
     return out
 
 
+def explain(database: Any, call: Callable[[], Any]) -> dict[str, Any]:
+    """`call` (a records function) timed in this process, and EXPLAIN ANALYZE of each statement
+    it issued (caught as the driver sends it): where a slow route spends its time."""
+    from sqlalchemy import event
+
+    sent: list[tuple[str, Any]] = []
+
+    def catch(conn: Any, cursor: Any, statement: str, params: Any, context: Any, many: bool) -> None:
+        sent.append((statement, params))
+
+    event.listen(database, "before_cursor_execute", catch)
+    try:
+        took = []
+        for _ in range(5):
+            sent.clear()
+            t0 = time.perf_counter()
+            call()
+            took.append(time.perf_counter() - t0)
+    finally:
+        event.remove(database, "before_cursor_execute", catch)
+    plans = []
+    with database.connect() as conn:
+        raw = conn.connection.driver_connection
+        for statement, params in sent:
+            with raw.cursor() as cursor:
+                cursor.execute("EXPLAIN (ANALYZE, BUFFERS) " + statement, params)
+                plans.append("\n".join(r[0] for r in cursor.fetchall()))
+        conn.rollback()
+    return {"in_process_s": statistics.median(took), "plans": plans}
+
+
+def _execution_ms(plan: str) -> str:
+    return next((line.split(":")[1].strip() for line in plan.splitlines() if "Execution Time" in line), "?")
+
+
 def _rss_kib(pid: int) -> tuple[int, int]:
     """(VmRSS, VmHWM) of `pid` in KiB, from /proc."""
     fields = dict(
@@ -321,6 +356,25 @@ def measure_export(stack: Any, client: httpx.Client, batch_id: str, idle_s: floa
         "idle_p50_s": _pct(idle, 0.5), "idle_p99_s": _pct(idle, 0.99), "idle_n": len(idle),
         "busy_p50_s": _pct(busy, 0.5), "busy_p99_s": _pct(busy, 0.99), "busy_n": len(busy),
     }  # fmt: skip
+
+
+def explain_reads(database: Any, tenant: str, batch_id: str, task: str, n_jobs: int,
+                  min_probability: float) -> dict[str, Any]:  # fmt: skip
+    """The records functions behind the page and the search, timed here and explained."""
+    from bayesian_fields_service.records import answers as records
+
+    wanted = records.AnswerFilter(task=task, min_probability=min_probability)
+    out = {
+        "matching_tasks": explain(database, lambda: records.matching_tasks(database, tenant, task, batch_id=batch_id)),
+        "page_first": explain(database, lambda: records.batch_page(database, tenant, batch_id, wanted, after=None, limit=101)),
+        "page_middle": explain(database, lambda: records.batch_page(database, tenant, batch_id, wanted,
+                                                                    after=(n_jobs // 2, 0, 0), limit=101)),
+        "fleet": explain(database, lambda: records.fleet(database, tenant, task, limit=101)),
+    }  # fmt: skip
+    for name, got in out.items():
+        ms = ", ".join(_execution_ms(p) for p in got["plans"])
+        print(f"  {name}: {got['in_process_s'] * 1e3:.1f} ms in process; EXPLAIN ANALYZE execution {ms}")
+    return out
 
 
 def report(figures: dict[str, Any]) -> None:
@@ -415,6 +469,10 @@ def main() -> None:
                 n_rows = conn.execute(text("SELECT count(*) FROM answers")).scalar_one()
             with _client(stack, tenant, 600) as client:
                 reads = measure_reads(client, batch["id"], tasks[0], total, args.reads, args.min_probability)
+            reads["explain"] = explain_reads(
+                database, tenant, batch["id"], tasks[0], total, args.min_probability
+            )
+            with _client(stack, tenant, 600) as client:
                 export = measure_export(stack, client, batch["id"], args.idle_s)
             assert export["export_rows"] == n_rows, (export["export_rows"], n_rows)
             figures: dict[str, Any] = {

@@ -219,6 +219,24 @@ class FleetAnswers:
     not_found: int
 
 
+def _ranked(
+    query: Select, c: Any, min_probability: float | None, after: tuple[float, str, int] | None, limit: int
+) -> Select:
+    """`query` ranked by `c.probability` (then job id and rank), from `min_probability` up, after
+    the keyset `after`, `limit` rows."""
+    if min_probability is not None:
+        query = query.where(c.probability >= min_probability)
+    if after is not None:
+        p, job, rank = after
+        query = query.where(
+            or_(
+                c.probability < p,
+                and_(c.probability == p, tuple_(c.job_id, c.rank) > tuple_(literal(job), literal(rank))),
+            )
+        )
+    return query.order_by(c.probability.desc(), c.job_id, c.rank).limit(limit)
+
+
 def fleet(
     database: Engine,
     tenant: str,
@@ -235,12 +253,14 @@ def fleet(
     order for the keyset `after` = (probability, job id, rank)); with `best_only` each scene's
     best row only."""
     # Each job that asked the task has one row of rank <= 1 (its best object, or its "not found"
-    # row): the partial index `ix_answers_latest` holds just those, in the order DISTINCT ON
-    # reads them backwards (a scene's newest job first), so "each scene's latest job" is one
-    # index scan of a row per job, not a sort of every ranked row of the task.
-    latest = select(answers.c.job_id, answers.c.scene_id, answers.c.found).where(
-        answers.c.tenant == tenant, answers.c.task == task, answers.c.rank <= 1
-    )
+    # row): the partial index `ix_answers_latest` holds just those, with what the ranking needs
+    # (INCLUDE), in the order DISTINCT ON reads them backwards (a scene's newest job first). So
+    # "each scene's latest job" is one index-only scan of an entry per job, and each scene's best
+    # answer is that entry: only the page's rows are read from the table.
+    latest = select(
+        answers.c.job_id, answers.c.scene_id, answers.c.task_index, answers.c.rank, answers.c.found,
+        answers.c.probability,
+    ).where(answers.c.tenant == tenant, answers.c.task == task, answers.c.rank <= 1)  # fmt: skip
     if batch_ids:
         latest = latest.where(
             answers.c.job_id.in_(
@@ -252,30 +272,25 @@ def fleet(
         .order_by(answers.c.scene_id.desc(), answers.c.finished_at.desc(), answers.c.job_id.desc())
         .cte("latest")
     )
-    chosen = answers.join(latest, latest.c.job_id == answers.c.job_id).outerjoin(
-        scenes, and_(scenes.c.id == answers.c.scene_id, scenes.c.tenant == answers.c.tenant)
-    )
-    query = (
-        select(*_columns(literal(0)))
-        .select_from(chosen)
-        .where(answers.c.task == task, answers.c.found.is_(True))
-    )
+    named = scenes, and_(scenes.c.id == answers.c.scene_id, scenes.c.tenant == answers.c.tenant)
     if best_only:
-        query = query.where(answers.c.rank == 1)
-    if min_probability is not None:
-        query = query.where(answers.c.probability >= min_probability)
-    if after is not None:
-        p, job, rank = after
-        query = query.where(
-            or_(
-                answers.c.probability < p,
-                and_(
-                    answers.c.probability == p,
-                    tuple_(answers.c.job_id, answers.c.rank) > tuple_(literal(job), literal(rank)),
-                ),
-            )
+        top = _ranked(select(latest.c.job_id, latest.c.task_index, latest.c.rank), latest.c, min_probability,
+                      after, limit).where(latest.c.found.is_(True)).subquery("top")  # fmt: skip
+        chosen = answers.join(top, and_(answers.c.job_id == top.c.job_id, answers.c.task_index == top.c.task_index,
+                                        answers.c.rank == top.c.rank))  # fmt: skip
+        query = (
+            select(*_columns(literal(0)))
+            .select_from(chosen.outerjoin(*named))
+            .order_by(answers.c.probability.desc(), answers.c.job_id, answers.c.rank)
         )
-    query = query.order_by(answers.c.probability.desc(), answers.c.job_id, answers.c.rank).limit(limit)
+    else:  # every ranked object of those jobs' answers to the task (its index in each job)
+        chosen = answers.join(
+            latest, and_(latest.c.job_id == answers.c.job_id, latest.c.task_index == answers.c.task_index)
+        )
+        query = _ranked(
+            select(*_columns(literal(0))).select_from(chosen.outerjoin(*named)), answers.c, min_probability,
+            after, limit,
+        ).where(answers.c.found.is_(True))  # fmt: skip
     counts = select(func.count(), func.count().filter(latest.c.found.is_(False))).select_from(latest)
     with database.connect() as conn:
         rows = [dict(r) for r in conn.execute(query).mappings()]

@@ -284,7 +284,8 @@ answers = Table(
     Index(None, "tenant", "task", "scene_id", "finished_at"),
     Index(None, "tenant", "scene_id"),
     # The fleet search's "each scene's latest job that asked the task" (revision 0010): one entry
-    # per job and task (its best object or its "not found" row), scanned backwards.
+    # per job and task (its best object or its "not found" row), scanned backwards, holding what
+    # the ranking reads (an index-only scan).
     Index(
         "ix_answers_latest",
         "tenant",
@@ -292,6 +293,7 @@ answers = Table(
         "scene_id",
         "finished_at",
         "job_id",
+        postgresql_include=["task_index", "rank", "found", "probability"],
         postgresql_where=text("rank <= 1"),
     ),
 )

@@ -53,6 +53,7 @@ def test_the_indexes_the_api_pages_and_counts_by_exist(fresh_database: str) -> N
         latest = {ix["name"]: ix for ix in inspect(conn).get_indexes("answers")}["ix_answers_latest"]
     assert latest["column_names"] == ["tenant", "task", "scene_id", "finished_at", "job_id"]
     assert "rank <= 1" in latest["dialect_options"]["postgresql_where"]
+    assert latest["dialect_options"]["postgresql_include"] == ["task_index", "rank", "found", "probability"]
 
 
 def test_migrations_go_down_to_base_and_up_again(fresh_database: str) -> None:

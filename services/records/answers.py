@@ -257,18 +257,18 @@ def fleet(
     # (INCLUDE), in the order DISTINCT ON reads them backwards (a scene's newest job first). So
     # "each scene's latest job" is one index-only scan of an entry per job, and each scene's best
     # answer is that entry: only the page's rows are read from the table.
-    latest = select(
+    asked = select(
         answers.c.job_id, answers.c.scene_id, answers.c.task_index, answers.c.rank, answers.c.found,
         answers.c.probability,
     ).where(answers.c.tenant == tenant, answers.c.task == task, answers.c.rank <= 1)  # fmt: skip
     if batch_ids:
-        latest = latest.where(
+        asked = asked.where(
             answers.c.job_id.in_(
                 select(batch_jobs.c.job_id).where(batch_jobs.c.batch_id.in_(list(batch_ids)))
             )
         )
     latest = (
-        latest.ext(distinct_on(answers.c.scene_id))
+        asked.ext(distinct_on(answers.c.scene_id))
         .order_by(answers.c.scene_id.desc(), answers.c.finished_at.desc(), answers.c.job_id.desc())
         .cte("latest")
     )
@@ -294,8 +294,8 @@ def fleet(
     counts = select(func.count(), func.count().filter(latest.c.found.is_(False))).select_from(latest)
     with database.connect() as conn:
         rows = [dict(r) for r in conn.execute(query).mappings()]
-        asked, missing = conn.execute(counts).one()
-    return FleetAnswers(rows, int(asked), int(missing))
+        total, missing = conn.execute(counts).one()
+    return FleetAnswers(rows, int(total), int(missing))
 
 
 def unindexed_jobs(database: Engine, *, after: str = "", limit: int) -> list[tuple[str, str, str, Any]]:

@@ -5,8 +5,9 @@ second tenant sees none of it.
 
 The issue's 20 jobs: perceive runs once (its frames cached for the other 19), fuse and cluster
 on the sample's 8 tasks for each, in one single-threaded worker per queue. Measured on the shared
-2-core machine (load average 6-8 from other work): the 20 jobs in 104 s, the module in 158 s
-(the CLI's reference run and the stack's start included); 4 jobs took 49 s. Both runs use
+2-core machine: the 20 jobs in 104 s and the module in 158 s (the CLI's reference run and the
+stack's start included) at a load average of 6-8 from other work; the jobs in 40 s and the
+module's setup in 55 s at a load of about 2. Both runs use
 `max_frames` 4 (the CLI with `--param max_frames=4`): the comparison needs the same parameters,
 and 4 frames keep a job short (the CLI's default, every one of the sample's 20 frames, took 85 s
 for one run here).

@@ -57,7 +57,7 @@ def batch_stack(
 ) -> Iterator[Any]:  # fmt: skip
     """Redis + S3 + PostgreSQL database + one API (and its control process), no workers (jobs only
     wait); with `api_processes` 2, a second API process on the same records (`stack.other_api`);
-    `env`: more settings of the stack's processes."""
+    `env`: more settings of the stack's processes. The S3 server is `stack.s3`."""
     from tests.integration.fixtures.s3_server import S3Server
     from tests.integration.fixtures.services import ApiServer
     from tests.services.support.private_stack import PrivateStack
@@ -73,6 +73,7 @@ def batch_stack(
     other = None
     try:
         stack.start()
+        stack.s3 = s3  # type: ignore[attr-defined]
         stack.other_api = stack.api  # type: ignore[attr-defined]
         if api_processes > 1:
             other = ApiServer(env=stack.env, log_dir=workdir / "api2", keys=dict(KEYS), control=False).start()

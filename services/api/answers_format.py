@@ -1,6 +1,6 @@
-"""An answer listing as bytes: CSV (one header, then a line per answer) or JSON Lines (one
-object per line), written a page at a time, so an export of millions of rows streams in the
-memory of one page (`records.answers` says why pages).
+"""An answer listing as bytes: CSV (one header, then a line per answer, the lines written by the
+database) or JSON Lines (one object per line), a page at a time, so an export of millions of
+rows streams in the memory of one page (`records.answers` says why pages).
 
 Why `format=` beside `Accept`: a browser link or `curl -o` cannot always set a header; the query
 wins when both are given.
@@ -8,10 +8,7 @@ wins when both are given.
 
 from __future__ import annotations
 
-import csv
-import io
 import json
-import math
 from collections.abc import Iterable, Iterator
 from typing import Any, Literal
 
@@ -38,27 +35,11 @@ def public(row: dict[str, Any]) -> dict[str, Any]:
     return {c: row.get(c) for c in COLUMNS}
 
 
-def _cell(value: Any) -> Any:
-    if value is None:
-        return ""
-    if isinstance(value, float) and not math.isfinite(value):
-        return ""
-    if isinstance(value, list):
-        return json.dumps(value, separators=(",", ":"))
-    return value
-
-
-def csv_lines(pages: Iterable[list[dict[str, Any]]]) -> Iterator[bytes]:
-    """The CSV of every row of `pages`: the header first (also for no rows), a chunk per page."""
-    buffer = io.StringIO()
-    writer = csv.writer(buffer, lineterminator="\n")
-    writer.writerow(COLUMNS)
-    yield buffer.getvalue().encode()
-    for page in pages:
-        buffer.seek(0)
-        buffer.truncate()
-        writer.writerows([[_cell(row.get(c)) for c in COLUMNS] for row in page])
-        yield buffer.getvalue().encode()
+def csv_lines(chunks: Iterable[bytes]) -> Iterator[bytes]:
+    """The CSV of a listing: the header (also for no rows), then `chunks`, lines already written
+    as CSV by the database (`records.answers.batch_csv` says why there)."""
+    yield (",".join(COLUMNS) + "\n").encode()
+    yield from chunks
 
 
 def jsonl_lines(pages: Iterable[list[dict[str, Any]]]) -> Iterator[bytes]:

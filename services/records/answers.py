@@ -10,11 +10,25 @@ would cost either the batch's size in time or a connection for the export's dura
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from sqlalchemy import Connection, Engine, and_, delete, func, insert, literal, or_, select, tuple_
+from sqlalchemy import (
+    Connection,
+    Engine,
+    Text,
+    and_,
+    case,
+    cast,
+    delete,
+    func,
+    insert,
+    literal,
+    or_,
+    select,
+    tuple_,
+)
 from sqlalchemy.dialects.postgresql import distinct_on
 from sqlalchemy.sql import Select
 
@@ -87,9 +101,22 @@ def batch_page(
     """Up to `limit` answers of the batch's jobs after the key `after` = (position in the batch,
     task index, rank), in that order (the batch's submission order, then each job's tasks and
     ranks): stable while jobs finish, since a row's key never changes."""
-    key = tuple_(batch_jobs.c.position, answers.c.task_index, answers.c.rank)
+    query = _batch_rows(tenant, batch_id, wanted, _columns(batch_jobs.c.position))
+    if after is not None:
+        # The row-value comparison spans two tables, so it cannot bound an index scan by itself:
+        # without the first column's own bound every page re-read the batch from its first job
+        # (an export was quadratic in the batch's size: bench/bench_answers.py).
+        key = tuple_(batch_jobs.c.position, answers.c.task_index, answers.c.rank)
+        query = query.where(batch_jobs.c.position >= after[0], key > tuple_(*(literal(v) for v in after)))
+    query = query.limit(limit)
+    with database.connect() as conn:
+        return [dict(r) for r in conn.execute(query).mappings()]
+
+
+def _batch_rows(tenant: str, batch_id: str, wanted: AnswerFilter, columns: Sequence[Any]) -> Select:
+    """`columns` of the batch's answers kept by `wanted`, in the batch's order (no page bounds)."""
     query = (
-        select(*_columns(batch_jobs.c.position))
+        select(*columns)
         .select_from(
             batch_jobs.join(answers, answers.c.job_id == batch_jobs.c.job_id).outerjoin(
                 scenes, and_(scenes.c.id == answers.c.scene_id, scenes.c.tenant == answers.c.tenant)
@@ -97,12 +124,73 @@ def batch_page(
         )
         .where(batch_jobs.c.batch_id == batch_id, answers.c.tenant == tenant)
     )
-    query = _filtered(query, wanted)
-    if after is not None:
-        query = query.where(key > tuple_(*(literal(v) for v in after)))
-    query = query.order_by(batch_jobs.c.position, answers.c.task_index, answers.c.rank).limit(limit)
-    with database.connect() as conn:
-        return [dict(r) for r in conn.execute(query).mappings()]
+    return _filtered(query, wanted).order_by(batch_jobs.c.position, answers.c.task_index, answers.c.rank)
+
+
+def _csv_cells() -> list[Any]:
+    """`COLUMNS` as PostgreSQL writes them into CSV: found as True / False (as Python writes
+    them), the rotation as compact JSON (it holds only numbers, so no space is data)."""
+    cells: list[Any] = []
+    for name in COLUMNS:
+        if name == "scene_name":
+            cells.append(scenes.c.name)
+        elif name == "found":
+            cells.append(case((answers.c.found, literal("True")), else_=literal("False")))
+        elif name == "rotation":
+            cells.append(func.replace(cast(answers.c.rotation, Text), " ", ""))
+        else:
+            cells.append(answers.c[name])
+    return cells
+
+
+def batch_csv(
+    database: Engine,
+    tenant: str,
+    batch_id: str,
+    wanted: AnswerFilter,
+    *,
+    after: tuple[int, int, int] | None,
+    jobs_per_page: int,
+) -> Iterator[bytes]:
+    """The CSV lines (no header) of every answer `batch_page` would list after `after`, written
+    by PostgreSQL (`COPY ... TO STDOUT`), `jobs_per_page` of the batch's jobs at a time.
+
+    Why COPY: formatting two million rows in the API process took minutes of its CPU and the
+    other tenants' requests waited on it (bench/bench_answers.py); the server writes CSV at
+    several times the speed, and the API only passes the bytes on. Why pages of jobs: each is a
+    range of the batch's positions (an indexed read whatever the batch's size), read whole into
+    memory (a few MB) with the connection given back before its bytes are sent, so a slow client
+    holds no connection and the API's memory is one page's."""
+    low = after[0] if after is not None else 0
+    while True:
+        bound = (
+            select(batch_jobs.c.position)
+            .where(batch_jobs.c.batch_id == batch_id, batch_jobs.c.position >= low)
+            .order_by(batch_jobs.c.position)
+            .offset(jobs_per_page)
+            .limit(1)
+        )
+        with database.connect() as conn:
+            high = conn.execute(bound).scalar_one_or_none()
+            query = _batch_rows(tenant, batch_id, wanted, _csv_cells()).where(batch_jobs.c.position >= low)
+            if high is not None:
+                query = query.where(batch_jobs.c.position < high)
+            if after is not None:
+                key = tuple_(batch_jobs.c.position, answers.c.task_index, answers.c.rank)
+                query = query.where(key > tuple_(*(literal(v) for v in after)))
+            compiled = query.compile(dialect=conn.dialect, compile_kwargs={"render_postcompile": True})
+            raw = conn.connection.driver_connection
+            assert raw is not None
+            with raw.cursor() as cursor:
+                statement = f"COPY ({compiled.string}) TO STDOUT WITH (FORMAT csv)"
+                with cursor.copy(statement, compiled.params) as copy:
+                    chunk = b"".join(bytes(data) for data in copy)
+            conn.rollback()
+        if chunk:
+            yield chunk
+        if high is None:
+            return
+        low = high
 
 
 def matching_tasks(database: Engine, tenant: str, part: str, *, batch_id: str | None = None) -> list[str]:
@@ -131,6 +219,24 @@ class FleetAnswers:
     not_found: int
 
 
+def _ranked(
+    query: Select, c: Any, min_probability: float | None, after: tuple[float, str, int] | None, limit: int
+) -> Select:
+    """`query` ranked by `c.probability` (then job id and rank), from `min_probability` up, after
+    the keyset `after`, `limit` rows."""
+    if min_probability is not None:
+        query = query.where(c.probability >= min_probability)
+    if after is not None:
+        p, job, rank = after
+        query = query.where(
+            or_(
+                c.probability < p,
+                and_(c.probability == p, tuple_(c.job_id, c.rank) > tuple_(literal(job), literal(rank))),
+            )
+        )
+    return query.order_by(c.probability.desc(), c.job_id, c.rank).limit(limit)
+
+
 def fleet(
     database: Engine,
     tenant: str,
@@ -146,9 +252,15 @@ def fleet(
     `batch_ids` when given), found ones ranked by probability (then job id and rank: a total
     order for the keyset `after` = (probability, job id, rank)); with `best_only` each scene's
     best row only."""
-    asked = select(answers.c.job_id, answers.c.scene_id).where(
-        answers.c.tenant == tenant, answers.c.task == task
-    )
+    # Each job that asked the task has one row of rank <= 1 (its best object, or its "not found"
+    # row): the partial index `ix_answers_latest` holds just those, with what the ranking needs
+    # (INCLUDE), in the order DISTINCT ON reads them backwards (a scene's newest job first). So
+    # "each scene's latest job" is one index-only scan of an entry per job, and each scene's best
+    # answer is that entry: only the page's rows are read from the table.
+    asked = select(
+        answers.c.job_id, answers.c.scene_id, answers.c.task_index, answers.c.rank, answers.c.found,
+        answers.c.probability,
+    ).where(answers.c.tenant == tenant, answers.c.task == task, answers.c.rank <= 1)  # fmt: skip
     if batch_ids:
         asked = asked.where(
             answers.c.job_id.in_(
@@ -157,45 +269,33 @@ def fleet(
         )
     latest = (
         asked.ext(distinct_on(answers.c.scene_id))
-        .order_by(answers.c.scene_id, answers.c.finished_at.desc(), answers.c.job_id.desc())
+        .order_by(answers.c.scene_id.desc(), answers.c.finished_at.desc(), answers.c.job_id.desc())
         .cte("latest")
     )
-    chosen = answers.join(latest, latest.c.job_id == answers.c.job_id).outerjoin(
-        scenes, and_(scenes.c.id == answers.c.scene_id, scenes.c.tenant == answers.c.tenant)
-    )
-    query = (
-        select(*_columns(literal(0)))
-        .select_from(chosen)
-        .where(answers.c.task == task, answers.c.found.is_(True))
-    )
+    named = scenes, and_(scenes.c.id == answers.c.scene_id, scenes.c.tenant == answers.c.tenant)
     if best_only:
-        query = query.where(answers.c.rank == 1)
-    if min_probability is not None:
-        query = query.where(answers.c.probability >= min_probability)
-    if after is not None:
-        p, job, rank = after
-        query = query.where(
-            or_(
-                answers.c.probability < p,
-                and_(
-                    answers.c.probability == p,
-                    tuple_(answers.c.job_id, answers.c.rank) > tuple_(literal(job), literal(rank)),
-                ),
-            )
+        top = _ranked(select(latest.c.job_id, latest.c.task_index, latest.c.rank), latest.c, min_probability,
+                      after, limit).where(latest.c.found.is_(True)).subquery("top")  # fmt: skip
+        chosen = answers.join(top, and_(answers.c.job_id == top.c.job_id, answers.c.task_index == top.c.task_index,
+                                        answers.c.rank == top.c.rank))  # fmt: skip
+        query = (
+            select(*_columns(literal(0)))
+            .select_from(chosen.outerjoin(*named))
+            .order_by(answers.c.probability.desc(), answers.c.job_id, answers.c.rank)
         )
-    query = query.order_by(answers.c.probability.desc(), answers.c.job_id, answers.c.rank).limit(limit)
-    counts = select(
-        func.count(),
-        func.count().filter(
-            ~select(answers.c.job_id)
-            .where(answers.c.job_id == latest.c.job_id, answers.c.task == task, answers.c.found.is_(True))
-            .exists()
-        ),
-    ).select_from(latest)
+    else:  # every ranked object of those jobs' answers to the task (its index in each job)
+        chosen = answers.join(
+            latest, and_(latest.c.job_id == answers.c.job_id, latest.c.task_index == answers.c.task_index)
+        )
+        query = _ranked(
+            select(*_columns(literal(0))).select_from(chosen.outerjoin(*named)), answers.c, min_probability,
+            after, limit,
+        ).where(answers.c.found.is_(True))  # fmt: skip
+    counts = select(func.count(), func.count().filter(latest.c.found.is_(False))).select_from(latest)
     with database.connect() as conn:
         rows = [dict(r) for r in conn.execute(query).mappings()]
-        n_asked, n_missing = conn.execute(counts).one()
-    return FleetAnswers(rows, int(n_asked), int(n_missing))
+        total, missing = conn.execute(counts).one()
+    return FleetAnswers(rows, int(total), int(missing))
 
 
 def unindexed_jobs(database: Engine, *, after: str = "", limit: int) -> list[tuple[str, str, str, Any]]:

@@ -184,6 +184,8 @@ CREATE TABLE answers (
     CONSTRAINT fk_answers_job_id_jobs FOREIGN KEY(job_id) REFERENCES jobs (id) ON DELETE CASCADE
 );
 
+CREATE INDEX ix_answers_latest ON answers (tenant, task, scene_id, finished_at, job_id) INCLUDE (task_index, rank, found, probability) WHERE rank <= 1;
+
 CREATE INDEX ix_answers_tenant_scene_id ON answers (tenant, scene_id);
 
 CREATE INDEX ix_answers_tenant_task_scene_id_finished_at ON answers (tenant, task, scene_id, finished_at);

@@ -286,4 +286,17 @@ answers = Table(
     CheckConstraint("rank >= 0 AND task_index >= 0", name="rank"),
     Index(None, "tenant", "task", "scene_id", "finished_at"),
     Index(None, "tenant", "scene_id"),
+    # The fleet search's "each scene's latest job that asked the task" (revision 0010): one entry
+    # per job and task (its best object or its "not found" row), scanned backwards, holding what
+    # the ranking reads (an index-only scan).
+    Index(
+        "ix_answers_latest",
+        "tenant",
+        "task",
+        "scene_id",
+        "finished_at",
+        "job_id",
+        postgresql_include=["task_index", "rank", "found", "probability"],
+        postgresql_where=text("rank <= 1"),
+    ),
 )

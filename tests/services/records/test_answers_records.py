@@ -4,6 +4,9 @@ latest job per scene, task matching with LIKE's wildcards taken literally, the b
 
 from __future__ import annotations
 
+import csv
+import io
+import json
 from datetime import UTC, datetime, timedelta
 
 from sqlalchemy import Engine, delete, func, insert, select
@@ -94,6 +97,56 @@ def test_batch_pages_follow_submission_order_and_never_repeat(records_db: Engine
         records_db, "t1", "b1", records.AnswerFilter(found=False), after=None, limit=100
     )
     assert [r["job_id"] for r in missing] == ["j0", "j2", "j4"]
+
+
+def _parsed(chunks: list[bytes]) -> list[dict]:
+    text = b"".join(chunks).decode()
+    return list(csv.DictReader(io.StringIO(",".join(records.COLUMNS) + "\n" + text)))
+
+
+def _as_csv_cells(row: dict) -> dict:
+    """A listed row as its CSV cells, parsed back: None empty, numbers as numbers."""
+    return {c: "" if row.get(c) is None else str(row[c]) for c in records.COLUMNS}
+
+
+def test_the_batch_csv_is_the_listing_written_by_the_database(records_db: Engine) -> None:
+    """`batch_csv` (COPY, pages of jobs) gives the rows `batch_page` lists, in its order, from a
+    cursor and with filters, for any page size; quotes and commas in a task survive CSV."""
+    task = 'the "big", red mug'
+    for pos in range(7):
+        _job(records_db, f"j{pos}", f"s{pos}", batch="b1", position=pos)
+        rows = _rows(f"j{pos}", f"s{pos}", [0.9, 0.625, 0.25] if pos % 3 else [], task=task)
+        for r in rows:
+            if r["found"]:
+                r.update(rotation=[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], centre_x=-1.5)
+        _write(records_db, f"j{pos}", rows)
+    _job(records_db, "jx", "sx", tenant="t2", batch="b1", position=7)  # another tenant's row: never shown
+    _write(records_db, "jx", _rows("jx", "sx", [0.99], tenant="t2"))
+    wanted = records.AnswerFilter()
+    listed = records.batch_page(records_db, "t1", "b1", wanted, after=None, limit=100)
+    for per_page in (1, 2, 50):
+        got = _parsed(
+            list(records.batch_csv(records_db, "t1", "b1", wanted, after=None, jobs_per_page=per_page))
+        )
+        assert [(r["job_id"], int(r["rank"])) for r in got] == [(r["job_id"], r["rank"]) for r in listed]
+    by_key = {(r["job_id"], int(r["rank"])): r for r in got}
+    for row in listed:
+        cells = by_key[(row["job_id"], row["rank"])]
+        assert cells["task"] == task and cells["found"] == str(row["found"])
+        for name in ("probability", "centre_x"):
+            assert (float(cells[name]) if cells[name] else None) == row[name]
+        assert (json.loads(cells["rotation"]) if cells["rotation"] else None) == row["rotation"]
+        assert " " not in cells["rotation"]
+    after = (listed[3]["position"], listed[3]["task_index"], listed[3]["rank"])
+    rest = _parsed(list(records.batch_csv(records_db, "t1", "b1", wanted, after=after, jobs_per_page=2)))
+    assert [(r["job_id"], int(r["rank"])) for r in rest] == [(r["job_id"], r["rank"]) for r in listed[4:]]
+    sure = records.AnswerFilter(min_probability=0.5, max_rank=1, task=task)
+    kept = _parsed(list(records.batch_csv(records_db, "t1", "b1", sure, after=None, jobs_per_page=3)))
+    assert [r["job_id"] for r in kept] == ["j1", "j2", "j4", "j5"]
+    hostile = records.AnswerFilter(scene="'); DROP TABLE answers; --")
+    assert list(records.batch_csv(records_db, "t1", "b1", hostile, after=None, jobs_per_page=3)) == []
+    assert _count(records_db) == 4 * 3 + 3 + 1  # nothing dropped
+    assert list(records.batch_csv(records_db, "t2", "nope", wanted, after=None, jobs_per_page=3)) == []
 
 
 def test_the_fleet_takes_each_scenes_latest_job_and_counts_the_misses(records_db: Engine) -> None:

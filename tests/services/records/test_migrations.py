@@ -49,6 +49,11 @@ def test_the_indexes_the_api_pages_and_counts_by_exist(fresh_database: str) -> N
     waiting = indexes["ix_jobs_waiting"]
     assert waiting["column_names"] == ["tenant", "priority", "created_at", "id"]
     assert "dispatched_at IS NULL" in waiting["dialect_options"]["postgresql_where"]
+    with engine(fresh_database).connect() as conn:  # the fleet search's: a row per job and task
+        latest = {ix["name"]: ix for ix in inspect(conn).get_indexes("answers")}["ix_answers_latest"]
+    assert latest["column_names"] == ["tenant", "task", "scene_id", "finished_at", "job_id"]
+    assert "rank <= 1" in latest["dialect_options"]["postgresql_where"]
+    assert latest["dialect_options"]["postgresql_include"] == ["task_index", "rank", "found", "probability"]
 
 
 def test_migrations_go_down_to_base_and_up_again(fresh_database: str) -> None:

@@ -10,7 +10,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from tests.test_layers import LAYERS
+from tests.test_layers import LAYERS, SERVICE_LAYERS
 
 PAGE = Path(__file__).resolve().parents[1] / "docs" / "development" / "architecture.md"
 BASE = {"params", "errors", "__init__"}
@@ -65,3 +65,22 @@ def test_the_table_lists_the_packages_top_down() -> None:
     assert {n for members in LAYERS for n in members} - {"__init__"} <= {
         n.rstrip("/").removesuffix(".py") for row in rows for n in re.findall(r"`([^`]+)`", row.split("|")[1])
     }
+
+
+def test_the_service_diagram_draws_the_service_floors_in_order() -> None:
+    """The service's chain (`jobs --> ... --> config`) is `SERVICE_LAYERS` from the jobs domain down,
+    the one floor of several adapters drawn as one node, `adapters`."""
+    expected = []
+    for members in SERVICE_LAYERS[SERVICE_LAYERS.index({"jobs"}) :]:
+        if members == {"__init__"}:
+            continue
+        expected.append(next(iter(members)) if len(members) == 1 else "adapters")
+    drawn: list[str] = []
+    for line in PAGE.read_text().splitlines():
+        parts = [p.strip() for p in line.strip().split("-->")]
+        if len(parts) > 2 and parts[0] == "jobs" and all(re.fullmatch(r"\w+", p) for p in parts):
+            drawn = parts
+    assert drawn == expected, (
+        "docs/development/architecture.md's service chain must be tests/test_layers.py's SERVICE_LAYERS "
+        "from jobs down, one node per floor (several adapters: `adapters`):\n    " + " --> ".join(expected)
+    )

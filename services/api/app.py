@@ -1,7 +1,7 @@
 """FastAPI application factory: `create_app(settings)`; `bayesian_fields_service.api.app:app` for uvicorn.
 
-The app holds one `AppState` (store, Redis, job store, key ring) built from the settings, so
-tests and deployments differ only in `ServiceSettings`. Input errors become 422 with the
+The app holds one `AppState` (the domains over one bucket, Redis client and records engine, and
+the key ring) built from the settings, so tests and deployments differ only in `ServiceSettings`. Input errors become 422 with the
 library's message (which names the file and the problem); nothing else leaks internals. The API
 serves HTTP only: a stored job waits in the jobs table until the control process dispatches it.
 Every call the API makes to Redis or the bucket has a short, bounded retry budget
@@ -34,7 +34,6 @@ from bayesian_fields_service.api.schemas import BatchRequest
 from bayesian_fields_service.api.state import AppState
 from bayesian_fields_service.api.tenant_gate import TenantFairness, TenantGate
 from bayesian_fields_service.config.settings import ServiceSettings, apply_log_level, get_settings
-from bayesian_fields_service.jobs.store import JobStore
 from bayesian_fields_service.records.database import open_records
 from bayesian_fields_service.scenes.upload_temp import Sweeper
 from bayesian_fields_service.security.api_keys import ApiKeyRing
@@ -126,13 +125,11 @@ def create_app(settings: ServiceSettings | None = None) -> FastAPI:
     hooks.install(settings)
     store = build_store(settings, request_path=True)
     client = _redis_client(settings)
-    state = AppState(
-        settings=settings,
-        store=store,
-        redis=client,
-        jobs=JobStore(
-            store, client, open_records(settings.database_url, migrate_first=settings.migrate_on_start)
-        ),
+    state = AppState.open(
+        settings,
+        store,
+        client,
+        open_records(settings.database_url, migrate_first=settings.migrate_on_start),
         key_ring=ApiKeyRing.from_settings(settings),
         tenant_gate=TenantGate(
             settings.api_tenant_concurrency, settings.api_tenant_queue, settings.api_tenant_streams

@@ -1,23 +1,34 @@
-"""The API process's shared objects (settings, store, Redis, the job store, the jobs and scenes
-domains, key ring) and small helpers every route uses: id checks, tenant views, presigned links."""
+"""The API process's shared objects and small helpers every route uses: id checks, tenant views,
+presigned links.
+
+`AppState` exposes the domains (the jobs store and service, the scenes, the answers), the
+settings and the key ring, beside the process's own parts (the tenant gate, the metrics
+registry, the bulk lane) and two read-only views of the infrastructure as the routes need them
+(`readiness` probes, `live_metrics` readings). Why no engine, Redis client or bucket among its
+fields: routes translate HTTP and call a domain (issue 43); `AppState.open` builds the domains
+on the infrastructure once, and `tests/services/api/test_state_boundary.py` keeps it that way."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Annotated, Any
 
 import redis
 from fastapi import Depends, HTTPException, Request, status
+from sqlalchemy import Engine
 
 from bayesian_fields_core.job.store import PrefixedStore, Store
 from bayesian_fields_service.api.bulk_lane import BulkLane
+from bayesian_fields_service.api.readiness import Readiness
 from bayesian_fields_service.api.schemas import Problem
 from bayesian_fields_service.api.tenant_gate import TenantGate
 from bayesian_fields_service.config.settings import ServiceSettings
+from bayesian_fields_service.jobs.answers import Answers
 from bayesian_fields_service.jobs.refusals import Missing
 from bayesian_fields_service.jobs.service import JobService
 from bayesian_fields_service.jobs.store import JobStore
 from bayesian_fields_service.jobs.validation import check_id as validated_id
+from bayesian_fields_service.live.metrics import LiveMetrics
 from bayesian_fields_service.records.ids import new_id
 from bayesian_fields_service.scenes.lifecycle import Scenes
 from bayesian_fields_service.scenes.postgres import scene_store
@@ -29,28 +40,51 @@ from bayesian_fields_service.storage.stores import TenantTransfers, direct_trans
 @dataclass
 class AppState:
     settings: ServiceSettings
-    store: Store
-    redis: redis.Redis
     jobs: JobStore
+    service: JobService
+    scenes: Scenes
+    answers: Answers
+    readiness: Readiness
+    live_metrics: LiveMetrics
     key_ring: ApiKeyRing
     tenant_gate: TenantGate
     metrics_registry: Any = None
     bulk_lane: BulkLane | None = None  # set while the app serves, where the lane is on
-    scenes: Scenes = field(init=False)
-    service: JobService = field(init=False)
 
-    def __post_init__(self) -> None:
-        rows = scene_store(self.jobs.database)  # the one records engine of the process
-        self.scenes = Scenes(self.settings, self.store, rows, new_id=lambda: new_id("s_"))
-        self.service = JobService(self.settings, self.jobs, rows, self.redis)
+    @classmethod
+    def open(
+        cls,
+        settings: ServiceSettings,
+        store: Store,
+        redis_client: redis.Redis,
+        database: Engine,
+        *,
+        key_ring: ApiKeyRing,
+        tenant_gate: TenantGate,
+    ) -> AppState:
+        """The domains over the process's bucket, Redis client and records engine (one each)."""
+        jobs = JobStore(store, redis_client, database)
+        rows = scene_store(database)
+        return cls(
+            settings=settings,
+            jobs=jobs,
+            service=JobService(settings, jobs, rows, redis_client),
+            scenes=Scenes(settings, store, rows, new_id=lambda: new_id("s_")),
+            answers=Answers(database),
+            readiness=Readiness(database, redis_client, store),
+            live_metrics=LiveMetrics(redis_client),
+            key_ring=key_ring,
+            tenant_gate=tenant_gate,
+        )
 
     def tenant(self, tenant: str) -> PrefixedStore:
-        return tenant_store(self.store, tenant)
+        """The tenant's part of the jobs domain's bucket (keys relative to it)."""
+        return tenant_store(self.jobs.store, tenant)
 
     def transfers(self, tenant: str) -> TenantTransfers | None:
         """The tenant's direct transfers (presigned links, multipart uploads), or None where the
         storage backend has none (a local folder: uploads go through the API, results too)."""
-        bucket = direct_transfers(self.store)
+        bucket = direct_transfers(self.jobs.store)
         if bucket is None:
             return None
         return TenantTransfers(bucket, self.tenant(tenant), self.settings.presign_expiry_s)

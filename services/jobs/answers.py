@@ -19,7 +19,7 @@ whose selections carry no content key, is read whole for its computed keys (a ba
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from datetime import datetime
 from typing import Any
@@ -32,6 +32,8 @@ from bayesian_fields_core.results.format import SelectedObject
 from bayesian_fields_core.results.reader import read_result, read_summary
 from bayesian_fields_service.jobs.model import JobRecord, utcnow
 from bayesian_fields_service.records import answers as answer_records
+from bayesian_fields_service.records.answers import AnswerFilter as AnswerFilter
+from bayesian_fields_service.records.answers import FleetAnswers as FleetAnswers
 from bayesian_fields_service.storage.stores import tenant_store
 
 log = logging.getLogger(__name__)
@@ -161,3 +163,68 @@ def index_existing(
         if progress is not None:
             progress(done)
     return done
+
+
+class Answers:
+    """The tenants' answers as the answer routes read them: a batch's rows (a page, or the whole
+    table as CSV), one task's answers across the fleet, and the task a part of its text names.
+
+    Why an object and not the routes calling `records.answers`: the routes translate HTTP and call
+    a domain, never the records (issue 43); this holds the records engine, so the API's state
+    hands the routes this and not the engine. Each method is one indexed statement of
+    `records.answers`; the filter and page types are that module's (`AnswerFilter`,
+    `FleetAnswers`, re-exported here)."""
+
+    def __init__(self, database: Engine) -> None:
+        self._database = database
+
+    def matching_tasks(self, tenant: str, part: str, *, batch_id: str | None = None) -> list[str]:
+        """The answered tasks `part` names: its exact text if any answer has it, else the tasks
+        whose text contains it (case-insensitive), in the batch `batch_id` or the whole fleet."""
+        return answer_records.matching_tasks(self._database, tenant, part, batch_id=batch_id)
+
+    def batch_page(
+        self,
+        tenant: str,
+        batch_id: str,
+        wanted: AnswerFilter,
+        *,
+        after: tuple[int, int, int] | None,
+        limit: int,
+    ) -> list[dict[str, Any]]:
+        """Up to `limit` of the batch's rows kept by `wanted`, after the keyset `after`."""
+        return answer_records.batch_page(self._database, tenant, batch_id, wanted, after=after, limit=limit)
+
+    def batch_csv(
+        self,
+        tenant: str,
+        batch_id: str,
+        wanted: AnswerFilter,
+        *,
+        after: tuple[int, int, int] | None,
+        jobs_per_page: int,
+    ) -> Iterator[bytes]:
+        """The batch's rows kept by `wanted` as CSV chunks, `jobs_per_page` jobs per read."""
+        return answer_records.batch_csv(
+            self._database, tenant, batch_id, wanted, after=after, jobs_per_page=jobs_per_page
+        )
+
+    def fleet(
+        self,
+        tenant: str,
+        task: str,
+        *,
+        batch_ids: Sequence[str] = (),
+        min_probability: float | None = None,
+        best_only: bool = True,
+        after: tuple[float, str, int] | None = None,
+        limit: int,
+    ) -> FleetAnswers:
+        """One task's answers over the tenant's scenes (each one's latest succeeded job that asked it)."""
+        return answer_records.fleet(self._database, tenant, task, batch_ids=batch_ids,
+                                    min_probability=min_probability, best_only=best_only, after=after,
+                                    limit=limit)  # fmt: skip
+
+    def answer_probability(self, tenant: str, task: str, job_id: str, rank: int) -> float | None:
+        """The probability of one found answer (a fleet cursor's position), or None when it is gone."""
+        return answer_records.answer_probability(self._database, tenant, task, job_id, rank)

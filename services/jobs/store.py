@@ -25,12 +25,14 @@ import builtins
 import logging
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from datetime import date
+from pathlib import Path
 from typing import Any
 
 import redis
 from sqlalchemy import Engine
 
-from bayesian_fields_core.job.store import Store
+from bayesian_fields_core.job.store import LocalStore, Store
 from bayesian_fields_service.jobs import usage
 from bayesian_fields_service.jobs.batches import BatchRecord, batch_of_row
 from bayesian_fields_service.jobs.model import (
@@ -126,6 +128,19 @@ class JobStore:
 
     def tenant(self, tenant: str) -> Store:
         return tenant_store(self.store, tenant)
+
+    def local_file(self, tenant: str, key: str) -> Path | None:
+        """The file of the tenant's `key` (relative to its part of the bucket, already validated)
+        where the bucket is a local folder, else None: a backend that cannot presign serves its
+        results through the API (`GET /v1/jobs/{id}/artifacts/...`), one that can never does."""
+        if not isinstance(self.store, LocalStore):
+            return None
+        return self.store.root / tenant_store(self.store, tenant).prefix / key
+
+    def tenant_usage(self, tenant: str, start: date, end: date) -> dict[str, Any]:
+        """The tenant's usage per day in [start, end] (UTC, inclusive) and over the period, from
+        the usage ledger (`usage.tenant_usage`: one aggregate statement)."""
+        return usage.tenant_usage(self.database, tenant, start, end)
 
     # ---- rows ----------------------------------------------------------------------------------
     def load(self, tenant: str, job_id: str) -> JobRecord | None:

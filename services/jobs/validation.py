@@ -20,6 +20,7 @@ from bayesian_fields_service.config.settings import ServiceSettings
 from bayesian_fields_service.jobs.model import JobRecord
 from bayesian_fields_service.jobs.queue import Priority
 from bayesian_fields_service.jobs.refusals import Conflict, Invalid, Missing
+from bayesian_fields_service.records.ids import BATCH_ID as BATCH_ID  # the routes check batch ids with it
 from bayesian_fields_service.records.ids import JOB_ID, SCENE_ID, is_id, new_id
 from bayesian_fields_service.scenes.model import SceneRecord
 from bayesian_fields_service.scenes.store import SceneStore

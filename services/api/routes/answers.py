@@ -1,9 +1,10 @@
 """Answer routes (issue 42): a batch's answers as one table (paged, or streamed as CSV / JSON Lines)
 and one task's answers across the tenant's fleet.
 
-HTTP only: the rows are written with each job's success (`jobs.answers`), read by the statements
-of `records.answers`; every query value is checked here (`api.query`) and a refusal names its
-parameter (422). A batch of another tenant is 404, as everywhere.
+HTTP only: the rows are written with each job's success (`jobs.answers`) and read through the
+jobs domain's `Answers` (`state.answers`, over the statements of `records.answers`); every query
+value is checked here (`api.query`) and a refusal names its parameter (422). A batch of another
+tenant is 404, as everywhere.
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ from bayesian_fields_service.api.query import (
     TaskText,
 )
 from bayesian_fields_service.api.state import ERRORS, AppState, State, Tenant
-from bayesian_fields_service.records import answers as records
+from bayesian_fields_service.jobs.answers import AnswerFilter
 
 router = APIRouter(prefix="/v1", tags=["answers"])
 
@@ -107,7 +108,7 @@ def _resolve_task(state: AppState, tenant: str, part: str | None, batch_id: str 
     `bfields export --task`); 422 naming `task` when none or several do."""
     if part is None:
         return None
-    found = records.matching_tasks(state.jobs.database, tenant, part, batch_id=batch_id)
+    found = state.answers.matching_tasks(tenant, part, batch_id=batch_id)
     if len(found) == 1:
         return found[0]
     if not found and batch_id is None:
@@ -173,7 +174,7 @@ def batch_answers(
     """In the batch's submission order, then each job's task order and rank: a stable order, so
     `next_cursor` pages never skip or repeat a row while other jobs finish."""
     batch = state.service.batch(tenant, batch_id)
-    wanted = records.AnswerFilter(
+    wanted = AnswerFilter(
         task=_resolve_task(state, tenant, task, batch.id), min_probability=min_probability,
         max_rank=max_rank, found=found, scene=scene,
     )  # fmt: skip
@@ -181,14 +182,14 @@ def batch_answers(
     after = cast("tuple[int, int, int] | None", cursor)  # parsed by AnswerCursor's validator
     if kind != "json":
         if kind == "csv":
-            lines = csv_lines(records.batch_csv(state.jobs.database, tenant, batch.id, wanted, after=after,
-                                                jobs_per_page=EXPORT_JOBS))  # fmt: skip
+            lines = csv_lines(state.answers.batch_csv(tenant, batch.id, wanted, after=after,
+                                                      jobs_per_page=EXPORT_JOBS))  # fmt: skip
         else:
             lines = jsonl_lines(_pages(state, tenant, batch.id, wanted, after))
         name = f"{batch.id}-answers.{kind}"
         return StreamingResponse(lines, media_type=MEDIA[kind],
                                  headers={"Content-Disposition": f'attachment; filename="{name}"'})  # fmt: skip
-    rows = records.batch_page(state.jobs.database, tenant, batch.id, wanted, after=after, limit=limit + 1)
+    rows = state.answers.batch_page(tenant, batch.id, wanted, after=after, limit=limit + 1)
     nxt = None
     if len(rows) > limit:
         last = rows[limit - 1]
@@ -200,14 +201,12 @@ def _pages(
     state: AppState,
     tenant: str,
     batch_id: str,
-    wanted: records.AnswerFilter,
+    wanted: AnswerFilter,
     after: tuple[int, int, int] | None,
 ) -> Iterator[list[dict[str, Any]]]:
     """Every matching row, `EXPORT_PAGE` at a time (each page a fresh indexed read)."""
     while True:
-        page = records.batch_page(
-            state.jobs.database, tenant, batch_id, wanted, after=after, limit=EXPORT_PAGE
-        )
+        page = state.answers.batch_page(tenant, batch_id, wanted, after=after, limit=EXPORT_PAGE)
         if page:
             yield page
         if len(page) < EXPORT_PAGE:
@@ -241,12 +240,12 @@ def fleet_answers(
     assert exact is not None
     after = None
     if cursor is not None:
-        at = records.answer_probability(state.jobs.database, tenant, exact, *cursor)
+        at = state.answers.answer_probability(tenant, exact, *cursor)
         if at is None:
             raise _refuse("cursor", "the cursor's answer is gone; start again without a cursor")
         after = (at, *cursor)
-    got = records.fleet(state.jobs.database, tenant, exact, batch_ids=batch or [], min_probability=min_probability,
-                        best_only=not all_ranks, after=after, limit=limit + 1)  # fmt: skip
+    got = state.answers.fleet(tenant, exact, batch_ids=batch or [], min_probability=min_probability,
+                              best_only=not all_ranks, after=after, limit=limit + 1)  # fmt: skip
     rows = got.rows
     nxt = f"{rows[limit - 1]['job_id']}.{rows[limit - 1]['rank']}" if len(rows) > limit else None
     return FleetPage(task=exact, asked=got.asked, found=got.asked - got.not_found, not_found=got.not_found,

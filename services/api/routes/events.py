@@ -34,7 +34,7 @@ from bayesian_fields_service.api.state import ERRORS, AppState, State, Tenant, c
 from bayesian_fields_service.jobs.batches import BatchRecord, progress_of_jobs
 from bayesian_fields_service.jobs.model import JobState
 from bayesian_fields_service.jobs.store import JobStore
-from bayesian_fields_service.records.ids import BATCH_ID
+from bayesian_fields_service.jobs.validation import BATCH_ID
 
 router = APIRouter(prefix="/v1", tags=["batches"])
 

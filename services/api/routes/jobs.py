@@ -18,7 +18,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import FileResponse, StreamingResponse
 
 from bayesian_fields_core.errors import InputError
-from bayesian_fields_core.job.store import ArtifactNotFound, LocalStore, get_json, validate_key
+from bayesian_fields_core.job.store import ArtifactNotFound, get_json, validate_key
 from bayesian_fields_service.api.json_body import openapi_body, parse_body
 from bayesian_fields_service.api.query import PAGE_LIMIT, JobCursor, PositionCursor, SceneFilter
 from bayesian_fields_service.api.result_zip import zip_stream
@@ -170,10 +170,8 @@ def get_artifact(job_id: str, path: str, tenant: Tenant, state: State) -> FileRe
         key = record.job_prefix + validate_key(path)
     except InputError:
         raise not_found("artifact", path) from None
-    if not path.startswith("result/") or not isinstance(state.store, LocalStore):
-        raise not_found("artifact", path)
-    file = state.store.root / state.tenant(tenant).prefix / key
-    if not file.is_file():
+    file = state.jobs.local_file(tenant, key) if path.startswith("result/") else None
+    if file is None or not file.is_file():
         raise not_found("artifact", path)
     return FileResponse(file, filename=file.name)
 

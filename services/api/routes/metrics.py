@@ -13,7 +13,6 @@ from __future__ import annotations
 import hmac
 from collections.abc import Iterator
 
-import redis
 from fastapi import APIRouter, Depends, HTTPException, Request, Response, status
 from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, generate_latest
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, HistogramMetricFamily
@@ -23,18 +22,9 @@ from bayesian_fields_core.job.stage_table import STAGES
 from bayesian_fields_service.api.state import AppState, get_state
 from bayesian_fields_service.config.settings import ServiceSettings
 from bayesian_fields_service.jobs.model import JobState
-from bayesian_fields_service.live.broker import queue_length
-from bayesian_fields_service.live.metrics import (
-    JOB_KEY,
-    QUEUE_WAIT_KEY,
-    STAGE_KEY,
-    queue_wait_tenants,
-    read_histogram,
-)
+from bayesian_fields_service.live.metrics import Histogram
 
 router = APIRouter(tags=["health"])
-
-Histogram = tuple[list[tuple[str, float]], float, float]
 
 
 def _summed(histograms: list[Histogram]) -> Histogram | None:
@@ -46,7 +36,7 @@ def _summed(histograms: list[Histogram]) -> Histogram | None:
 
 
 class ServiceCollector(Collector):
-    """Reads queue depths and the workers' Redis histograms at scrape time."""
+    """Reads queue depths and the workers' Redis histograms (`state.live_metrics`) at scrape time."""
 
     def __init__(self, state: AppState) -> None:
         self.state = state
@@ -79,23 +69,21 @@ class ServiceCollector(Collector):
             "(per tenant where BFIELDS_METRICS_PER_TENANT is on).",
             labels=tenant_label,
         )
-        try:
-            for queue in {s.settings.gpu_queue, s.settings.cpu_queue}:
-                depth.add_metric([queue], queue_length(s.redis, queue))
-            for stage in STAGES:
-                if (h := read_histogram(s.redis, STAGE_KEY.format(stage=stage))) is not None:
-                    stage_h.add_metric([stage], h[0], h[1])
-            for outcome in (state for state in JobState if state.terminal):
-                if (h := read_histogram(s.redis, JOB_KEY.format(outcome=outcome.value))) is not None:
-                    job_h.add_metric([outcome.value], h[0], h[1])
-            counts = s.jobs.queue.waiting_by_tenant()
-            waits = {
-                tenant: h
-                for tenant in queue_wait_tenants(s.redis)
-                if (h := read_histogram(s.redis, QUEUE_WAIT_KEY.format(tenant=tenant))) is not None
-            }
-        except redis.RedisError:
+        live = s.live_metrics.read(
+            {s.settings.gpu_queue, s.settings.cpu_queue},
+            STAGES,
+            (state.value for state in JobState if state.terminal),
+        )
+        if live is None:  # Redis does not answer: the scrape has the gate's series only
             return
+        for queue, n in live.queue_depths.items():
+            depth.add_metric([queue], n)
+        for stage, h in live.stages.items():
+            stage_h.add_metric([stage], h[0], h[1])
+        for outcome, h in live.jobs.items():
+            job_h.add_metric([outcome], h[0], h[1])
+        counts = s.jobs.queue.waiting_by_tenant()
+        waits = live.queue_waits
         if per_tenant:
             for tenant, n in sorted(counts.items()):
                 waiting.add_metric([tenant], n)

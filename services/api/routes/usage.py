@@ -15,7 +15,6 @@ from pydantic import BaseModel, Field
 
 from bayesian_fields_service.api.query import Day
 from bayesian_fields_service.api.state import ERRORS, State, Tenant
-from bayesian_fields_service.jobs.usage import tenant_usage
 
 router = APIRouter(prefix="/v1", tags=["usage"])
 
@@ -74,5 +73,5 @@ def get_usage(
         raise HTTPException(
             422, f"{days} days; at most {state.settings.usage_max_days} per request (BFIELDS_USAGE_MAX_DAYS)"
         )
-    report = tenant_usage(state.jobs.database, tenant, start, end)
+    report = state.jobs.tenant_usage(tenant, start, end)
     return UsageReport.model_validate(report)

@@ -172,3 +172,20 @@ def test_reads_overlay_live_progress_only_while_a_job_runs(fakes) -> None:  # no
     assert jobs.get("t", done.id).state == JobState.failed  # type: ignore[union-attr]
     page, cursor = jobs.list("t", state=JobState.failed)
     assert [j.id for j in page] == [done.id] and cursor is None
+
+
+def test_a_local_bucket_names_the_tenants_file_and_another_bucket_none(tmp_path: Path) -> None:
+    """`local_file` (what `GET /v1/jobs/{id}/artifacts/...` serves on a local folder): the file a
+    key names in the tenant's part of the bucket, another tenant's key elsewhere; None where the
+    bucket is not a local folder (such a bucket presigns, the route answers 404)."""
+    bucket = LocalStore(tmp_path / "bucket")
+    jobs = JobStore.over(bucket, FakeJobRecords(), FakeLiveJobs())
+    key = "jobs/j_1/result/summary.json"
+    jobs.tenant("t").put_bytes(key, b"{}")
+    found = jobs.local_file("t", key)
+    assert found is not None and found.is_file() and found.read_bytes() == b"{}"
+    assert found.is_relative_to(bucket.root)
+    other = jobs.local_file("u", key)
+    assert other is not None and other != found and not other.is_file()
+    wrapped = JobStore.over(jobs.tenant("t"), FakeJobRecords(), FakeLiveJobs())  # not a LocalStore
+    assert wrapped.local_file("t", key) is None

@@ -17,6 +17,7 @@ import pytest
 from sqlalchemy import Engine
 
 from tests.integration.fixtures.postgres import create_database, drop_database, records_database
+from tests.integration.fixtures.private_postgres import PrivatePostgres, postgres_bin
 from tests.services.support.service_hooks import PLUGIN_ENV
 
 #: Limits of the test API, small enough to trip with tiny uploads.
@@ -72,3 +73,14 @@ def records_db() -> Iterator[Engine]:
     """An engine on a database of this test's own at the newest schema, dropped after it."""
     with records_database() as db:
         yield db
+
+
+@pytest.fixture
+def private_pg() -> Iterator[PrivatePostgres]:
+    """A PostgreSQL server of the test's own, which it may stop and start (an outage must never
+    stop the shared server); stopped and deleted afterwards."""
+    if postgres_bin() is None:
+        pytest.skip("no PostgreSQL binaries under /usr/lib/postgresql/*/bin (Debian package postgresql)")
+    server = PrivatePostgres().start()
+    yield server
+    server.remove()

@@ -15,22 +15,13 @@ from pathlib import Path
 import httpx
 import pytest
 
-from tests.integration.fixtures.private_postgres import PrivatePostgres, postgres_bin
+from tests.integration.fixtures.private_postgres import PrivatePostgres
 from tests.integration.fixtures.services import ApiServer
 from tests.services.conftest import scene_form
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(240)]
 
 RETRY_AFTER = "5"  # BFIELDS_RETRY_AFTER_S, the default
-
-
-@pytest.fixture
-def private_pg() -> Iterator[PrivatePostgres]:
-    if postgres_bin() is None:
-        pytest.skip("no PostgreSQL binaries under /usr/lib/postgresql/*/bin (Debian package postgresql)")
-    server = PrivatePostgres().start()
-    yield server
-    server.remove()
 
 
 @pytest.fixture

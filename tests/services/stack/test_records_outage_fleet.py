@@ -14,7 +14,6 @@ from __future__ import annotations
 import threading
 import time
 from collections import Counter
-from collections.abc import Iterator
 from pathlib import Path
 
 import httpx
@@ -40,14 +39,6 @@ pytestmark = [
 FLEET = 200
 SINGLES = 10
 OUTAGE_S = 20
-
-
-@pytest.fixture
-def private_pg() -> Iterator[PrivatePostgres]:
-    server = PrivatePostgres().start()
-    yield server
-    server.stop()
-    server.remove()
 
 
 def _json(client: httpx.Client, path: str) -> dict:

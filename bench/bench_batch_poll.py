@@ -40,11 +40,19 @@ from bench.bench_batch_ops import _client, _ok, _pct, _start_probe, batch_stack
 
 
 def _poll(stack: Any, batch_id: str, params: dict[str, str], until: float, pause_s: float,
-          took: list[float]) -> None:  # fmt: skip
+          took: list[float], refused: list[float]) -> None:  # fmt: skip
+    """Poll as a client that honours the API's 429s does (the project's client waits Retry-After):
+    each answered poll's time goes to `took`, each 429's Retry-After to `refused`."""
     with _client(stack, "tenant-a", 600) as client:
         while time.monotonic() < until:
             t0 = time.monotonic()
-            _ok(client.get(f"/v1/batches/{batch_id}", params=params))
+            resp = client.get(f"/v1/batches/{batch_id}", params=params)
+            if resp.status_code == 429:
+                wait_s = float(resp.headers.get("Retry-After", "1"))
+                refused.append(wait_s)
+                time.sleep(min(wait_s, max(until - time.monotonic(), 0.0)))
+                continue
+            _ok(resp)
             took.append(time.monotonic() - t0)
             time.sleep(pause_s)
 
@@ -54,12 +62,13 @@ def measure(stack: Any, batch_id: str, args: argparse.Namespace) -> dict[str, An
     params = {"jobs": "true"} if args.list_jobs else {}
     probe = _start_probe(stack)
     polls: list[float] = []
+    refusals: list[float] = []
     try:
         idle_from = time.monotonic()
         time.sleep(args.idle_s)
         busy_from = time.monotonic()
         until = busy_from + args.poll_s
-        threads = [threading.Thread(target=_poll, args=(stack, batch_id, params, until, args.pause_s, polls))
+        threads = [threading.Thread(target=_poll, args=(stack, batch_id, params, until, args.pause_s, polls, refusals))
                    for _ in range(args.threads)]  # fmt: skip
         for t in threads:
             t.start()
@@ -76,9 +85,16 @@ def measure(stack: Any, batch_id: str, args: argparse.Namespace) -> dict[str, An
         "busy_p50_s": _pct(busy, 0.5), "busy_p99_s": _pct(busy, 0.99), "busy_n": len(busy),
         "polls": len(polls), "poll_median_s": statistics.median(polls) if polls else None,
         "polls_per_s": len(polls) / max(busy_to - busy_from, 1e-9),
+        "refused_429": len(refusals),
     }  # fmt: skip
     figures["p99_ratio"] = figures["busy_p99_s"] / figures["idle_p99_s"]
     return figures
+
+
+def _default_rate() -> float:
+    from bayesian_fields_service.config.settings import ServiceSettings
+
+    return float(ServiceSettings.model_fields["api_tenant_rate"].default)
 
 
 def main() -> None:
@@ -93,6 +109,8 @@ def main() -> None:
                         help="the old behaviour: jobs=true with the bound raised to --size")  # fmt: skip
     parser.add_argument("--tenant-concurrency", type=int,
                         help="BFIELDS_API_TENANT_CONCURRENCY of the API (unset: the setting's default)")  # fmt: skip
+    parser.add_argument("--rate", type=float,
+                        help="BFIELDS_API_TENANT_RATE of the API (unset: the setting's default; 0: no rate bound)")  # fmt: skip
     parser.add_argument("--json", type=Path, help="write the figures here")
     args = parser.parse_args()
 
@@ -102,6 +120,8 @@ def main() -> None:
     env = {"BFIELDS_BATCH_JOBS_INLINE_MAX": str(args.size)} if args.list_jobs else {}
     if args.tenant_concurrency is not None:
         env["BFIELDS_API_TENANT_CONCURRENCY"] = str(args.tenant_concurrency)
+    # the stack's test environment turns the rate off; the bench measures the setting's default
+    env["BFIELDS_API_TENANT_RATE"] = str(args.rate if args.rate is not None else _default_rate())
     with (
         tempfile.TemporaryDirectory(prefix="bench-batch-poll-") as tmp,
         batch_stack(Path(tmp), args.size, env=env) as stack,
@@ -116,13 +136,15 @@ def main() -> None:
                                         params={"jobs": "true"} if args.list_jobs else {})).content)  # fmt: skip
         figures = measure(stack, batch["id"], args)
         figures.update(size=args.size, threads=args.threads, list_jobs=args.list_jobs, answer_bytes=size_b,
-                       tenant_concurrency=args.tenant_concurrency, load_1min=os.getloadavg()[0])  # fmt: skip
+                       tenant_concurrency=args.tenant_concurrency, rate=env["BFIELDS_API_TENANT_RATE"],
+                       load_1min=os.getloadavg()[0])  # fmt: skip
         with _client(stack, "tenant-a", 600) as client:
             _ok(client.post(f"/v1/batches/{batch['id']}/cancel"))
     mode = "jobs=true (old default)" if args.list_jobs else "aggregate (default)"
     print(f"tenant A: {args.threads} threads (pause {args.pause_s:g} s) polling GET /v1/batches/{{id}} of {args.size} jobs, {mode}: "
           f"{figures['answer_bytes']:,} bytes per answer, {figures['polls_per_s']:.1f} polls/s, "
-          f"median {figures['poll_median_s']:.3f} s")  # fmt: skip
+          f"median {figures['poll_median_s']:.3f} s; {figures['refused_429']} answered 429 "
+          f"(BFIELDS_API_TENANT_RATE={env['BFIELDS_API_TENANT_RATE']})")  # fmt: skip
     print(f"tenant B GET /v1/jobs   idle: p50 {figures['idle_p50_s']:.3f} s  p99 {figures['idle_p99_s']:.3f} s "
           f"(n={figures['idle_n']})")  # fmt: skip
     print(f"tenant B GET /v1/jobs polled: p50 {figures['busy_p50_s']:.3f} s  p99 {figures['busy_p99_s']:.3f} s "

@@ -33,6 +33,7 @@ from bayesian_fields_service.api.routes.metrics import metrics_registry
 from bayesian_fields_service.api.schemas import BatchRequest
 from bayesian_fields_service.api.state import AppState
 from bayesian_fields_service.api.tenant_gate import TenantFairness, TenantGate
+from bayesian_fields_service.api.tenant_rate import TenantRate
 from bayesian_fields_service.config.settings import ServiceSettings, apply_log_level, get_settings
 from bayesian_fields_service.records.database import open_records
 from bayesian_fields_service.scenes.upload_temp import Sweeper
@@ -132,7 +133,10 @@ def create_app(settings: ServiceSettings | None = None) -> FastAPI:
         open_records(settings.database_url, migrate_first=settings.migrate_on_start),
         key_ring=ApiKeyRing.from_settings(settings),
         tenant_gate=TenantGate(
-            settings.api_tenant_concurrency, settings.api_tenant_queue, settings.api_tenant_streams
+            settings.api_tenant_concurrency,
+            settings.api_tenant_queue,
+            settings.api_tenant_streams,
+            TenantRate(settings.api_tenant_rate, settings.api_tenant_burst, settings.api_tenant_rate_delay_s),
         ),
     )
     state.metrics_registry = metrics_registry(state)

@@ -32,7 +32,10 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from fastapi.responses import JSONResponse
+from starlette.datastructures import MutableHeaders
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
+
+from bayesian_fields_service.api.tenant_rate import RateVerdict, TenantRate
 
 #: Only these paths are a tenant's requests (every route that takes an API key lives under it).
 LIMITED_PREFIX = "/v1/"
@@ -63,10 +66,11 @@ class TenantLoad:
 class TenantGate:
     """The slots and FIFO queues of every tenant with a request on this process."""
 
-    def __init__(self, limit: int, queue_max: int, streams_max: int) -> None:
+    def __init__(self, limit: int, queue_max: int, streams_max: int, rate: TenantRate | None = None) -> None:
         self.limit = limit
         self.queue_max = queue_max
         self.streams_max = streams_max
+        self.rate = rate  # the tenants' request rate (tenant_rate.py), checked before a slot is taken
         self._tenants: dict[str, _Tenant] = {}
         self.refused: dict[str, int] = {}  # 429s per tenant since the process started
 
@@ -144,6 +148,7 @@ class TenantFairness:
         self.gate = gate
         self.tenant_of = tenant_of
         self.retry_after_s = retry_after_s
+        self.rate = gate.rate
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http" or not scope["path"].startswith(LIMITED_PREFIX):
@@ -153,6 +158,12 @@ class TenantFairness:
         if tenant is None:  # no key or an unknown one: not a tenant's request; the route says 401
             await self.app(scope, receive, send)
             return
+        verdict = self.rate.take(tenant) if self.rate is not None and self.rate.enabled else None
+        if verdict is not None and not verdict.allowed:
+            await self._refuse_rate(verdict, scope, receive, send)
+            return
+        if verdict is not None and verdict.delay_s > 0:
+            await asyncio.sleep(verdict.delay_s)  # its reserved turn (tenant_rate.py says why)
         if not await self.gate.enter(tenant):
             await self._refuse(scope, receive, send)
             return
@@ -161,6 +172,10 @@ class TenantFairness:
 
         async def counted_send(message: Message) -> None:
             nonlocal holds_slot, streaming
+            if message["type"] == "http.response.start" and verdict is not None and self.rate is not None:
+                headers = MutableHeaders(scope=message)
+                for name, value in verdict.headers(self.rate.policy).items():
+                    headers.setdefault(name, value)
             if message["type"] == "http.response.body" and message.get("more_body") and not streaming:
                 streaming = True
                 if self.gate.stream_started(tenant):
@@ -174,6 +189,18 @@ class TenantFairness:
                 self.gate.leave(tenant)
             else:
                 self.gate.stream_ended(tenant)
+
+    async def _refuse_rate(self, verdict: RateVerdict, scope: Scope, receive: Receive, send: Send) -> None:
+        assert self.rate is not None
+        detail = (
+            f"too many requests of this tenant: more than {self.rate.rate:g} per second sustained (and "
+            f"{self.rate.burst} at once) on this API process, with requests already waiting "
+            f"{self.rate.max_delay_s:g} s for their turn (BFIELDS_API_TENANT_RATE, BFIELDS_API_TENANT_BURST); "
+            f"retry after {verdict.retry_after_s} s, or poll less often (a batch's counts: "
+            f"GET /v1/batches/{{id}}; its answers: GET /v1/batches/{{id}}/answers)"
+        )
+        answer = JSONResponse({"detail": detail}, status_code=429, headers=verdict.headers(self.rate.policy))
+        await answer(scope, receive, send)
 
     async def _refuse(self, scope: Scope, receive: Receive, send: Send) -> None:
         g = self.gate

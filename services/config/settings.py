@@ -198,6 +198,30 @@ class ServiceSettings(BaseSettings):
         "zips) an API process keeps open without holding a request slot; a stream past this keeps "
         "one of the tenant's api_tenant_concurrency slots until it ends.",
     )
+    api_tenant_rate: float = Field(
+        50.0,
+        ge=0,
+        le=1_000_000,
+        description="Requests per second one tenant may sustain on an API process (api/tenant_rate.py, "
+        "a token bucket of api_tenant_burst), so a tenant polling from many threads cannot take the "
+        "CPU the other tenants' requests need. A request past it waits for its turn (1 / rate apart) "
+        "up to api_tenant_rate_delay_s; past that it is answered 429 with Retry-After and RateLimit "
+        "headers before any route runs. 0: no rate bound.",
+    )
+    api_tenant_rate_delay_s: float = Field(
+        1.0,
+        ge=0,
+        le=60,
+        description="The longest a tenant's request past its api_tenant_rate waits for its turn "
+        "before it is answered 429 instead.",
+    )
+    api_tenant_burst: int = Field(
+        20,
+        ge=1,
+        le=1_000_000,
+        description="Requests one tenant may send at once on an API process above its api_tenant_rate "
+        "(the token bucket's size): a client's natural bursts, such as fetching a result's files.",
+    )
     api_body_timeout_s: float = Field(
         30.0,
         gt=0,

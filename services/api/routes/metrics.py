@@ -115,17 +115,25 @@ class ServiceCollector(Collector):
         }  # fmt: skip
         refusals = CounterMetricFamily("bfields_api_tenant_refused",
                                        "Requests answered 429 because the tenant's queue was full.", labels=labels)  # fmt: skip
+        rate = self.state.tenant_gate.rate
+        rate_refused = rate.refused if rate is not None else {}
+        rate_refusals = CounterMetricFamily("bfields_api_tenant_rate_refused",
+                                            "Requests answered 429 because the tenant was past its request rate "
+                                            "(BFIELDS_API_TENANT_RATE / _BURST).", labels=labels)  # fmt: skip
         if per_tenant:
             for tenant, now in sorted(load.items()):
                 for name, family in families.items():
                     family.add_metric([tenant], getattr(now, name))
             for tenant, n in sorted(refused.items()):
                 refusals.add_metric([tenant], n)
+            for tenant, n in sorted(rate_refused.items()):
+                rate_refusals.add_metric([tenant], n)
         else:
             for name, family in families.items():
                 family.add_metric([], sum(getattr(now, name) for now in load.values()))
             refusals.add_metric([], sum(refused.values()))
-        yield from (*families.values(), refusals)
+            rate_refusals.add_metric([], sum(rate_refused.values()))
+        yield from (*families.values(), refusals, rate_refusals)
 
 
 def metrics_registry(state: AppState) -> CollectorRegistry:

@@ -36,6 +36,7 @@ from starlette.datastructures import MutableHeaders
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from bayesian_fields_service.api.tenant_rate import RateVerdict, TenantRate
+from bayesian_fields_service.security.auth import RESOLVED_TENANT
 
 #: Only these paths are a tenant's requests (every route that takes an API key lives under it).
 LIMITED_PREFIX = "/v1/"
@@ -158,6 +159,7 @@ class TenantFairness:
         if tenant is None:  # no key or an unknown one: not a tenant's request; the route says 401
             await self.app(scope, receive, send)
             return
+        scope.setdefault("state", {})[RESOLVED_TENANT] = tenant  # the routes' auth reads it (auth.py)
         verdict = self.rate.take(tenant) if self.rate is not None and self.rate.enabled else None
         if verdict is not None and not verdict.allowed:
             await self._refuse_rate(verdict, scope, receive, send)

@@ -16,6 +16,11 @@ from bayesian_fields_service.security.api_keys import ApiKeyRing
 
 API_KEY_HEADER = "X-API-Key"
 
+#: Where the tenant fairness middleware (api/tenant_gate.py), which resolves every ``/v1/`` request's
+#: key before any route runs, leaves the tenant in the request's state, so the route's dependency
+#: does not resolve the same key a second time (a stat of the keys file and a digest per request).
+RESOLVED_TENANT = "bfields_tenant"
+
 _header_scheme = APIKeyHeader(name=API_KEY_HEADER, auto_error=False, description="The tenant's API key.")
 _bearer_scheme = HTTPBearer(auto_error=False, description="The API key as a bearer token.")
 
@@ -46,8 +51,10 @@ def key_in_headers(x_api_key: str | None, authorization: str | None) -> str | No
 
 def require_tenant(request: Request, key: str | None = Depends(presented_key)) -> str:
     """FastAPI dependency: the tenant owning the presented key, else 401."""
-    ring: ApiKeyRing = request.app.state.key_ring
-    tenant = ring.tenant_for(key)
+    tenant = request.scope.get("state", {}).get(RESOLVED_TENANT)
+    if tenant is None:
+        ring: ApiKeyRing = request.app.state.key_ring
+        tenant = ring.tenant_for(key)
     if tenant is None:
         raise HTTPException(
             status_code=status.HTTP_401_UNAUTHORIZED,

@@ -24,6 +24,7 @@ from pydantic import ValidationError
 from bayesian_fields_service.config.settings import ServiceSettings
 from bayesian_fields_service.hooks import POINTS, WRAPS, HookRegistry
 from tests.services.support import service_hooks
+from tests.support.source_scan import docstring_nodes
 
 ROOT = Path(__file__).resolve().parents[2]
 PRODUCTION = [ROOT / "services", ROOT / "bayesian_fields_core"]
@@ -38,16 +39,6 @@ FORBIDDEN_NAMES = {
 }
 #: Test-only text: the tests' Redis keys and environment variables.
 FORBIDDEN_TEXT = ("bf:test:", "BFIELDS_TEST_", "TEST_HOOKS_")
-
-
-def _docstrings(tree: ast.AST) -> set[int]:
-    found: set[int] = set()
-    for node in ast.walk(tree):
-        if isinstance(node, ast.Module | ast.ClassDef | ast.FunctionDef | ast.AsyncFunctionDef):
-            body = node.body
-            if body and isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant):
-                found.add(id(body[0].value))
-    return found
 
 
 def _identifiers(node: ast.AST) -> list[str]:
@@ -72,7 +63,7 @@ def _identifiers(node: ast.AST) -> list[str]:
 def hooks_in(source: str) -> list[str]:
     """What in `source` is a test hook: a forbidden or ``test_*`` name, or test-only text."""
     tree = ast.parse(source)
-    docs = _docstrings(tree)
+    docs = docstring_nodes(tree)
     found: list[str] = []
     for node in ast.walk(tree):
         found += [n for n in _identifiers(node) if n in FORBIDDEN_NAMES or n.startswith("test_")]

@@ -14,27 +14,18 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
+from tests.support.source_scan import docstring_nodes
+
 ROOT = Path(__file__).resolve().parents[3]
 SERVICE = ROOT / "services"
 LIVE = SERVICE / "live"
 KEY_PREFIX = "bf:"
 
 
-def _docstrings(tree: ast.AST) -> set[int]:
-    """ids of the string nodes that are docstrings (of the module, a class or a function)."""
-    found: set[int] = set()
-    for node in ast.walk(tree):
-        if isinstance(node, ast.Module | ast.ClassDef | ast.FunctionDef | ast.AsyncFunctionDef):
-            body = node.body
-            if body and isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant):
-                found.add(id(body[0].value))
-    return found
-
-
 def key_literals(source: str) -> list[str]:
     """Strings in `source` (plain or the leading text of an f-string) that start with ``bf:``."""
     tree = ast.parse(source)
-    docs = _docstrings(tree)
+    docs = docstring_nodes(tree)
     found: list[str] = []
     in_fstring: set[int] = set()
     for node in ast.walk(tree):

@@ -5,6 +5,7 @@
     bfields-service control                                        run the control process
     bfields-service import-scenes                                  scene records of the bucket -> rows
     bfields-service index-answers                                  answers of earlier succeeded jobs -> rows
+    bfields-service callback-secret [--new]                        the callback secret's whsec_ form
 
 Why a separate command from `bfields`: these act on the deployment's database with the
 deployment's settings (`BFIELDS_DATABASE_URL`), run from an init container or by hand in an
@@ -38,6 +39,24 @@ def _index_answers(url: str) -> int:
     return 0
 
 
+def _callback_secret(new: bool) -> int:
+    """`callback-secret`: the `whsec_` form of BFIELDS_CALLBACK_SECRET (what a receiver configures
+    its Standard Webhooks library with), or with `--new` a fresh secret to set it to."""
+    from bayesian_fields_service.config.callback_secret import as_whsec, new_secret
+    from bayesian_fields_service.config.settings import get_settings
+
+    if new:
+        print(new_secret())
+        return 0
+    secret = get_settings().callback_secret
+    if secret is None:
+        print("error: BFIELDS_CALLBACK_SECRET is not set (callbacks are off); "
+              "`bfields-service callback-secret --new` makes one", file=sys.stderr)  # fmt: skip
+        return 2
+    print(as_whsec(secret.get_secret_value()))
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="bfields-service", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -55,7 +74,14 @@ def main(argv: list[str] | None = None) -> int:
         "index-answers",
         help="answer rows for succeeded jobs that have none (after upgrading to revision 0009; resumable, idempotent)",
     )
+    secret = sub.add_parser(
+        "callback-secret",
+        help="print BFIELDS_CALLBACK_SECRET in the Standard Webhooks 'whsec_' form, for callback receivers",
+    )
+    secret.add_argument("--new", action="store_true", help="print a fresh random 'whsec_' secret instead")
     args = parser.parse_args(argv)
+    if args.command == "callback-secret":
+        return _callback_secret(args.new)
     if args.command == "control":
         from bayesian_fields_service.control.process import main as run_control
 

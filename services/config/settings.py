@@ -17,6 +17,8 @@ from typing import Literal
 from pydantic import Field, SecretStr, field_validator, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
+from bayesian_fields_service.config.callback_secret import signing_key
+
 GiB = 1024**3
 MiB = 1024**2
 
@@ -34,9 +36,11 @@ class ServiceSettings(BaseSettings):
     """Every knob of the batch service. Environment variable = ``BFIELDS_`` + upper-case field name;
     mappings (``api_keys``) are given as JSON."""
 
+    # hide_input_in_errors: a refused value is never echoed in the start-up error (it may be a secret)
     model_config = SettingsConfigDict(
-        env_prefix="BFIELDS_", case_sensitive=False, extra="ignore", validate_default=True
-    )
+        env_prefix="BFIELDS_", case_sensitive=False, extra="ignore", validate_default=True,
+        hide_input_in_errors=True,
+    )  # fmt: skip
 
     # ---- records -------------------------------------------------------------------------------
     database_url: str = Field(
@@ -411,8 +415,10 @@ class ServiceSettings(BaseSettings):
     # ---- notifications (job / batch callbacks, server-sent events) --------------------------------
     callback_secret: SecretStr | None = Field(
         None,
-        description="Key of the HMAC-SHA256 signature of every callback POST (header "
-        "X-BFields-Signature). Unset: jobs and batches with a callback_url are refused (422).",
+        description="Secret of the HMAC-SHA256 signatures of every callback POST: 'whsec_' + base64 "
+        "of the key (the Standard Webhooks form; `bfields-service callback-secret --new` makes one), or "
+        "any other text, whose UTF-8 bytes are the key (`bfields-service callback-secret` prints its "
+        "'whsec_' form for receivers). Unset: jobs and batches with a callback_url are refused (422).",
     )
     callback_allowed_hosts: list[str] = Field(
         default_factory=list,
@@ -497,6 +503,13 @@ class ServiceSettings(BaseSettings):
         bad = [name for name in v if not MODULE_NAME.fullmatch(name)]
         if bad:
             raise ValueError(f"hooks_plugins takes Python module names (like 'package.module'), not {bad}")
+        return v
+
+    @field_validator("callback_secret")
+    @classmethod
+    def _check_callback_secret(cls, v: SecretStr | None) -> SecretStr | None:
+        if v is not None:
+            signing_key(v.get_secret_value())  # a malformed 'whsec_' value is refused at start
         return v
 
     @field_validator("redis_url")

@@ -15,16 +15,17 @@ records database (`callback_outbox`):
   it with exponential backoff (`callback_backoff_s` doubling, jittered, at most
   `callback_backoff_max_s`) up to `callback_max_attempts`, then marks it dropped with an error
   log. A worker killed mid-POST leaves the claim, which falls due again after the lease: the event
-  is sent again (hence *at least once*). Receivers deduplicate on ``event_id`` (the body's
-  idempotency key, also a header).
+  is sent again (hence *at least once*). Receivers deduplicate on ``webhook-id`` or the body's
+  ``event_id`` (one id per event, the same on every attempt).
 - one attempt (resolve, connect, send, read the answer) ends by `callback_timeout_s` whatever the
   receiver does (`callback_delivery`), and the claim lasts that plus a margin
   (`ServiceSettings.callback_lease_s`), so an attempt never outlives its claim: no event is in
   flight twice while its sender lives.
-The body is JSON; ``X-BFields-Timestamp`` is the Unix time of the attempt and
-``X-BFields-Signature`` is ``sha256=`` + hex HMAC-SHA256(secret, timestamp + "." + body), so a
-receiver checks both the sender and the freshness. Nothing of this is in Redis: losing Redis
-loses no callback.
+The body is JSON, signed by Standard Webhooks headers (`signing`: ``webhook-id``, the same on
+every attempt of an event, ``webhook-timestamp`` of the attempt and ``webhook-signature``), so a
+receiver's Standard Webhooks library checks both the sender and the freshness; the former
+``X-BFields-Signature`` / ``X-BFields-Timestamp`` pair is sent beside them for one release
+(deprecated). Nothing of this is in Redis: losing Redis loses no callback.
 
 URLs are checked when a job is submitted and again before each POST by the same function
 (`callback_destinations.check_destination`): http or https only, no credentials, a valid host name,
@@ -36,8 +37,6 @@ of the addresses just checked, never to a second DNS answer.
 from __future__ import annotations
 
 import functools
-import hashlib
-import hmac
 import json
 import logging
 import random
@@ -63,12 +62,10 @@ from bayesian_fields_service.webhooks.callback_destinations import (
     check_destination,
     parse_destination,
 )
+from bayesian_fields_service.webhooks.signing import signed_headers
 
 log = logging.getLogger(__name__)
 
-SIGNATURE_HEADER = "X-BFields-Signature"
-TIMESTAMP_HEADER = "X-BFields-Timestamp"
-EVENT_HEADER = "X-BFields-Event-Id"
 #: Due rows the dispatcher reads at a time, and at most per pass, looking for events whose
 #: destination has room: events queued for a busy receiver are skipped, not waited behind, so a
 #: backlog of up to SCAN_MAX of them for one slow receiver delays no one else's.
@@ -82,22 +79,6 @@ def check_callback_url(url: str, settings: ServiceSettings, *, resolve: Resolver
     The URL is kept as given; every use parses it again the same way (`parse_destination`)."""
     check_destination(url, settings, resolve)
     return url
-
-
-# ---- signing ---------------------------------------------------------------------------------
-def signature(secret: str, timestamp: str, body: bytes) -> str:
-    """``sha256=<hex>`` of HMAC-SHA256(secret, timestamp + "." + body)."""
-    mac = hmac.new(secret.encode(), timestamp.encode() + b"." + body, hashlib.sha256)
-    return "sha256=" + mac.hexdigest()
-
-
-def verify(secret: str, timestamp: str, body: bytes, header: str, *, max_age_s: float = 300) -> bool:
-    """What a receiver does (documented; used by the tests): signature and freshness."""
-    try:
-        fresh = abs(time.time() - float(timestamp)) <= max_age_s
-    except ValueError:
-        return False
-    return fresh and hmac.compare_digest(signature(secret, timestamp, body), header)
 
 
 # ---- the outbox ------------------------------------------------------------------------------
@@ -187,14 +168,12 @@ def _backoff(settings: ServiceSettings, attempts: int) -> float:
     return delay * random.uniform(0.8, 1.2)
 
 
-def _signed_headers(settings: ServiceSettings, event_id: str, body: bytes) -> dict[str, str]:
+def _headers(settings: ServiceSettings, event_id: str, body: bytes) -> dict[str, str]:
+    """An attempt's headers: signed now (the timestamp is this attempt's; the id is the event's)."""
     assert settings.callback_secret is not None  # checked by check_destination
-    ts = str(int(time.time()))
     return {
         "Content-Type": "application/json",
-        TIMESTAMP_HEADER: ts,
-        SIGNATURE_HEADER: signature(settings.callback_secret.get_secret_value(), ts, body),
-        EVENT_HEADER: event_id,
+        **signed_headers(settings.callback_secret.get_secret_value(), event_id, body),
         "User-Agent": "bayesian-fields-callback/1",
     }
 
@@ -210,7 +189,7 @@ def attempt(
         dest, addresses = check_destination(url, settings, resolve, timeout_s=deadline - time.monotonic())
     except InputError as exc:
         return False, f"refused: {exc}"
-    headers = _signed_headers(settings, event_id, body)
+    headers = _headers(settings, event_id, body)
     why = "no address"
     for address in addresses:
         try:

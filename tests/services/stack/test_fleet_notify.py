@@ -5,6 +5,7 @@ HTTP server (retried after a failure), and the per-job / per-tenant usage."""
 
 from __future__ import annotations
 
+import base64
 import hashlib
 import hmac
 import json
@@ -18,6 +19,7 @@ from pathlib import Path
 
 import httpx
 import pytest
+from standardwebhooks import Webhook
 
 from tests.integration.fixtures.postgres import create_database, drop_database
 from tests.integration.fixtures.services import ApiServer, WorkerPool
@@ -48,7 +50,7 @@ class Receiver:
                 body = self.rfile.read(int(self.headers["Content-Length"]))
                 hit = {"body": body, "headers": dict(self.headers), "path": self.path}
                 with outer.lock:
-                    first = not any(r["headers"].get("X-BFields-Event-Id") == hit["headers"].get("X-BFields-Event-Id")
+                    first = not any(r["headers"].get("webhook-id") == hit["headers"].get("webhook-id")
                                     for r in outer.received)  # fmt: skip
                     outer.received.append(hit)
                 self.send_response(500 if first else 204)
@@ -107,7 +109,9 @@ def fleet_api(
     env = {**service_env, **SERVICE_ENV, **FLEET_ENV, "BFIELDS_DATABASE_URL": fleet_database,
            "BFIELDS_API_KEYS": json.dumps({key: tenant for tenant, key in keys.items()})}  # fmt: skip
     server = ApiServer(
-        env=env, log_dir=tmp_path_factory.mktemp("fleet-api"), keys=keys,
+        env=env,
+        log_dir=tmp_path_factory.mktemp("fleet-api"),
+        keys=keys,
     ).start()
     yield server
     server.stop()
@@ -221,13 +225,17 @@ def test_batch_event_stream(fleet: dict) -> None:
 
 
 def _check_signature(hit: dict) -> dict:
+    """The callback verifies with the Standard Webhooks library (given the `whsec_` form of the raw
+    secret, as `bfields-service callback-secret` prints it) and by the deprecated header."""
+    event = Webhook("whsec_" + base64.b64encode(SECRET.encode()).decode()).verify(hit["body"], hit["headers"])
     ts, sig = hit["headers"]["X-BFields-Timestamp"], hit["headers"]["X-BFields-Signature"]
     expected = (
         "sha256=" + hmac.new(SECRET.encode(), ts.encode() + b"." + hit["body"], hashlib.sha256).hexdigest()
     )
     assert hmac.compare_digest(sig, expected)
     assert abs(time.time() - int(ts)) < 120
-    return json.loads(hit["body"])
+    assert event == json.loads(hit["body"])
+    return dict(event)
 
 
 def _wait_hits(receiver: Receiver, path: str, n: int, timeout_s: float = 60) -> list[dict]:
@@ -250,6 +258,7 @@ def test_batch_callback_is_signed_and_retried(fleet: dict, receiver: Receiver) -
     assert bodies[0]["type"] == "batch.finished" and bodies[0]["batch_id"] == fleet["batch"]["id"]
     assert bodies[0]["counts"] == {"succeeded": JOBS} and bodies[0]["jobs"] == JOBS
     assert hits[0]["headers"]["X-BFields-Event-Id"] == bodies[0]["event_id"]
+    assert hits[0]["headers"]["webhook-id"] == hits[1]["headers"]["webhook-id"]  # one id, both attempts
     # the batch's jobs send none of their own
     assert receiver.hits("/job") == []
 
@@ -271,6 +280,7 @@ def test_job_callback_and_url_rules(fleet: dict, fleet_api: ApiServer, receiver:
     body = _check_signature(hits[-1])
     assert body["type"] == "job.finished" and body["job_id"] == job_id and body["state"] == "succeeded"
     assert body["event_id"] == _check_signature(hits[0])["event_id"]
+    assert hits[0]["headers"]["webhook-id"] == hits[-1]["headers"]["webhook-id"]
 
 
 def test_usage_per_job_and_per_tenant(fleet: dict, fleet_api: ApiServer) -> None:

@@ -11,13 +11,14 @@ with one behaviour an attacker or a broken receiver might have:
 - ``redirect`` answers 302 to `location` (which must never be requested);
 - ``flaky``    answers 500 to an event's first attempt and 200 to the next.
 
-Every request is recorded with when it started and when the client went away, so a test can tell
-how long an attempt lasted, how many were in flight at once, and whether one event was ever in
-flight twice.
+Every request is recorded, under its body's ``event_id``, with when it started and when the
+client went away, so a test can tell how long an attempt lasted, how many were in flight at
+once, and whether one event was ever in flight twice.
 """
 
 from __future__ import annotations
 
+import json
 import select
 import socket
 import threading
@@ -115,14 +116,22 @@ def client_gone(sock: socket.socket, wait_s: float) -> bool:
         return True
 
 
+def _event_id(body: bytes) -> str:
+    """The body's ``event_id`` (every callback is a JSON object with one), "" for anything else."""
+    try:
+        event = json.loads(body)
+    except ValueError:
+        return ""
+    return str(event.get("event_id", "")) if isinstance(event, dict) else ""
+
+
 def _handler_for(rx: Receiver) -> type[BaseHTTPRequestHandler]:
     class Handler(BaseHTTPRequestHandler):
         protocol_version = "HTTP/1.1"
 
         def do_POST(self) -> None:  # noqa: N802 - the http.server API
             body = self.rfile.read(int(self.headers.get("Content-Length", "0")))
-            hit = Hit(self.headers.get("X-BFields-Event-Id", ""), self.path, dict(self.headers), body,
-                      time.monotonic())  # fmt: skip
+            hit = Hit(_event_id(body), self.path, dict(self.headers), body, time.monotonic())
             first = rx._begin(hit)
             self.connection.settimeout(30)  # a client that neither reads nor closes cannot hang us
             try:

@@ -5,24 +5,25 @@ drip, send hundreds of MB, never answer, redirect or fail once.
 
 The control process runs with the shipped defaults for delivery threads, the per-destination bound
 and the answer cap (settings.py), and a short attempt deadline so the tests are quick. Events go into the
-outbox exactly as a finished job puts them there (`callbacks.enqueue`)."""
+outbox exactly as a finished job puts them there (`callbacks.enqueue`); the
+records database and the receivers are this folder's (conftest.py)."""
 
 from __future__ import annotations
 
 import time
-import uuid
 from collections.abc import Callable, Iterator
 
 import pytest
-from sqlalchemy import Engine, select
+from sqlalchemy import Engine
 
 from bayesian_fields_service.config.settings import ServiceSettings
-from bayesian_fields_service.records.database import dispose_all, engine, migrate
-from bayesian_fields_service.records.tables import callback_outbox
-from bayesian_fields_service.webhooks import callbacks
-from tests.integration.fixtures.postgres import create_database, drop_database
+from bayesian_fields_service.webhooks import callbacks, signing
 from tests.integration.fixtures.services import ControlServer
 from tests.services.support.callback_receivers import Receiver, RssSampler, overlapping
+from tests.services.support.outbox_events import dropped as _dead
+from tests.services.support.outbox_events import enqueue as _enqueue
+from tests.services.support.outbox_events import pending as _pending
+from tests.services.support.outbox_events import wait_for as _wait
 
 pytestmark = [pytest.mark.integration]
 
@@ -46,30 +47,6 @@ MAX_RESPONSE: int = FIELDS["callback_max_response_bytes"].default
 SLACK_S = 1.0
 
 
-def _wait(check: Callable[[], bool], timeout_s: float, what: str) -> None:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if check():
-            return
-        time.sleep(0.02)
-    raise AssertionError(f"not within {timeout_s} s: {what}")
-
-
-@pytest.fixture(scope="module")
-def outbox_url() -> Iterator[str]:
-    """A records database of this module's own (its control process leads there alone)."""
-    url = create_database()
-    migrate(url)
-    yield url
-    dispose_all()
-    drop_database(url)
-
-
-@pytest.fixture(scope="module")
-def outbox(outbox_url: str) -> Engine:
-    return engine(outbox_url)
-
-
 @pytest.fixture(scope="module")
 def callback_worker(
     svc_env: dict[str, str], outbox_url: str, tmp_path_factory: pytest.TempPathFactory
@@ -80,46 +57,6 @@ def callback_worker(
     assert control.leads
     yield control
     control.stop()
-
-
-@pytest.fixture
-def receivers() -> Iterator[Callable[..., Receiver]]:
-    made: list[Receiver] = []
-
-    def make(behaviour: str, **kw: object) -> Receiver:
-        made.append(Receiver(behaviour, **kw))  # type: ignore[arg-type]
-        return made[-1]
-
-    yield make
-    for r in made:
-        r.close()
-
-
-def _enqueue(outbox: Engine, url: str, kind: str) -> str:
-    event_id = f"test:{kind}:{uuid.uuid4().hex[:12]}"
-    with outbox.begin() as conn:
-        assert callbacks.enqueue(conn, "t", url, {"event_id": event_id, "type": f"test.{kind}"})
-    return event_id
-
-
-def _dead(outbox: Engine) -> dict[str, dict]:
-    with outbox.connect() as conn:
-        rows = conn.execute(
-            select(callback_outbox).where(callback_outbox.c.dropped_at.is_not(None))
-        ).mappings()
-        return {r["event_id"]: dict(r) for r in rows}
-
-
-def _pending(outbox: Engine, event_ids: list[str]) -> list[str]:
-    with outbox.connect() as conn:
-        rows = conn.execute(
-            select(callback_outbox.c.event_id).where(
-                callback_outbox.c.event_id.in_(event_ids),
-                callback_outbox.c.delivered_at.is_(None),
-                callback_outbox.c.dropped_at.is_(None),
-            )
-        )
-        return [r.event_id for r in rows]
 
 
 def test_ordinary_callback_on_time_while_drip_and_huge_receivers_are_served(
@@ -230,7 +167,7 @@ def test_500_then_200_is_retried_and_delivered(
     assert first.event_id == second.event_id == event and first.body == second.body
     assert second.start - first.start >= 0.4  # the backoff (0.5 s, jittered by 20 %)
     for h in (first, second):
-        assert callbacks.verify(
+        assert signing.verify_legacy(
             SECRET, h.headers["X-BFields-Timestamp"], h.body, h.headers["X-BFields-Signature"]
         )
     assert event not in _dead(outbox)

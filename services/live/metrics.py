@@ -29,13 +29,20 @@ STAGE_KEY = redis_keys.STAGE_HISTOGRAM
 JOB_KEY = redis_keys.JOB_HISTOGRAM
 
 
+def _bound(bound: float) -> str:
+    """A bucket's bound as its field name and ``le`` label: ``%g`` (the stored fields of the
+    duration histograms are named so), or the exact ``repr`` where ``%g`` would round it."""
+    short = f"{bound:g}"
+    return short if float(short) == bound else repr(float(bound))
+
+
 def _observe(client: redis.Redis, key: str, value: float, buckets: tuple[float, ...] = BUCKETS) -> None:
     pipe = client.pipeline()
     pipe.hincrbyfloat(key, "sum", value)
     pipe.hincrby(key, "count", 1)
     for bound in buckets:
         if value <= bound:
-            pipe.hincrby(key, f"le_{bound:g}", 1)
+            pipe.hincrby(key, f"le_{_bound(bound)}", 1)
     pipe.execute()
 
 
@@ -58,7 +65,7 @@ def read_histogram(client: redis.Redis, key: str, bounds: tuple[float, ...] = BU
         return None
     data = {text(k): float(v) for k, v in raw.items()}
     count = data.get("count", 0.0)
-    buckets = [(f"{b:g}", data.get(f"le_{b:g}", 0.0)) for b in bounds] + [("+Inf", count)]
+    buckets = [(_bound(b), data.get(f"le_{_bound(b)}", 0.0)) for b in bounds] + [("+Inf", count)]
     return buckets, data.get("sum", 0.0), count
 
 

@@ -31,13 +31,14 @@ class FleetRows:
 
 def read(conn: Connection, *, lease_name: str, stage_lease_s: float) -> FleetRows:
     """The fleet's rows now, in the database's clock (`stage_lease_s`: the stage claim's lease)."""
-    counted = dict(
-        conn.execute(
+    counted = {
+        str(state): int(n)
+        for state, n in conn.execute(
             select(jobs.c.state, func.count())
             .where(jobs.c.state.in_(ACTIVE_JOB_STATES))
             .group_by(jobs.c.state)
-        ).all()
-    )
+        )
+    }
     by_state = {state: int(counted.get(state, 0)) for state in ACTIVE_JOB_STATES}
     open_ = and_(callback_outbox.c.delivered_at.is_(None), callback_outbox.c.dropped_at.is_(None))
     depth, age = conn.execute(

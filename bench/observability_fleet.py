@@ -23,7 +23,7 @@ import shutil
 import socket
 import subprocess
 import time
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 from tempfile import TemporaryDirectory
 from typing import Any
@@ -94,15 +94,19 @@ def snapshot(prom: str, name: str) -> dict[str, Any]:
     """Every dashboard query and every alert's state, now."""
     from tests.support.observability import dashboard_queries
 
-    panels = [{"panel": title, "query": expr, "answer": query(prom, expr)} for title, expr in dashboard_queries()]
+    panels = [
+        {"panel": title, "query": expr, "answer": query(prom, expr)} for title, expr in dashboard_queries()
+    ]
     rules = httpx.get(f"{prom}/api/v1/rules", timeout=30).json()["data"]["groups"]
     alerts = [{"alert": r["name"], "state": r["state"], "health": r["health"], "last_error": r.get("lastError", "")}
               for g in rules for r in g["rules"]]  # fmt: skip
     targets = httpx.get(f"{prom}/api/v1/targets", timeout=30).json()["data"]["activeTargets"]
     return {
         "name": name,
-        "at": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-        "targets": [{"url": t["scrapeUrl"], "health": t["health"], "last_error": t["lastError"]} for t in targets],
+        "at": datetime.now(UTC).isoformat(timespec="seconds"),
+        "targets": [
+            {"url": t["scrapeUrl"], "health": t["health"], "last_error": t["lastError"]} for t in targets
+        ],
         "panels": panels,
         "alerts": alerts,
     }
@@ -150,7 +154,7 @@ def main() -> None:
 
     keys = {"tenant-a": "key-a-observability", "tenant-b": "key-b-observability"}
     fast_recovery = {k: v for k, v in SERVICE_ENV.items() if "LOCK_TTL" in k or "RECOVERY" in k}
-    started = datetime.now(timezone.utc)
+    started = datetime.now(UTC)
     report: dict[str, Any] = {"started": started.isoformat(timespec="seconds"), "snapshots": []}
     with TemporaryDirectory(prefix="bfields-observability-") as tmp:
         work = Path(tmp)

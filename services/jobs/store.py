@@ -414,8 +414,7 @@ class JobStore:
     def fleet_rows(self, stage_lease_s: float) -> FleetRows:
         """Active jobs by state, the callback outbox, the leader's lease and the stalled jobs, as
         `/metrics` reports them (`records.fleet_metrics`); raises what reaching the database raised."""
-        with self.database.connect() as conn:
-            return fleet_metrics.read(conn, lease_name=CONTROL_LEADER, stage_lease_s=stage_lease_s)
+        return fleet_metrics.read(self.database, lease_name=CONTROL_LEADER, stage_lease_s=stage_lease_s)
 
     def active_jobs(self) -> builtins.list[tuple[str, str]]:
         """(tenant, job id) of every job whose row says queued or running."""

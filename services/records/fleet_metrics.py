@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from sqlalchemy import Connection, and_, func, select
+from sqlalchemy import Connection, Engine, and_, func, select
 
 from bayesian_fields_service.records.job_heartbeats import stalled_clause
 from bayesian_fields_service.records.tables import ACTIVE_JOB_STATES, callback_outbox, control_leases, jobs
@@ -29,8 +29,14 @@ class FleetRows:
     stalled_jobs: int
 
 
-def read(conn: Connection, *, lease_name: str, stage_lease_s: float) -> FleetRows:
-    """The fleet's rows now, in the database's clock (`stage_lease_s`: the stage claim's lease)."""
+def read(database: Engine, *, lease_name: str, stage_lease_s: float) -> FleetRows:
+    """The fleet's rows now, in the database's clock (`stage_lease_s`: the stage claim's lease);
+    raises what reaching the database raised."""
+    with database.connect() as conn:
+        return _read(conn, lease_name, stage_lease_s)
+
+
+def _read(conn: Connection, lease_name: str, stage_lease_s: float) -> FleetRows:
     counted = {
         str(state): int(n)
         for state, n in conn.execute(

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import shutil
 import socket
 import subprocess
@@ -126,7 +127,10 @@ def _fmt(answer: list[dict[str, Any]]) -> str:
 
 def markdown(report: dict[str, Any]) -> str:
     lines = [f"# Dashboard queries against a real Prometheus ({report['started']})", "",
-             f"Fleet: {report['fleet']}", ""]  # fmt: skip
+             f"Fleet: {report['fleet']}", "",
+             f"Machine: {report['cpus']} CPUs shared with other work, load average before the run "
+             f"{report['load_before'][0]:.1f}. The panels' ranges are the dashboard's own ([5m], [30m]); "
+             "Prometheus scraped the API every 2 s.", ""]  # fmt: skip
     for snap in report["snapshots"]:
         lines += [f"## {snap['name']} ({snap['at']})", "",
                   "targets: " + ", ".join(f"{t['url']} {t['health']}" for t in snap["targets"]), "",
@@ -155,7 +159,8 @@ def main() -> None:
     keys = {"tenant-a": "key-a-observability", "tenant-b": "key-b-observability"}
     fast_recovery = {k: v for k, v in SERVICE_ENV.items() if "LOCK_TTL" in k or "RECOVERY" in k}
     started = datetime.now(UTC)
-    report: dict[str, Any] = {"started": started.isoformat(timespec="seconds"), "snapshots": []}
+    report: dict[str, Any] = {"started": started.isoformat(timespec="seconds"), "snapshots": [],
+                              "cpus": os.cpu_count(), "load_before": os.getloadavg()}  # fmt: skip
     with TemporaryDirectory(prefix="bfields-observability-") as tmp:
         work = Path(tmp)
         s3 = S3Server(work / "s3").start()
@@ -181,7 +186,16 @@ def main() -> None:
                     resp = clients[tenant].post("/v1/jobs", json=body)
                     resp.raise_for_status()
                     ids.append((tenant, resp.json()["id"]))
-                time.sleep(6 * SCRAPE_S)  # a few scrapes with the fleet running
+                while (
+                    sum(  # mid-fleet: a third of the jobs ended, the rest queued or running
+                        clients[t].get(f"/v1/jobs/{j}").json()["state"]
+                        in ("succeeded", "failed", "cancelled")
+                        for t, j in ids
+                    )
+                    < len(ids) // 3
+                ):
+                    time.sleep(1)
+                time.sleep(2 * SCRAPE_S)
                 report["snapshots"].append(snapshot(prom, "mid-fleet"))
                 records = [wait_job(clients[tenant], job_id, timeout_s=900) for tenant, job_id in ids]
             took = time.monotonic() - t0

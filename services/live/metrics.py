@@ -22,8 +22,10 @@ BUCKETS: tuple[float, ...] = (1, 5, 15, 30, 60, 120, 300, 600, 1800, 3600, 7200,
 #: Upper bounds (seconds) of a stage message's wait in its queue: a free worker takes one within
 #: a fraction of a second, a saturated pool makes it wait minutes to hours.
 WAIT_BUCKETS: tuple[float, ...] = (0.1, 0.5, 1, 5, 15, 30, 60, 120, 300, 600, 1800, 3600, 7200)
-#: Upper bounds (bytes) of a stage's peak GPU memory: 256 MiB to 128 GiB, doubling.
-MEMORY_BUCKETS: tuple[float, ...] = tuple(float(2**n) for n in range(28, 38))
+#: Upper bounds (bytes) of a stage's peak GPU memory: 0 (a CPU worker's stages, so that
+#: ``histogram_quantile`` answers 0 for them rather than a fraction of the next bound), then 256 MiB
+#: to 128 GiB, doubling.
+MEMORY_BUCKETS: tuple[float, ...] = (0.0, *(float(2**n) for n in range(28, 38)))
 
 STAGE_KEY = redis_keys.STAGE_HISTOGRAM
 JOB_KEY = redis_keys.JOB_HISTOGRAM

@@ -148,6 +148,9 @@ def main() -> None:
     p.add_argument("--jobs", type=int, default=12)
     p.add_argument("--max-frames", type=int, default=4)
     p.add_argument("--out", type=Path, default=None)
+    p.add_argument(
+        "--keep", type=Path, default=None, help="run in this folder and keep it (the processes' logs)"
+    )
     args = p.parse_args()
 
     from tests.integration.fixtures.s3_server import S3Server
@@ -162,7 +165,8 @@ def main() -> None:
     report: dict[str, Any] = {"started": started.isoformat(timespec="seconds"), "snapshots": [],
                               "cpus": os.cpu_count(), "load_before": os.getloadavg()}  # fmt: skip
     with TemporaryDirectory(prefix="bfields-observability-") as tmp:
-        work = Path(tmp)
+        work = args.keep or Path(tmp)
+        work.mkdir(parents=True, exist_ok=True)
         s3 = S3Server(work / "s3").start()
         stack = PrivateStack(work, s3.env(), keys, fast_recovery)
         prom_proc = None

@@ -59,8 +59,10 @@ from bayesian_fields_service.jobs.ports import (
 )
 from bayesian_fields_service.jobs.queue import JobQueue, admit
 from bayesian_fields_service.live.redis_text import text
+from bayesian_fields_service.records import fleet_metrics
+from bayesian_fields_service.records.fleet_metrics import FleetRows
 from bayesian_fields_service.records.ids import SCENE_ID, is_id
-from bayesian_fields_service.records.leases import Fence
+from bayesian_fields_service.records.leases import CONTROL_LEADER, Fence
 from bayesian_fields_service.storage.stores import tenant_store
 from bayesian_fields_service.webhooks.callbacks import batch_event, job_event
 
@@ -408,6 +410,11 @@ class JobStore:
         """Queued or running jobs (of one tenant, or of all)."""
         with self.records.read() as tx:
             return tx.count_active(tenant)
+
+    def fleet_rows(self, stage_lease_s: float) -> FleetRows:
+        """Active jobs by state, the callback outbox, the leader's lease and the stalled jobs, as
+        `/metrics` reports them (`records.fleet_metrics`); raises what reaching the database raised."""
+        return fleet_metrics.read(self.database, lease_name=CONTROL_LEADER, stage_lease_s=stage_lease_s)
 
     def active_jobs(self) -> builtins.list[tuple[str, str]]:
         """(tenant, job id) of every job whose row says queued or running."""

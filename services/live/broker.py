@@ -17,6 +17,7 @@ from celery import Celery, chain
 from kombu.exceptions import OperationalError
 
 from bayesian_fields_core.job.stage_table import stage as stage_spec
+from bayesian_fields_service.live import stage_wait  # noqa: F401 (stamps every stage message it sends)
 
 #: What an unreachable broker raises: the broker is Redis (Celery's Redis transport), reached
 #: directly (a queue's length) or through kombu (sending a stage). The API answers these 503
@@ -49,6 +50,7 @@ def enqueue_stages(
 
 #: Celery's Redis transport keeps one list per priority step of a queue (priority 0 = the name).
 PRIORITY_SUFFIXES = ("", "\x06\x163", "\x06\x166", "\x06\x169")
+
 
 def queue_length(client: redis.Redis, queue: str) -> int:
     """Messages waiting in a Celery queue on the Redis broker (not those a worker reserved)."""

@@ -31,3 +31,7 @@ def flight_lock(tenant: str, key: str) -> str:
 STAGE_HISTOGRAM = "bf:metrics:stage:{stage}"
 JOB_HISTOGRAM = "bf:metrics:job:{outcome}"
 QUEUE_WAIT_HISTOGRAM = "bf:metrics:queue_wait:{tenant}"
+STAGE_QUEUE_WAIT_HISTOGRAM = "bf:metrics:stage_queue_wait:{stage}"
+STAGE_GPU_MEMORY_HISTOGRAM = "bf:metrics:stage_gpu_memory:{stage}"
+#: Hash of counters per stage: ``cpu_s`` and ``gpu_s`` (seconds of finished stage executions).
+STAGE_USAGE = "bf:metrics:stage_usage:{stage}"

@@ -129,6 +129,18 @@ class DispatchedJob:
     idle_s: float  # since its last heartbeat, stage end or dispatch
 
 
+def stalled_clause(lease_s: float):  # noqa: ANN201 (an SQL expression)
+    """A dispatched, unfinished job whose worker's claim went silent: a worker's name on the row
+    and a heartbeat older than the lease (recovery's suspects that are claimed and not running;
+    `records.fleet_metrics` counts them for `/metrics`)."""
+    return and_(
+        jobs.c.dispatched_at.is_not(None),
+        jobs.c.state.in_(_ACTIVE),
+        jobs.c.worker.is_not(None),
+        or_(jobs.c.heartbeat_at.is_(None), jobs.c.heartbeat_at <= _ago(lease_s)),
+    )
+
+
 def dispatched_jobs(database: Engine, lease_s: float) -> list[DispatchedJob]:
     """Every dispatched, unfinished job with its claim and idleness. One statement over the
     partial index of dispatched jobs."""

@@ -3,7 +3,9 @@ and in the tenant's usage ledger.
 
 A `StageMeter` wraps the stage call: CPU-seconds are the process's CPU time over it (the pool
 process runs one stage at a time, so all of it is this stage's, its helper threads included);
-GPU-seconds are its wall time when the worker's device is CUDA, else 0. Only executions that end
+GPU-seconds are its wall time when the worker's device is CUDA, else 0; its peak GPU memory is
+``torch.cuda.max_memory_allocated`` over the stage (the peak is reset at its start), 0 on a CPU
+worker (`/metrics`: ``bfields_stage_gpu_memory_peak_bytes``). Only executions that end
 (finished, failed, cancelled, timed out) are counted; one interrupted by a transient error and
 retried is not (its retry is).
 """
@@ -33,10 +35,13 @@ class StageMeter:
         self.gpu = gpu
         self.cpu_s = 0.0
         self.wall_s = 0.0
+        self.gpu_peak_bytes = 0
         self._cpu0 = 0.0
         self._wall0 = 0.0
 
     def __enter__(self) -> StageMeter:
+        if self.gpu:
+            _reset_gpu_peak()
         self._cpu0, self._wall0 = time.process_time(), time.perf_counter()
         return self
 
@@ -45,10 +50,25 @@ class StageMeter:
     ) -> None:
         self.cpu_s = time.process_time() - self._cpu0
         self.wall_s = time.perf_counter() - self._wall0
+        self.gpu_peak_bytes = _gpu_peak() if self.gpu else 0
 
     @property
     def gpu_s(self) -> float:
         return self.wall_s if self.gpu else 0.0
+
+
+def _reset_gpu_peak() -> None:
+    import torch  # the worker has it loaded already; imported here so the API never needs it
+
+    if torch.cuda.is_available():
+        torch.cuda.reset_peak_memory_stats()
+
+
+def _gpu_peak() -> int:
+    """Bytes of the most GPU memory the process's tensors held since the last reset (0 without CUDA)."""
+    import torch
+
+    return int(torch.cuda.max_memory_allocated()) if torch.cuda.is_available() else 0
 
 
 def job_bytes(store: Store, record: JobRecord) -> int:

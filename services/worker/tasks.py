@@ -60,6 +60,7 @@ from bayesian_fields_service.live.single_flight import RedisFlight
 from bayesian_fields_service.records import job_heartbeats
 from bayesian_fields_service.records.database import open_records
 from bayesian_fields_service.storage.stores import build_store, tenant_store
+from bayesian_fields_service.worker import stage_metrics
 from bayesian_fields_service.worker.accounting import StageMeter, account_stage
 from bayesian_fields_service.worker.celery_app import app
 from bayesian_fields_service.worker.scene_cache import SceneCache
@@ -287,6 +288,7 @@ def _finish(rt: _Runtime, record: JobRecord, state: JobState, error: str | None 
 
 
 def _account(rt: _Runtime, record: JobRecord, stage: str, meter: StageMeter) -> JobRecord:
+    stage_metrics.observe_resources(rt.redis, stage, meter)
     return account_stage(rt.store, rt.jobs.database, record, stage, meter,
                          write_budget_s=rt.settings.record_write_budget_s)  # fmt: skip
 
@@ -465,6 +467,7 @@ def _make_stage_task(spec: StageSpec) -> Task:
     @app.task(name=spec.task_name, bind=True, acks_late=True, reject_on_worker_lost=True, max_retries=None)
     def stage_task(self: Task, tenant: str, job_id: str, lock_waits: int = 0) -> str:
         rt = runtime()
+        stage_metrics.observe_queue_wait(rt.redis, stage, self.request)
         try:
             outcome = execute_stage(self, stage, tenant, job_id, lock_waits)
             if outcome not in ("ran", "skipped"):

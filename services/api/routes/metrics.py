@@ -19,10 +19,11 @@ from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Histo
 from prometheus_client.registry import Collector
 
 from bayesian_fields_core.job.stage_table import STAGES
+from bayesian_fields_service.api.records_outage import OUTAGES
 from bayesian_fields_service.api.state import AppState, get_state
 from bayesian_fields_service.config.settings import ServiceSettings
 from bayesian_fields_service.jobs.model import JobState
-from bayesian_fields_service.live.metrics import Histogram
+from bayesian_fields_service.live.metrics import Histogram, LiveReading
 
 router = APIRouter(tags=["health"])
 
@@ -36,7 +37,10 @@ def _summed(histograms: list[Histogram]) -> Histogram | None:
 
 
 class ServiceCollector(Collector):
-    """Reads queue depths and the workers' Redis histograms (`state.live_metrics`) at scrape time."""
+    """Reads queue depths and the workers' Redis histograms (`state.live_metrics`) and the fleet's
+    rows (`JobStore.fleet_rows`) at scrape time. Each source is read once per scrape and may be
+    down: its ``bfields_*_up`` gauge is then 0 and its families are left out, and the scrape still
+    answers 200 (an alert on ``bfields_database_up == 0`` needs a scrape that says so)."""
 
     def __init__(self, state: AppState) -> None:
         self.state = state
@@ -44,24 +48,32 @@ class ServiceCollector(Collector):
     def collect(self) -> Iterator:
         s = self.state
         per_tenant = s.settings.metrics_per_tenant
-        tenant_label = ["tenant"] if per_tenant else []
         yield from self._tenant_gate(per_tenant)
+        live = s.live_metrics.read(
+            {s.settings.gpu_queue, s.settings.cpu_queue},
+            STAGES,
+            (state.value for state in JobState if state.terminal),
+        )
+        redis_up = GaugeMetricFamily(
+            "bfields_redis_up", "1 when Redis (live state and broker) answered this scrape, else 0."
+        )
+        redis_up.add_metric([], 0 if live is None else 1)
+        yield redis_up
+        if live is not None:  # Redis does not answer: its families are left out
+            yield from self._live(live, per_tenant)
+        yield from self._records(per_tenant)
+
+    def _live(self, live: LiveReading, per_tenant: bool) -> Iterator:
+        """The families read from Redis: queue depths and the histograms the workers keep there."""
+        tenant_label = ["tenant"] if per_tenant else []
         depth = GaugeMetricFamily(
             "bfields_queue_depth", "Messages waiting in a Celery queue.", labels=["queue"]
         )
-        active = GaugeMetricFamily("bfields_jobs_active", "Jobs whose record is queued or running.")
         stage_h = HistogramMetricFamily(
             "bfields_stage_seconds", "Duration of finished stages.", labels=["stage"]
         )
         job_h = HistogramMetricFamily(
             "bfields_job_seconds", "Duration of finished jobs by outcome.", labels=["outcome"]
-        )
-        waiting = GaugeMetricFamily(
-            "bfields_jobs_waiting",
-            "Jobs waiting in the tenants' fair-share queues, not yet dispatched to a Celery queue "
-            "(per tenant where BFIELDS_METRICS_PER_TENANT is on; autoscaling adds this to "
-            "bfields_queue_depth; see deploy/keda.yaml).",
-            labels=tenant_label,
         )
         wait_h = HistogramMetricFamily(
             "bfields_queue_wait_seconds",
@@ -69,34 +81,104 @@ class ServiceCollector(Collector):
             "(per tenant where BFIELDS_METRICS_PER_TENANT is on).",
             labels=tenant_label,
         )
-        live = s.live_metrics.read(
-            {s.settings.gpu_queue, s.settings.cpu_queue},
-            STAGES,
-            (state.value for state in JobState if state.terminal),
+        stage_wait_h = HistogramMetricFamily(
+            "bfields_stage_queue_wait_seconds",
+            "Seconds a stage's message waited in its Celery queue: from its publication (dispatch, "
+            "the previous stage's end, or a retry's due time) to its start on a worker.",
+            labels=["stage"],
         )
-        if live is None:  # Redis does not answer: the scrape has the gate's series only
-            return
+        memory_h = HistogramMetricFamily(
+            "bfields_stage_gpu_memory_peak_bytes",
+            "Peak GPU memory (torch.cuda.max_memory_allocated) of each ended stage execution; "
+            "0 on CPU workers.",
+            labels=["stage"],
+        )
+        gpu_s = CounterMetricFamily(
+            "bfields_stage_gpu_seconds_total",
+            "GPU-seconds of ended stage executions (their wall time on a CUDA worker; 0 on CPU workers).",
+            labels=["stage"],
+        )
+        cpu_s = CounterMetricFamily(
+            "bfields_stage_cpu_seconds_total", "CPU-seconds of ended stage executions.", labels=["stage"]
+        )
         for queue, n in live.queue_depths.items():
             depth.add_metric([queue], n)
         for stage, h in live.stages.items():
             stage_h.add_metric([stage], h[0], h[1])
         for outcome, h in live.jobs.items():
             job_h.add_metric([outcome], h[0], h[1])
-        counts = s.jobs.queue.waiting_by_tenant()
-        waits = live.queue_waits
+        for stage, h in live.stage_queue_waits.items():
+            stage_wait_h.add_metric([stage], h[0], h[1])
+        for stage, h in live.stage_gpu_memory.items():
+            memory_h.add_metric([stage], h[0], h[1])
+        for stage, used in live.stage_usage.items():
+            gpu_s.add_metric([stage], used["gpu_s"])
+            cpu_s.add_metric([stage], used["cpu_s"])
+        if per_tenant:
+            for tenant, h in live.queue_waits.items():
+                wait_h.add_metric([tenant], h[0], h[1])
+        elif (total := _summed(list(live.queue_waits.values()))) is not None:
+            wait_h.add_metric([], total[0], total[1])
+        yield from (depth, stage_h, job_h, wait_h, stage_wait_h, memory_h, gpu_s, cpu_s)
+
+    def _records(self, per_tenant: bool) -> Iterator:
+        """The families read from PostgreSQL: jobs by state, the waiting jobs, the callback outbox,
+        the leader's lease and the stalled jobs; with ``bfields_database_up`` 0 and none of them
+        when the database does not answer (within its connect timeout)."""
+        s = self.state
+        up = GaugeMetricFamily(
+            "bfields_database_up", "1 when the records database (PostgreSQL) answered this scrape, else 0."
+        )
+        try:
+            rows = s.jobs.fleet_rows(s.settings.stage_lock_ttl_s)
+            counts = s.jobs.queue.waiting_by_tenant()
+        except OUTAGES:
+            up.add_metric([], 0)
+            yield up
+            return
+        up.add_metric([], 1)
+        by_state = GaugeMetricFamily(
+            "bfields_jobs", "Jobs whose record is in an active state, by state.", labels=["state"]
+        )
+        for state, n in rows.jobs_by_state.items():
+            by_state.add_metric([state], n)
+        active = GaugeMetricFamily("bfields_jobs_active", "Jobs whose record is queued or running.")
+        active.add_metric([], sum(rows.jobs_by_state.values()))
+        waiting = GaugeMetricFamily(
+            "bfields_jobs_waiting",
+            "Jobs waiting in the tenants' fair-share queues, not yet dispatched to a Celery queue "
+            "(per tenant where BFIELDS_METRICS_PER_TENANT is on; autoscaling adds this to "
+            "bfields_queue_depth; see deploy/keda.yaml).",
+            labels=["tenant"] if per_tenant else [],
+        )
         if per_tenant:
             for tenant, n in sorted(counts.items()):
                 waiting.add_metric([tenant], n)
             if not counts:  # a series even when nothing waits, so sum() in a query is 0, not empty
                 waiting.add_metric([""], 0)
-            for tenant, h in waits.items():
-                wait_h.add_metric([tenant], h[0], h[1])
         else:
             waiting.add_metric([], sum(counts.values()))
-            if (total := _summed(list(waits.values()))) is not None:
-                wait_h.add_metric([], total[0], total[1])
-        active.add_metric([], s.jobs.count_active())
-        yield from (depth, active, stage_h, job_h, waiting, wait_h)
+        outbox = GaugeMetricFamily(
+            "bfields_callback_outbox_depth", "Callbacks neither delivered nor dropped yet (the outbox)."
+        )
+        outbox.add_metric([], rows.outbox_open)
+        outbox_age = GaugeMetricFamily(
+            "bfields_callback_outbox_oldest_age_seconds",
+            "Age of the oldest callback neither delivered nor dropped; 0 when none is open.",
+        )
+        outbox_age.add_metric([], rows.outbox_oldest_age_s)
+        leader = GaugeMetricFamily(
+            "bfields_control_leader",
+            "1 while a control process holds the leader's lease (unexpired), else 0.",
+        )
+        leader.add_metric([], 1 if rows.leader_held else 0)
+        stalled = GaugeMetricFamily(
+            "bfields_jobs_stalled",
+            "Dispatched, unfinished jobs whose worker's heartbeat is older than the stage lease "
+            "(BFIELDS_STAGE_LOCK_TTL_S): recovery requeues them after its grace period.",
+        )
+        stalled.add_metric([], rows.stalled_jobs)
+        yield from (up, by_state, active, waiting, outbox, outbox_age, leader, stalled)
 
     def _tenant_gate(self, per_tenant: bool) -> Iterator:
         """This process's tenant fairness gate (api/tenant_gate.py): requests in flight, waiting and
@@ -113,7 +195,7 @@ class ServiceCollector(Collector):
             "streams": GaugeMetricFamily("bfields_api_tenant_streams_open",
                                          "Tenants' streamed answers open without a request slot.", labels=labels),
         }  # fmt: skip
-        refusals = CounterMetricFamily("bfields_api_tenant_refused",
+        refusals = CounterMetricFamily("bfields_api_tenant_refused_total",
                                        "Requests answered 429 because the tenant's queue was full.", labels=labels)  # fmt: skip
         rate = self.state.tenant_gate.rate
         rate_refused = rate.refused if rate is not None else {}

@@ -118,6 +118,11 @@ def test_end_to_end_over_http_matches_in_process(
     metrics = api.metrics()
     assert 'bfields_stage_seconds_count{stage="cluster"}' in metrics
     assert 'bfields_job_seconds_count{outcome="succeeded"}' in metrics
+    # each stage's message was stamped where it was sent (the dispatcher: perceive; the previous
+    # stage's worker: fuse, cluster) and its wait observed where it started (issue 44)
+    for stage in ("perceive", "fuse", "cluster"):
+        assert f'bfields_stage_queue_wait_seconds_count{{stage="{stage}"}}' in metrics, stage
+        assert f'bfields_stage_gpu_seconds_total{{stage="{stage}"}} 0.0' in metrics, stage  # CPU workers
 
 
 def test_job_on_a_splat_that_renders_wrong_fails_with_the_reason(

@@ -27,13 +27,19 @@ _DOCUMENT = sa.JSON().with_variant(postgresql.JSONB(astext_type=sa.Text()), "pos
 def upgrade() -> None:
     op.add_column("jobs", sa.Column("progress", sa.Double(), server_default="0", nullable=False))
     op.add_column("jobs", sa.Column("idempotency_key", sa.String(length=255), nullable=True))
-    op.add_column("jobs", sa.Column("submitted", sa.Boolean(), server_default=sa.text("true"), nullable=False))
+    op.add_column(
+        "jobs", sa.Column("submitted", sa.Boolean(), server_default=sa.text("true"), nullable=False)
+    )
     op.create_index(
         "ix_jobs_active", "jobs", ["tenant", "id"], unique=False,
         postgresql_where=sa.text("state IN ('queued', 'running')"),
     )  # fmt: skip
     op.create_index(
-        "ix_jobs_unsubmitted", "jobs", ["tenant", "id"], unique=False, postgresql_where=sa.text("NOT submitted")
+        "ix_jobs_unsubmitted",
+        "jobs",
+        ["tenant", "id"],
+        unique=False,
+        postgresql_where=sa.text("NOT submitted"),
     )
     op.add_column("batches", sa.Column("idempotency_key", sa.String(length=255), nullable=True))
     op.add_column("batches", sa.Column("job_ids", _DOCUMENT, server_default=sa.text("'[]'"), nullable=False))

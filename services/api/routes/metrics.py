@@ -199,7 +199,7 @@ class ServiceCollector(Collector):
                                        "Requests answered 429 because the tenant's queue was full.", labels=labels)  # fmt: skip
         rate = self.state.tenant_gate.rate
         rate_refused = rate.refused if rate is not None else {}
-        rate_refusals = CounterMetricFamily("bfields_api_tenant_rate_refused",
+        rate_refusals = CounterMetricFamily("bfields_api_tenant_rate_refused_total",
                                             "Requests answered 429 because the tenant was past its request rate "
                                             "(BFIELDS_API_TENANT_RATE / _BURST).", labels=labels)  # fmt: skip
         if per_tenant:

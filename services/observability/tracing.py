@@ -131,22 +131,59 @@ def configure(settings: ServiceSettings, service: str) -> bool:
     return True
 
 
+class _FreshContext:
+    """Each request starts from an empty context (the instrumentation then reads the client's
+    traceparent header, if any). Without it, a request that arrives while the previous one on the
+    same keep-alive connection is finishing runs in a copy of that one's context (uvicorn starts
+    it from the previous response's last send), and its span became a child of the previous
+    request's: measured here, every poll after a scene upload sat in the upload's trace."""
+
+    def __init__(self, app: Any) -> None:
+        self.app = app
+
+    async def __call__(self, scope: Any, receive: Any, send: Any) -> None:
+        from opentelemetry import context
+
+        token = context.attach(context.Context())
+        try:
+            await self.app(scope, receive, send)
+        finally:
+            context.detach(token)
+
+
 def instrument_app(app: Any) -> None:
-    """Server spans for every request of a FastAPI app (probes and scrapes left out)."""
+    """Server spans for every request of a FastAPI app (probes and scrapes left out), each request
+    the root of its own trace unless the client sent a traceparent (`_FreshContext`)."""
     if not _on:
         return
     from opentelemetry.instrumentation.fastapi import FastAPIInstrumentor
 
     FastAPIInstrumentor.instrument_app(app, excluded_urls=UNTRACED_URLS, exclude_spans=["receive", "send"])
+    build = app.build_middleware_stack  # the instrumented one: the request's span outermost
+
+    def build_fresh() -> Any:
+        return _FreshContext(build())
+
+    app.build_middleware_stack = build_fresh
+
+
+_engines: list[Any] = []  # every engine of this process so far (`instrument_engine` says why)
 
 
 def instrument_engine(engine: Any) -> None:
-    """Spans for the statements of a SQLAlchemy engine (one made before `configure` too)."""
+    """Spans for the statements of a SQLAlchemy engine. The instrumentation instruments once per
+    process, so each new engine (another database URL, a forked pool child's own) re-instruments
+    the whole list; `skip_dep_check`: it declares sqlalchemy < 2.1, and its cursor events are the
+    same in 2.1 (the real-stack trace test sees the statements)."""
     if not _on:
         return
     from opentelemetry.instrumentation.sqlalchemy import SQLAlchemyInstrumentor
 
-    SQLAlchemyInstrumentor().instrument(engine=engine, enable_commenter=False)
+    _engines.append(engine)
+    instrumentor = SQLAlchemyInstrumentor()
+    if instrumentor.is_instrumented_by_opentelemetry:
+        instrumentor.uninstrument()
+    instrumentor.instrument(engines=list(_engines), enable_commenter=False, skip_dep_check=True)
 
 
 def current_traceparent() -> str | None:

@@ -106,6 +106,20 @@ def configure(settings: ServiceSettings, service: str) -> bool:
     mode = settings.tracing_mode
     if mode == "off" or _on:
         return _on
+    try:
+        _install(mode, service)
+    except ImportError as exc:  # asked for, not installed: a loud start, not a silent service
+        raise RuntimeError(
+            f"tracing is on ({mode!r}: BFIELDS_TRACING or OTEL_EXPORTER_OTLP_ENDPOINT) but {exc.name} is "
+            "not installed: install the 'tracing' extra (pip install 'bayesian-fields[tracing]'), or "
+            "set BFIELDS_TRACING=off"
+        ) from exc
+    _on = True
+    return True
+
+
+def _install(mode: str, service: str) -> None:
+    """The tracer provider, its exporter and the library instrumentations (`configure`)."""
     from opentelemetry import trace
     from opentelemetry.instrumentation.botocore import BotocoreInstrumentor
     from opentelemetry.instrumentation.celery import CeleryInstrumentor
@@ -127,8 +141,6 @@ def configure(settings: ServiceSettings, service: str) -> bool:
     BotocoreInstrumentor().instrument()
     RedisInstrumentor().instrument()
     CeleryInstrumentor().instrument()
-    _on = True
-    return True
 
 
 class _FreshContext:

@@ -98,8 +98,8 @@ class Dispatcher:
         its ids on every log line."""
         attributes = {"bfields.job_id": record.id, "bfields.tenant": record.tenant,
                       "bfields.stages": ",".join(record.remaining_stages())}  # fmt: skip
-        with log_context(job_id=record.id, tenant=record.tenant), \
-                tracing.job_span("dispatch", attributes, record.traceparent):  # fmt: skip
+        ids = log_context(job_id=record.id, tenant=record.tenant)
+        with ids, tracing.job_span("dispatch", attributes, record.traceparent):
             self._send_job(record)
 
     def _send_job(self, record: JobRecord) -> None:

@@ -25,8 +25,8 @@ from bayesian_fields_service.observability import logs, tracing
 
 
 def make_celery(settings: ServiceSettings, *, include_tasks: bool = False) -> Celery:
-    apply_log_level(settings)
     """A Celery app bound to the settings' Redis; `include_tasks` registers the stage tasks."""
+    apply_log_level(settings)
     if include_tasks:  # the worker's own app: its process's start
         hooks.install(settings)
         tracing.configure(settings, "worker")  # before the pool forks: its children inherit it

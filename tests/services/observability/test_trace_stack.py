@@ -10,8 +10,8 @@ the traceparent on the job's row), and the three stages (with their frame, mask 
 counts), their Celery tasks and the SQL, S3 and Redis calls are under it. The processes' log lines
 are JSON, and a stage's lines carry the job, tenant, stage and trace ids.
 
-Measured here: the module in 85-100 s on the shared 2-core machine at a load average of about
-13 (the stack's start included). ``-s`` prints the first job's span tree (the one in docs/operations/tracing-and-logs.md).
+Measured here: the module in 50-100 s on the shared 2-core machine at a load average of 12-20
+(the stack's start included). ``-s`` prints the first job's span tree (the one in docs/operations/tracing-and-logs.md).
 """
 
 from __future__ import annotations

@@ -51,6 +51,7 @@ SERVICE_LAYERS: list[set[str]] = [
     {"webhooks", "live", "storage", "security", "sanitize"},
     {"records"},
     {"hooks"},
+    {"observability"},
     {"config"},
     {"__init__"},
 ]
@@ -66,7 +67,9 @@ callbacks (`webhooks`, which write their outbox rows through `records`), Redis a
 `live` never imports `worker`), object storage (`storage`), API keys (`security`) and text safe to
 serve (`sanitize`); then the records (the schema, every SQL statement and the unit of work), below
 everything that reads or writes them; the hook points (`hooks.py`, called by routes and stages,
-knowing nothing of who registers); and `config` (`ServiceSettings`) at the bottom, because every
+knowing nothing of who registers); `observability` (tracing and JSON log lines, which the
+records' engine, the processes' starts, the dispatcher and the stages call, reading only the
+settings); and `config` (`ServiceSettings`) at the bottom, because every
 package reads settings and settings read nothing of the service. The operator's `admin` commands
 (which start the control process) sit beside the user's client."""
 

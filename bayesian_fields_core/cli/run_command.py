@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from bayesian_fields_core.cli.job_options import (
     add_out_argument,
@@ -25,6 +25,7 @@ from bayesian_fields_core.errors import InputError
 
 if TYPE_CHECKING:
     from bayesian_fields_core.cli.run_config import RunConfig
+    from bayesian_fields_core.cli.trace_file import TraceFile
     from bayesian_fields_core.params import PipelineParams
 
 OUTPUT_FORMATS = ("table", "tsv", "json")
@@ -86,6 +87,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         action="store_const",
         const="json",
         help="the same as --format json: the result's summary.json (one schema) plus a 'run' block",
+    )
+    parser.add_argument(
+        "--trace",
+        metavar="FILE",
+        help="write the run's trace to FILE, one span a JSON line: the run, the model load, the "
+        "input checks and each stage with its frame / mask / Gaussian counts",
     )
     parser.add_argument(
         "-q",
@@ -183,7 +190,26 @@ def _check_inputs(
 
 
 def _execute(args: argparse.Namespace, config: RunConfig, params: PipelineParams, out: Path) -> int:
+    """`_run_traced`, in a trace written to ``--trace FILE`` when given."""
+    if not args.trace:
+        return _run_traced(args, config, params, out, None)
+    from bayesian_fields_core.cli.trace_file import TraceFile
+
+    trace = TraceFile(Path(args.trace))
+    attributes = {
+        "bfields.scene": str(config.scene),
+        "bfields.tasks": len(config.tasks),
+        "bfields.out": str(out),
+    }
+    with trace.span("bfields run", attributes):
+        return _run_traced(args, config, params, out, trace)
+
+
+def _run_traced(
+    args: argparse.Namespace, config: RunConfig, params: PipelineParams, out: Path, trace: TraceFile | None
+) -> int:
     """Load the models, check the inputs, run the stages, write config.yaml, print the result."""
+    import contextlib
     from dataclasses import replace
 
     from bayesian_fields_core.cli.output import stderr_console
@@ -197,9 +223,13 @@ def _execute(args: argparse.Namespace, config: RunConfig, params: PipelineParams
     from bayesian_fields_core.perception.models import load_models
     from bayesian_fields_core.results.reader import read_result
 
+    def span(name: str) -> contextlib.AbstractContextManager[Any]:
+        return trace.span(name) if trace is not None else contextlib.nullcontext()
+
     console = stderr_console()
     check_device(params.device)
-    models = load_models(str(config.profile) if config.profile else None, device=params.device)
+    with span("load models"):
+        models = load_models(str(config.profile) if config.profile else None, device=params.device)
     cache_dir = Path(args.cache_dir) if args.cache_dir else _default_cache_dir()
     # Cache keys digest the Gaussians as loaded (after any --splat-transform), so a changed
     # transform cannot reuse stale visibility.
@@ -215,11 +245,14 @@ def _execute(args: argparse.Namespace, config: RunConfig, params: PipelineParams
     )
     # Loads the scene and checks that the splat lines up with its cameras and photos (one-line
     # InputError otherwise), before the progress bars start and before perception.
-    check_inputs(params, job.scene)  # parameter-implied input problems, before the alignment renders
-    alignment = job.scene.alignment(job.runner.render_device(params))
+    with span("check inputs"):
+        check_inputs(params, job.scene)  # parameter-implied input problems, before the alignment renders
+        alignment = job.scene.alignment(job.runner.render_device(params))
     console.print(alignment.summary() if alignment is not None else "alignment check: off")
     with StageProgress(console, enabled=not args.quiet) as progress:
-        reports = run_job(replace(job, runner=replace(job.runner, progress=progress.update)), force=True)
+        around = trace.stage if trace is not None else None
+        reports = run_job(replace(job, runner=replace(job.runner, progress=progress.update)), force=True,
+                          around=around)  # fmt: skip
     config_path = write_run_config(out, replace(config, versions=running_versions()))
     result = read_result(LocalStore(out), RESULT_PREFIX)
     print_result(result, reports, out, output_format=args.format, config_path=config_path)

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
+from functools import partial
 from typing import Any
 
 from bayesian_fields_core.errors import InputError
@@ -59,8 +61,11 @@ def _step_timings(report: dict[str, Any]) -> str:
     return f" ({', '.join(parts)})" if parts else ""
 
 
-def run_job(job: Job, *, force: bool = False) -> dict[str, dict[str, Any]]:
-    """Run every stage in order; returns {stage: report}.
+def run_job(
+    job: Job, *, force: bool = False, around: StageWrapper | None = None
+) -> dict[str, dict[str, Any]]:
+    """Run every stage in order; returns {stage: report}. `around(name, run)`, when given, runs
+    each stage's `run()` and returns its report (`bfields run --trace` times each stage in a span).
 
     The calibration is checked against the encoder first (from files, nothing is loaded), so a
     calibration made for another CLIP fails in a second, not after the whole perception stage.
@@ -70,7 +75,16 @@ def run_job(job: Job, *, force: bool = False) -> dict[str, dict[str, Any]]:
     if force:  # a rerun that fails part-way must not leave the previous run's later markers
         for name in STAGES:
             job.spec.store.delete(marker_key(job.spec, name))
-    return {name: run_stage(name, job, force=force) for name in STAGES}
+    wrap = around or _plain
+    return {name: wrap(name, partial(run_stage, name, job, force=force)) for name in STAGES}
+
+
+StageWrapper = Callable[[str, Callable[[], dict[str, Any]]], dict[str, Any]]
+"""`run_job`'s `around`: given a stage's name and the call that runs it, returns its report."""
+
+
+def _plain(name: str, run: Callable[[], dict[str, Any]]) -> dict[str, Any]:
+    return run()
 
 
 def check_inputs(params: PipelineParams, scene: JobScene) -> None:

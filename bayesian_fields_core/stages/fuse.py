@@ -300,6 +300,7 @@ def run(spec: JobSpec, scene: JobScene, runner: Runner) -> dict[str, Any]:
             "seconds": time.perf_counter() - t0,
             "frames": len(frames),
             "frames_rendered": tally.rendered,
+            "gaussians": len(scene.loaded.gaussians),
             "masks": int(tally.mask_counts.sum()),
             "masks_rejected": int((~accepted_all).sum()),
             "fusion_device": str(device),

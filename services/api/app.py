@@ -35,6 +35,7 @@ from bayesian_fields_service.api.state import AppState
 from bayesian_fields_service.api.tenant_gate import TenantFairness, TenantGate
 from bayesian_fields_service.api.tenant_rate import TenantRate
 from bayesian_fields_service.config.settings import ServiceSettings, apply_log_level, get_settings
+from bayesian_fields_service.observability import logs, tracing
 from bayesian_fields_service.records.database import open_records
 from bayesian_fields_service.scenes.upload_temp import Sweeper
 from bayesian_fields_service.security.api_keys import ApiKeyRing
@@ -123,6 +124,8 @@ def _tenant_of(ring: ApiKeyRing) -> Callable[[Scope], str | None]:
 def create_app(settings: ServiceSettings | None = None) -> FastAPI:
     settings = settings or get_settings()
     apply_log_level(settings)
+    logs.configure(settings)
+    tracing.configure(settings, "api")  # before the engine and clients are made
     hooks.install(settings)
     store = build_store(settings, request_path=True)
     client = _redis_client(settings)
@@ -168,6 +171,7 @@ def create_app(settings: ServiceSettings | None = None) -> FastAPI:
         tenant_of=_tenant_of(state.key_ring),
         retry_after_s=settings.retry_after_s,
     )
+    tracing.instrument_app(app)  # outermost: the request's span covers the whole answer
     return app
 
 

@@ -496,6 +496,19 @@ class ServiceSettings(BaseSettings):
         "INFO",
         description="Level of the services' own loggers (bayesian_fields_service.*, bayesian_fields_core.*).",
     )
+    log_format: Literal["text", "json"] = Field(
+        "text",
+        description="How the API, control and worker processes write their log lines: 'text' for a "
+        "terminal, or 'json' (one JSON object a line with time, level, logger, message and, where "
+        "known, job_id, tenant, stage, trace_id and span_id) for a log pipeline.",
+    )
+    tracing: str = Field(
+        "",
+        description="OpenTelemetry tracing: '' (off unless OTEL_EXPORTER_OTLP_ENDPOINT is set, then "
+        "'otlp'), 'off', 'otlp' (OTLP over HTTP, configured by the standard OTEL_* variables), "
+        "'console' (spans as JSON lines on stderr) or 'file:PATH' (spans appended to PATH as JSON "
+        "lines). Needs the 'tracing' extra (opentelemetry-sdk and the instrumentations).",
+    )
 
     @field_validator("hooks_plugins")
     @classmethod
@@ -511,6 +524,13 @@ class ServiceSettings(BaseSettings):
         if v is not None:
             signing_key(v.get_secret_value())  # a malformed 'whsec_' value is refused at start
         return v
+
+    @field_validator("tracing")
+    @classmethod
+    def _check_tracing(cls, v: str) -> str:
+        if v in ("", "off", "otlp", "console") or (v.startswith("file:") and len(v) > len("file:")):
+            return v
+        raise ValueError(f"BFIELDS_TRACING takes '', off, otlp, console or file:PATH, not {v!r}")
 
     @field_validator("redis_url")
     @classmethod
@@ -545,6 +565,18 @@ class ServiceSettings(BaseSettings):
         for the bookkeeping around it, so an attempt never outlives its claim (derived, not set,
         so the two cannot be configured out of order)."""
         return self.callback_timeout_s + CALLBACK_LEASE_MARGIN_S
+
+    @property
+    def tracing_mode(self) -> str:
+        """What `tracing` resolves to: its value, or when empty 'otlp' if the standard
+        OTEL_EXPORTER_OTLP_ENDPOINT (or ..._TRACES_ENDPOINT) is set, else 'off'. Read here, the one
+        module that reads the environment, so "off unless the endpoint is set" holds everywhere."""
+        if self.tracing:
+            return self.tracing
+        import os
+
+        endpoints = ("OTEL_EXPORTER_OTLP_ENDPOINT", "OTEL_EXPORTER_OTLP_TRACES_ENDPOINT")
+        return "otlp" if any(os.environ.get(name) for name in endpoints) else "off"
 
     def weight(self, tenant: str) -> float:
         """The tenant's fair-share weight (1 unless BFIELDS_TENANT_WEIGHTS names it)."""

@@ -28,6 +28,8 @@ from bayesian_fields_service.jobs.queue import StrideClock, TenantBacklog, choos
 from bayesian_fields_service.jobs.store import JobStore
 from bayesian_fields_service.live.broker import enqueue_stages, queue_length
 from bayesian_fields_service.live.metrics import observe_queue_wait
+from bayesian_fields_service.observability import tracing
+from bayesian_fields_service.observability.logs import log_context
 from bayesian_fields_service.records.ids import id_age_s
 from bayesian_fields_service.records.leases import Fence, LeaseLost
 
@@ -92,6 +94,15 @@ class Dispatcher:
         pick.dispatched += 1
 
     def _send(self, record: JobRecord) -> None:
+        """`_send_job` in the job's trace (its row's traceparent: the submission's span) and with
+        its ids on every log line."""
+        attributes = {"bfields.job_id": record.id, "bfields.tenant": record.tenant,
+                      "bfields.stages": ",".join(record.remaining_stages())}  # fmt: skip
+        ids = log_context(job_id=record.id, tenant=record.tenant)
+        with ids, tracing.job_span("dispatch", attributes, record.traceparent):
+            self._send_job(record)
+
+    def _send_job(self, record: JobRecord) -> None:
         """The job's remaining stages as one chain; the stamp is given back if the send fails. A
         job with no stage left (its end was not written) is finished here instead: a chain of no
         stage would leave it dispatched for ever."""

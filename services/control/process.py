@@ -39,6 +39,7 @@ from bayesian_fields_service.control.dispatcher import Dispatcher
 from bayesian_fields_service.control.leadership import Leadership
 from bayesian_fields_service.control.recovery import Recovery
 from bayesian_fields_service.jobs.store import JobStore
+from bayesian_fields_service.observability import logs, tracing
 from bayesian_fields_service.records.database import open_records, ping
 from bayesian_fields_service.scenes.bucket_sweep import sweep_bucket
 from bayesian_fields_service.scenes.postgres import scene_store
@@ -194,6 +195,8 @@ def main() -> int:
     apply_log_level(settings)
     hooks.install(settings)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    logs.configure(settings)
+    tracing.configure(settings, "control")
     control = ControlProcess(settings)
     server = serve_health(control, settings.control_port, settings.control_host)
     log.warning("control process ready (health on %s:%d)", settings.control_host, server.server_address[1])

@@ -19,6 +19,7 @@ from enum import StrEnum
 from typing import Any
 
 from pydantic import BaseModel, Field, computed_field, model_validator
+from pydantic.json_schema import SkipJsonSchema
 
 from bayesian_fields_core.job.stage_table import STAGE_TABLE, STAGES
 from bayesian_fields_service.jobs.queue import Priority
@@ -109,6 +110,10 @@ class JobRecord(BaseModel):
     )
     callback_url: str | None = Field(None, description="Receives a signed POST on the terminal state.")
     usage: JobUsage = Field(default_factory=JobUsage, description="CPU / GPU seconds by stage, bytes stored.")
+    # The W3C traceparent of the submission's span (tracing on), so the control process's
+    # dispatch and the workers' spans join the job's one trace (`observability.tracing`). Kept on
+    # the row, never shown to clients: not serialised, not in the API's schema.
+    traceparent: SkipJsonSchema[str | None] = Field(None, exclude=True)
 
     @model_validator(mode="before")
     @classmethod
@@ -203,7 +208,7 @@ _COLUMNS = (
     "id", "tenant", "scene_id", "batch_id", "state", "priority", "tasks", "parameters", "model_profile",
     "stage", "progress", "stages_done", "timings", "stage_reports", "usage", "error", "cancel_requested",
     "stage_runs", "callback_url", "retry_of", "idempotency_key", "created_at", "updated_at", "started_at",
-    "finished_at",
+    "finished_at", "traceparent",
 )  # fmt: skip
 
 #: The states in which a job is unfinished (waiting or running).
@@ -217,9 +222,9 @@ BATCHES_ENDPOINT = "batches"
 def row_of(record: JobRecord) -> dict[str, Any]:
     """The `jobs` columns of a record (JSON-ready values; read-only fields dropped)."""
     data = redacted(record).model_dump(mode="json", exclude=_READ_ONLY)
-    row = {name: data[name] for name in _COLUMNS}
-    for name in ("created_at", "updated_at", "started_at", "finished_at"):
-        row[name] = getattr(record, name)
+    row = {name: data.get(name) for name in _COLUMNS}
+    for name in ("created_at", "updated_at", "started_at", "finished_at", "traceparent"):
+        row[name] = getattr(record, name)  # the times as datetimes; traceparent is not dumped
     return row
 
 

@@ -32,6 +32,7 @@ from bayesian_fields_service.jobs.refusals import Busy, Invalid, Missing, OverQu
 from bayesian_fields_service.jobs.store import JobStore, NewJobs
 from bayesian_fields_service.jobs.validation import JobAsk, Validation, check_id, checked_callback
 from bayesian_fields_service.live.metrics import JOB_KEY, read_histogram
+from bayesian_fields_service.observability import tracing
 from bayesian_fields_service.records.ids import BATCH_ID, JOB_ID, SCENE_ID, new_id
 from bayesian_fields_service.records.locks import LockBusy, session_lock
 from bayesian_fields_service.scenes.store import SceneStore
@@ -215,6 +216,10 @@ class JobService:
         bound."""
         if not records:
             return
+        if (traceparent := tracing.current_traceparent()) is not None:  # the job's trace starts here
+            records = [r.model_copy(update={"traceparent": traceparent}) for r in records]
+            tracing.annotate({"bfields.jobs": len(records), "bfields.job_id": records[0].id,
+                              "bfields.tenant": records[0].tenant})  # fmt: skip
         s = self.settings
         limit = admission_limit(s.max_waiting_jobs_per_tenant, s.max_active_jobs_per_tenant)
         try:

@@ -19,6 +19,8 @@ from alembic.script import ScriptDirectory
 from sqlalchemy import Engine, create_engine, text
 from sqlalchemy.engine import make_url
 
+from bayesian_fields_service.observability import tracing
+
 MIGRATIONS = Path(__file__).resolve().parent / "migrations"
 MIGRATION_LOCK = 0x62666965_6C647331  # "bfields1": the advisory lock key every migrator takes
 """The key of the advisory lock that serialises migrations (any fixed 64-bit integer)."""
@@ -41,6 +43,7 @@ def engine(url: str) -> Engine:
         url, pool_pre_ping=True, pool_size=10, max_overflow=10, connect_args=connect_args, future=True
     )
     _ENGINES.append(created)
+    tracing.instrument_engine(created)  # its statements as spans when tracing is on
     return created
 
 

@@ -126,6 +126,7 @@ CREATE TABLE jobs (
     dispatched_at TIMESTAMP WITH TIME ZONE,
     started_at TIMESTAMP WITH TIME ZONE,
     finished_at TIMESTAMP WITH TIME ZONE,
+    traceparent VARCHAR(64),
     CONSTRAINT pk_jobs PRIMARY KEY (id),
     CONSTRAINT ck_jobs_state CHECK (state IN ('queued', 'running', 'succeeded', 'failed', 'cancelled')),
     CONSTRAINT ck_jobs_priority CHECK (priority IN ('interactive', 'bulk')),

@@ -139,6 +139,9 @@ jobs = Table(
     _when("dispatched_at", nullable=True),
     _when("started_at", nullable=True),
     _when("finished_at", nullable=True),
+    # The W3C traceparent of the submission's span (revision 0011), null with tracing off: the
+    # control process's dispatch and the workers' spans join the job's trace through it.
+    Column("traceparent", String(64)),
     CheckConstraint(_in("state", JOB_STATES), name="state"),
     CheckConstraint(_in("priority", PRIORITIES), name="priority"),
     Index(None, "tenant", "created_at", "id"),

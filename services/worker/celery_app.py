@@ -12,18 +12,24 @@ and by the API (which only sends tasks by name). Reliability settings, and why:
 
 from __future__ import annotations
 
+import logging
+from typing import Any
+
 from celery import Celery
+from celery.signals import after_setup_logger, after_setup_task_logger
 
 from bayesian_fields_core.job.stage_table import STAGE_TABLE
 from bayesian_fields_service import hooks
 from bayesian_fields_service.config.settings import ServiceSettings, apply_log_level, get_settings
+from bayesian_fields_service.observability import logs, tracing
 
 
 def make_celery(settings: ServiceSettings, *, include_tasks: bool = False) -> Celery:
+    """A Celery app bound to the settings' Redis; `include_tasks` registers the stage tasks."""
     apply_log_level(settings)
     if include_tasks:  # the worker's own app: its process's start
         hooks.install(settings)
-    """A Celery app bound to the settings' Redis; `include_tasks` registers the stage tasks."""
+        tracing.configure(settings, "worker")  # before the pool forks: its children inherit it
     app = Celery(
         "bfields",
         broker=settings.redis_url,
@@ -52,6 +58,15 @@ def make_celery(settings: ServiceSettings, *, include_tasks: bool = False) -> Ce
     )
     app.conf.bfields_settings = settings
     return app
+
+
+@after_setup_logger.connect
+@after_setup_task_logger.connect
+def _json_log_lines(logger: logging.Logger, **_: Any) -> None:
+    """BFIELDS_LOG_FORMAT=json: the worker's handlers, which Celery installs once it starts, write
+    JSON lines (`observability.logs`)."""
+    if get_settings().log_format == "json":
+        logs.use_json(logger)
 
 
 app: Celery  # declared only: the module's __getattr__ below makes it on first access

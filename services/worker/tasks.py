@@ -45,6 +45,7 @@ from bayesian_fields_core.errors import CancelledError, InputError, ModelError
 from bayesian_fields_core.job.factories import store_job
 from bayesian_fields_core.job.pipeline import discard_result, run_stage
 from bayesian_fields_core.job.scene_source import SceneOrigin
+from bayesian_fields_core.job.span_attributes import stage_attributes
 from bayesian_fields_core.job.stage_table import STAGE_TABLE, StageSpec
 from bayesian_fields_core.job.store import Store
 from bayesian_fields_core.params import PipelineParams
@@ -57,6 +58,8 @@ from bayesian_fields_service.jobs.model import JobRecord, JobState
 from bayesian_fields_service.jobs.store import JobStore
 from bayesian_fields_service.live.metrics import observe_stage
 from bayesian_fields_service.live.single_flight import RedisFlight
+from bayesian_fields_service.observability import tracing
+from bayesian_fields_service.observability.logs import log_context
 from bayesian_fields_service.records import job_heartbeats
 from bayesian_fields_service.records.database import open_records
 from bayesian_fields_service.storage.stores import build_store, tenant_store
@@ -410,8 +413,11 @@ def _run_locked(rt: _Runtime, record: JobRecord, stage: str, claim: StageClaim) 
         )  # fmt: skip
         meter.gpu = (job.runner.models.device or "").startswith("cuda")
         t0 = time.perf_counter()
-        with leases, meter:  # the scene copy stays in use (not evictable) until the stage ends
+        span = tracing.job_span(f"stage {stage}", {"bfields.job_id": job_id, "bfields.tenant": tenant})
+        # the scene copy stays in use (not evictable) until the stage ends
+        with leases, meter, span as handle:
             report = run_stage(stage, job)
+            handle.set_attributes(stage_attributes(stage, report))  # its frame / mask / Gaussian counts
         seconds = time.perf_counter() - t0
     except CancelledError:
         record = _account(rt, record, stage, meter)
@@ -466,6 +472,11 @@ def _make_stage_task(spec: StageSpec) -> Task:
     # from the waits for a stage lock (`lock_waits`), which must last until the lock's TTL.
     @app.task(name=spec.task_name, bind=True, acks_late=True, reject_on_worker_lost=True, max_retries=None)
     def stage_task(self: Task, tenant: str, job_id: str, lock_waits: int = 0) -> str:
+        with log_context(job_id=job_id, tenant=tenant, stage=stage):
+            tracing.annotate({"bfields.job_id": job_id, "bfields.tenant": tenant, "bfields.stage": stage})
+            return _stage_task(self, tenant, job_id, lock_waits)
+
+    def _stage_task(self: Task, tenant: str, job_id: str, lock_waits: int) -> str:
         rt = runtime()
         stage_metrics.observe_queue_wait(rt.redis, stage, self.request)
         try:

@@ -63,6 +63,9 @@ def test_env_example_lists_every_setting() -> None:
         ({"BFIELDS_JOB_TIME_LIMIT_S": "10", "BFIELDS_JOB_SOFT_TIME_LIMIT_S": "20"}, "SOFT_TIME_LIMIT"),
         ({"BFIELDS_CELERY_VISIBILITY_TIMEOUT_S": "100"}, "VISIBILITY_TIMEOUT"),
         ({"BFIELDS_S3_MULTIPART_CHUNK_BYTES": "1024"}, "s3_multipart_chunk_bytes"),
+        ({"BFIELDS_TRACING": "jaeger"}, "BFIELDS_TRACING takes"),
+        ({"BFIELDS_TRACING": "file:"}, "BFIELDS_TRACING takes"),
+        ({"BFIELDS_LOG_FORMAT": "xml"}, "log_format"),
     ],
 )
 def test_bad_settings_fail_clearly(clean_env: pytest.MonkeyPatch, env: dict[str, str], message: str) -> None:
@@ -70,6 +73,18 @@ def test_bad_settings_fail_clearly(clean_env: pytest.MonkeyPatch, env: dict[str,
         clean_env.setenv(k, v)
     with pytest.raises(ValidationError, match=message):
         ServiceSettings()
+
+
+def test_tracing_is_off_unless_named_or_an_otlp_endpoint_is_set(clean_env: pytest.MonkeyPatch) -> None:
+    for name in ("OTEL_EXPORTER_OTLP_ENDPOINT", "OTEL_EXPORTER_OTLP_TRACES_ENDPOINT"):
+        clean_env.delenv(name, raising=False)
+    assert ServiceSettings().tracing_mode == "off"
+    clean_env.setenv("OTEL_EXPORTER_OTLP_ENDPOINT", "http://collector:4318")
+    assert ServiceSettings().tracing_mode == "otlp"
+    clean_env.setenv("BFIELDS_TRACING", "off")  # the switch wins over the endpoint
+    assert ServiceSettings().tracing_mode == "off"
+    clean_env.setenv("BFIELDS_TRACING", "file:/var/log/spans.jsonl")
+    assert ServiceSettings().tracing_mode == "file:/var/log/spans.jsonl"
 
 
 def test_key_ring_inline_and_hashed() -> None:

@@ -23,6 +23,7 @@ import httpx
 import pytest
 
 from bayesian_fields_service.api.problem_types import BY_STATUS, KINDS
+from bayesian_fields_service.client.api import BFieldsClient, ClientError
 from tests.integration.fixtures.postgres import create_database, drop_database
 from tests.integration.fixtures.services import ApiServer
 from tests.services.conftest import MAX_UPLOAD, scene_form
@@ -75,16 +76,26 @@ def test_a_sample_of_every_kind_of_error_is_a_documented_problem(
     )
     answers.append((too_big, assert_problem(too_big, 413, "too-large")))
     assert str(MAX_UPLOAD) in answers[-1][1]["detail"]
-    # 409: the result of a job that has not finished (a job that no worker here runs; cancelled after)
+    # 409: the result of a job that has not finished (cancelled after); a submission, and a batch
+    # (served by the API's bulk lane child here), carry the quota's headers
     job = client_a.post("/v1/jobs", json={"scene_id": stored_scene["id"], "tasks": ["a problem"]})
-    assert job.status_code == 202, job.text
+    batch = client_a.post("/v1/batches", json={"scene_ids": [stored_scene["id"]], "task_lists": [["b"]]})
     try:
+        assert job.status_code == 202 and batch.status_code == 202, (job.text, batch.text)
+        for submitted in (job, batch):
+            assert submitted.headers["RateLimit"].startswith('"jobs";r='), submitted.headers
+            assert submitted.headers["RateLimit-Policy"].startswith('"jobs";q='), submitted.headers
         early = client_a.get(f"/v1/jobs/{job.json()['id']}/result")
         answers.append((early, assert_problem(early, 409, "conflict")))
     finally:
         client_a.delete(f"/v1/jobs/{job.json()['id']}")
+        client_a.post(f"/v1/batches/{batch.json()['id']}/cancel")
     for resp, body in answers:
         _resolves(resp, body)
+    # the CLI's client prints the same one line as before (it reads `detail`)
+    with BFieldsClient(api.base_url, api.keys["tenant-a"]) as bf, pytest.raises(ClientError) as refused:
+        bf.job(UNKNOWN_JOB)
+    assert str(refused.value) == f"GET /v1/jobs/{UNKNOWN_JOB}: HTTP 404: job {UNKNOWN_JOB!r} not found"
     # a success is not a problem
     assert client_a.get("/v1/jobs", params={"limit": 1}).headers["content-type"] == "application/json"
 

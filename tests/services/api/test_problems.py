@@ -21,8 +21,10 @@ from urllib.parse import urljoin
 
 import httpx
 import pytest
+from starlette.datastructures import MutableHeaders
 
 from bayesian_fields_service.api.problem_types import BY_STATUS, KINDS
+from bayesian_fields_service.api.ratelimit import add_policies
 from bayesian_fields_service.client.api import BFieldsClient, ClientError
 from tests.integration.fixtures.postgres import create_database, drop_database
 from tests.integration.fixtures.services import ApiServer
@@ -152,7 +154,7 @@ def test_every_documented_kind_is_used_and_every_kind_in_code_is_documented() ->
     # `http-error` is the kind of any other status
     used = named | set(BY_STATUS.values()) | {"http-error"}
     assert used == set(KINDS), set(KINDS) - used
-    assert {"validation", "over-quota", "too-many-requests", "request-timeout", "database-unavailable",
+    assert {"validation", "over-quota", "too-many-requests", "too-many-at-once", "request-timeout", "database-unavailable",
             "backend-unavailable", "lane-unavailable", "busy", "internal-error"} <= named  # fmt: skip
     for kind in KINDS.values():
         assert kind.status == 0 or BY_STATUS.get(kind.status) in KINDS, kind
@@ -176,6 +178,19 @@ def _remaining(resp: httpx.Response, quota: int) -> int:
     name, params = _field(resp.headers["RateLimit"])
     assert name == "jobs", resp.headers
     return int(params["r"])
+
+
+def test_an_answer_under_two_policies_lists_both() -> None:
+    """A submission's answer has the job quota's fields; the request rate (`api.tenant_rate`) adds
+    its policy to the same Lists instead of being dropped or replacing them."""
+    headers = MutableHeaders(raw=[(b"ratelimit-policy", b'"jobs";q=3'), (b"ratelimit", b'"jobs";r=2')])
+    add_policies(headers, {"RateLimit-Policy": '"requests";q=50;w=1', "RateLimit": '"requests";r=19;t=1',
+                           "Retry-After": "1"})  # fmt: skip
+    assert headers["RateLimit-Policy"] == '"jobs";q=3, "requests";q=50;w=1'
+    assert headers["RateLimit"] == '"jobs";r=2, "requests";r=19;t=1' and headers["Retry-After"] == "1"
+    plain = MutableHeaders(raw=[(b"retry-after", b"5")])
+    add_policies(plain, {"RateLimit": '"requests";r=0;t=2', "Retry-After": "2"})
+    assert plain["RateLimit"] == '"requests";r=0;t=2' and plain["Retry-After"] == "5"
 
 
 QUOTA = 3  # one dispatched + two waiting

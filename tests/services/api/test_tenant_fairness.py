@@ -137,14 +137,13 @@ def test_a_busy_tenant_waits_in_its_own_queue_and_past_it_gets_429(fair_api: Api
             assert refused.status_code == 429, refused.text
             assert refused.headers["Retry-After"] == str(RETRY_AFTER_S)
             assert (
-                "BFIELDS_API_TENANT_CONCURRENCY"
-                in assert_problem(refused, 429, "too-many-requests")["detail"]
+                "BFIELDS_API_TENANT_CONCURRENCY" in assert_problem(refused, 429, "too-many-at-once")["detail"]
             )
             assert (
                 refused.headers["RateLimit-Policy"]
-                == f'"requests";q={CONCURRENCY + QUEUE};qu="concurrent-requests"'
+                == f'"concurrency";q={CONCURRENCY + QUEUE};qu="concurrent-requests"'
             )
-            assert refused.headers["RateLimit"] == f'"requests";r=0;t={RETRY_AFTER_S}'
+            assert refused.headers["RateLimit"] == f'"concurrency";r=0;t={RETRY_AFTER_S}'
         assert _gauge(api, "bfields_api_tenant_refused_total", "tenant-a") == 2
 
         # no key, a bad key: no tenant's request (401, never 429); health is never limited

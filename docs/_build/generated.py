@@ -34,6 +34,7 @@ GENERATORS: dict[str, list[str] | str] = {
     "splat formats": "bayesian_fields_core.scene.formats.registry:markdown_table",
     "camera formats": "bayesian_fields_core.scene.camera_formats:markdown_table",
     "trainer layouts": "bayesian_fields_core.scene.trainers:markdown_table",
+    "problem types": "bayesian_fields_service.api.problem_types:markdown_sections",
 }
 
 _BLOCK = re.compile(

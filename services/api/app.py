@@ -28,6 +28,7 @@ from bayesian_fields_service.api.bulk_lane import BulkLane, settle_child
 from bayesian_fields_service.api.docs_page import install_docs
 from bayesian_fields_service.api.edge import Utf8Guard, install_handlers
 from bayesian_fields_service.api.json_body import add_body_schemas
+from bayesian_fields_service.api.problems import describe_problems, install_problem_page
 from bayesian_fields_service.api.routes import answers, events, health, jobs, metrics, scenes, ui, usage
 from bayesian_fields_service.api.routes.metrics import metrics_registry
 from bayesian_fields_service.api.schemas import BatchRequest
@@ -59,7 +60,10 @@ the service's own ids or positions (ASCII digits), usage days fall in 2000..2999
 NUL; anything else is a 422 naming the parameter. When the records database (PostgreSQL), Redis or
 the bucket is down the API answers 503 with `Retry-After`, never 500; a refused submission leaves
 no job behind.
-Every error body is a `Problem`: `detail` is a string, request validation adds `errors`.
+Every error body is a `Problem` (RFC 9457, `application/problem+json`): `type` names the kind of
+error (a section of `/docs/errors`), `detail` is a string, request validation adds `errors`.
+Submissions carry the tenant's job quota in `RateLimit-Policy` / `RateLimit` (IETF httpapi draft);
+every 429 and 503 carries `Retry-After`.
 """
 
 
@@ -158,6 +162,8 @@ def create_app(settings: ServiceSettings | None = None) -> FastAPI:
         app.include_router(module.router)
     add_body_schemas(app, [BatchRequest])  # the bodies routes parse themselves (json_body.py)
     install_handlers(app, settings.retry_after_s)
+    install_problem_page(app)  # what every error's `type` points at (problems.py)
+    describe_problems(app)
     app.add_middleware(Utf8Guard)
     # every read of a body, the UTF-8 check's included, has its deadline (body_deadline.py says why)
     app.add_middleware(

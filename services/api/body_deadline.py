@@ -23,8 +23,9 @@ import asyncio
 import logging
 import time
 
-from fastapi.responses import JSONResponse
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
+
+from bayesian_fields_service.api.problems import problem_response
 
 log = logging.getLogger(__name__)
 
@@ -69,7 +70,9 @@ class BodyDeadline:
                 f"at most {self.timeout_s:g} s between two chunks and {self.timeout_s:g} s in all plus "
                 f"1 s per {self.min_rate_bytes} bytes, BFIELDS_API_BODY_TIMEOUT_S); send the body at once"
             )
-            answer = JSONResponse({"detail": detail}, status_code=408, headers={"Connection": "close"})
+            answer = problem_response(
+                "request-timeout", detail, scope["path"], headers={"Connection": "close"}
+            )
             await answer(scope, read.receive, send)
 
 

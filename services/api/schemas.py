@@ -28,9 +28,20 @@ class FieldProblem(BaseModel):
 
 
 class Problem(BaseModel):
-    """Error body of every 4xx/5xx answer: `detail` is always one readable string."""
+    """Error body of every 4xx/5xx answer: an RFC 9457 problem (``application/problem+json``).
 
+    ``type`` names the kind of error (a section of ``/docs/errors``, and of the docs' errors page),
+    ``detail`` is always one readable string, request validation adds ``errors``."""
+
+    type: str = Field(
+        examples=["/docs/errors#validation"],
+        description="The kind of error: a URI reference to its section of the errors page "
+        "(resolve it against the request's URL); switch on this, not on `detail`.",
+    )
+    title: str = Field(examples=["The request is invalid"], description="The kind's short summary.")
+    status: int = Field(examples=[422], description="The HTTP status of this answer.")
     detail: str = Field(examples=["images/frame_0003.png: image is 640x480 but its camera says 320x240"])
+    instance: str = Field(examples=["/v1/scenes"], description="The path of the request refused.")
     errors: list[FieldProblem] | None = Field(
         None, description="Request validation (422) only: every refused field, with its location."
     )

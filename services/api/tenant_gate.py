@@ -8,7 +8,8 @@ tenant from the API key before any route runs (`security.auth.key_in_headers`, t
 and rules as the routes' authentication) and lets at most `limit` of that tenant's requests in at
 once. The rest wait in the tenant's own first-in-first-out queue, so another tenant's request never
 waits behind them; past `queue_max` waiting, the request is answered 429 with ``Retry-After`` at
-once, before it costs anything more.
+once, before it costs anything more (an `api.problems` body, with the ``"concurrency"`` policy's
+RateLimit fields of `api.ratelimit`).
 
 What is not limited: paths outside ``/v1/`` (health, metrics, /ui pages and their assets, the API
 docs) and a request with no key or an unknown one (it is not any tenant's; the route answers 401).
@@ -31,10 +32,11 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from fastapi.responses import JSONResponse
 from starlette.datastructures import MutableHeaders
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from bayesian_fields_service.api.problems import problem_response
+from bayesian_fields_service.api.ratelimit import CONCURRENCY_POLICY, add_policies, policy_headers
 from bayesian_fields_service.api.tenant_rate import RateVerdict, TenantRate
 from bayesian_fields_service.security.auth import RESOLVED_TENANT
 
@@ -175,9 +177,7 @@ class TenantFairness:
         async def counted_send(message: Message) -> None:
             nonlocal holds_slot, streaming
             if message["type"] == "http.response.start" and verdict is not None and self.rate is not None:
-                headers = MutableHeaders(scope=message)
-                for name, value in verdict.headers(self.rate.policy).items():
-                    headers.setdefault(name, value)
+                add_policies(MutableHeaders(scope=message), verdict.headers(self.rate.policy))
             if message["type"] == "http.response.body" and message.get("more_body") and not streaming:
                 streaming = True
                 if self.gate.stream_started(tenant):
@@ -201,7 +201,9 @@ class TenantFairness:
             f"retry after {verdict.retry_after_s} s, or poll less often (a batch's counts: "
             f"GET /v1/batches/{{id}}; its answers: GET /v1/batches/{{id}}/answers)"
         )
-        answer = JSONResponse({"detail": detail}, status_code=429, headers=verdict.headers(self.rate.policy))
+        answer = problem_response(
+            "too-many-requests", detail, scope["path"], headers=verdict.headers(self.rate.policy)
+        )
         await answer(scope, receive, send)
 
     async def _refuse(self, scope: Scope, receive: Receive, send: Send) -> None:
@@ -211,7 +213,12 @@ class TenantFairness:
             f"this API process (BFIELDS_API_TENANT_CONCURRENCY, BFIELDS_API_TENANT_QUEUE); retry after "
             f"{self.retry_after_s} s or send fewer requests in parallel"
         )
-        answer = JSONResponse(
-            {"detail": detail}, status_code=429, headers={"Retry-After": str(self.retry_after_s)}
+        bound = policy_headers(CONCURRENCY_POLICY, g.limit + g.queue_max, 0, reset_s=self.retry_after_s,
+                               unit="concurrent-requests")  # fmt: skip
+        answer = problem_response(
+            "too-many-at-once",
+            detail,
+            scope["path"],
+            headers={"Retry-After": str(self.retry_after_s), **bound},
         )
         await answer(scope, receive, send)

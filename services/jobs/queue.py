@@ -50,6 +50,19 @@ class AdmissionRefused(Exception):
         self.active, self.limit, self.asked = active, limit, asked
 
 
+@dataclass(frozen=True)
+class TenantQuota:
+    """A tenant's admission quota as a submission left it: `used` of `limit` unfinished jobs
+    (what the API reports in its RateLimit headers)."""
+
+    limit: int
+    used: int
+
+    @property
+    def remaining(self) -> int:
+        return max(0, self.limit - self.used)
+
+
 def admission_limit(max_waiting: int, max_dispatched: int) -> int:
     """Unfinished jobs a tenant may have: its waiting bound plus what may be dispatched."""
     return max_waiting + max_dispatched

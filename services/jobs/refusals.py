@@ -7,6 +7,11 @@ Each kind says what the user should do, not which HTTP status it is: the API map
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from bayesian_fields_service.jobs.queue import TenantQuota
+
 
 class Refused(Exception):
     """A request the domain will not carry out; `str()` is the message for the user."""
@@ -29,8 +34,10 @@ class Busy(Refused):
 
 
 class OverQuota(Refused):
-    """Past the tenant's admission bound; retry after `retry_after_s`."""
+    """Past the tenant's admission bound; retry after `retry_after_s`. `quota`: the bound and
+    the tenant's unfinished jobs when it was refused."""
 
-    def __init__(self, message: str, retry_after_s: int) -> None:
+    def __init__(self, message: str, retry_after_s: int, quota: TenantQuota | None = None) -> None:
         super().__init__(message)
         self.retry_after_s = retry_after_s
+        self.quota = quota

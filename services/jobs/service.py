@@ -27,7 +27,7 @@ import redis
 from bayesian_fields_service.config.settings import ServiceSettings
 from bayesian_fields_service.jobs.batches import BatchRecord
 from bayesian_fields_service.jobs.model import JobRecord, JobState, job_digest
-from bayesian_fields_service.jobs.queue import AdmissionRefused, Priority, admission_limit
+from bayesian_fields_service.jobs.queue import AdmissionRefused, Priority, TenantQuota, admission_limit
 from bayesian_fields_service.jobs.refusals import Busy, Invalid, Missing, OverQuota
 from bayesian_fields_service.jobs.store import JobStore, NewJobs
 from bayesian_fields_service.jobs.validation import JobAsk, Validation, check_id, checked_callback
@@ -68,12 +68,24 @@ class BatchAsk:
 
 
 @dataclass(frozen=True)
+class JobSubmitted:
+    """A submitted job: its record, whether it is new, and the tenant's quota after it (None
+    where nothing was stored: the earlier job of an Idempotency-Key)."""
+
+    record: JobRecord
+    created: bool
+    quota: TenantQuota | None = None
+
+
+@dataclass(frozen=True)
 class BatchSubmitted:
-    """A submitted batch: its row, its jobs in order (new and reused) and how many are new."""
+    """A submitted batch: its row, its jobs in order (new and reused), how many are new, and the
+    tenant's quota after it (None where no job was stored)."""
 
     batch: BatchRecord
     jobs: list[JobRecord]
     created: int
+    quota: TenantQuota | None = None
 
 
 @dataclass
@@ -118,23 +130,22 @@ class JobService:
             return None
 
     # ---- submitting ----------------------------------------------------------------------------
-    def submit_job(self, tenant: str, ask: JobAsk) -> tuple[JobRecord, bool]:
-        """One job; (its record, whether it is new). With a key, the earlier job of that key."""
+    def submit_job(self, tenant: str, ask: JobAsk) -> JobSubmitted:
+        """One job (`JobSubmitted`). With a key, the earlier job of that key."""
         key = ask.idempotency_key
         if not key:
             record = Validation(self.settings, self.scenes, tenant).job(ask)
-            self._store([record], NewJobs(scene_ids=[ask.scene_id]))
-            return record, True
+            return JobSubmitted(record, True, self._store([record], NewJobs(scene_ids=[ask.scene_id])))
         digest = job_digest(ask.scene_id, ask.tasks, ask.parameters, ask.model_profile)
         with self._key_lock(tenant, "jobs", key):
             existing = self.jobs.idempotent_job(tenant, key)
             if existing is not None and existing[1] and existing[1] != digest:
                 raise _key_reused(key, "scene, task list, parameters or model profile")
             if existing is not None and (earlier := self.jobs.get(tenant, existing[0])) is not None:
-                return earlier, False
+                return JobSubmitted(earlier, False)
             record = Validation(self.settings, self.scenes, tenant).job(ask)
-            self._store([record], NewJobs(digests={record.id: digest}, scene_ids=[ask.scene_id]))
-            return record, True
+            quota = self._store([record], NewJobs(digests={record.id: digest}, scene_ids=[ask.scene_id]))
+            return JobSubmitted(record, True, quota)
 
     def submit_batch(self, tenant: str, ask: BatchAsk, idempotency_key: str | None) -> BatchSubmitted:
         """A batch (every item validated before any is stored); with a key, the earlier batch of
@@ -186,9 +197,9 @@ class JobService:
         batch = BatchRecord(id=batch_id, tenant=tenant, total=len(records), priority=ask.priority,
                             idempotency_key=batch_key, callback_url=checked_callback(self.settings, ask.callback_url))  # fmt: skip
         by_new = {r.id: d for r, d in zip(records, digests, strict=True) if r.batch_id == batch_id and d}
-        self._store(new, NewJobs(digests=by_new, batch=batch, batch_job_ids=[r.id for r in records],
-                                 batch_digest=ask.body_sha256, scene_ids=[r.scene_id for r in new]))  # fmt: skip
-        return BatchSubmitted(batch, records, len(new))
+        quota = self._store(new, NewJobs(digests=by_new, batch=batch, batch_job_ids=[r.id for r in records],
+                                         batch_digest=ask.body_sha256, scene_ids=[r.scene_id for r in new]))  # fmt: skip
+        return BatchSubmitted(batch, records, len(new), quota)
 
     def retry_batch(self, tenant: str, batch_id: str) -> int:
         """Submit the batch's failed jobs again, each as a new job in its place (one retry of a
@@ -211,11 +222,11 @@ class JobService:
                                        scene_ids=[r.scene_id for r in again]))  # fmt: skip
             return len(again)
 
-    def _store(self, records: Sequence[JobRecord], new: NewJobs) -> None:
+    def _store(self, records: Sequence[JobRecord], new: NewJobs) -> TenantQuota | None:
         """The one transaction of a submission (module docstring), admitted against the tenant's
-        bound."""
+        bound; the tenant's quota after it (None where there was nothing to store)."""
         if not records:
-            return
+            return None
         if (traceparent := tracing.current_traceparent()) is not None:  # the job's trace starts here
             records = [r.model_copy(update={"traceparent": traceparent}) for r in records]
             tracing.annotate({"bfields.jobs": len(records), "bfields.job_id": records[0].id,
@@ -223,7 +234,7 @@ class JobService:
         s = self.settings
         limit = admission_limit(s.max_waiting_jobs_per_tenant, s.max_active_jobs_per_tenant)
         try:
-            self.jobs.create_many(list(records), replace(new, admit_limit=limit))
+            used = self.jobs.create_many(list(records), replace(new, admit_limit=limit))
         except AdmissionRefused as refused:
             raise OverQuota(
                 f"{refused.active} jobs are waiting or running; at most {limit} are allowed per tenant "
@@ -231,7 +242,9 @@ class JobService:
                 f"{s.max_active_jobs_per_tenant} dispatched, BFIELDS_MAX_ACTIVE_JOBS_PER_TENANT); this "
                 f"request needs {len(records)}",
                 retry_after_s=s.retry_after_s,
+                quota=TenantQuota(limit, refused.active),
             ) from None
+        return TenantQuota(limit, used) if used is not None else None
 
     # ---- cancelling ----------------------------------------------------------------------------
     def cancel_job(self, tenant: str, job_id: str) -> JobRecord:

@@ -161,7 +161,7 @@ class JobStore:
         in its tenant's queue (`jobs.queue`)."""
         self.create_many([record], NewJobs(admit_limit=admit_limit))
 
-    def create_many(self, records: builtins.list[JobRecord], new: NewJobs | None = None) -> None:
+    def create_many(self, records: builtins.list[JobRecord], new: NewJobs | None = None) -> int | None:
         """`create` for many jobs in one unit of work, with what `new` adds (`NewJobs`): the scenes
         are share-locked first and must be ready (`scenes.lock_ready`: `SceneGone`,
         `SceneNotReady`), so a scene's delete waits for these jobs and then sees them; then the
@@ -170,14 +170,18 @@ class JobStore:
 
         Committed, the jobs wait in their tenant's queue. Nothing goes to the live state: a job
         gets its live hash when the dispatcher sends it (`touch_live`), so a submission needs no
-        Redis at all and a cancel of waiting jobs has no hash to update."""
+        Redis at all and a cancel of waiting jobs has no hash to update.
+
+        Returns the tenant's unfinished jobs with these (as admitted, under the admission lock)
+        where `admit_limit` is given, else None."""
         new = new or NewJobs()
         batch = new.batch
+        unfinished = None
         with self.records.write() as tx:
             if records and new.scene_ids:
                 tx.lock_ready_scenes(records[0].tenant, new.scene_ids)
             if records and new.admit_limit is not None:
-                admit(tx, records[0].tenant, len(records), new.admit_limit)
+                unfinished = admit(tx, records[0].tenant, len(records), new.admit_limit) + len(records)
             if batch is not None:
                 tx.insert_batch(id=batch.id, tenant=batch.tenant, priority=batch.priority,
                                 callback_url=batch.callback_url, job_count=len(new.batch_job_ids or records),
@@ -198,6 +202,7 @@ class JobStore:
                                        "target_id": batch.id}])  # fmt: skip
             if new.retry_in is not None:
                 tx.replace_batch_jobs(new.retry_in, {r.retry_of: r.id for r in records if r.retry_of})
+        return unfinished
 
     def save(self, record: JobRecord, *, answers: Sequence[dict[str, Any]] = ()) -> JobRecord:
         """Write `record`, settled over the stored row (`model.settle`) under the row's lock so the

@@ -21,6 +21,7 @@ from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.job.store import ArtifactNotFound, get_json, validate_key
 from bayesian_fields_service.api.json_body import openapi_body, parse_body
 from bayesian_fields_service.api.query import PAGE_LIMIT, JobCursor, PositionCursor, SceneFilter
+from bayesian_fields_service.api.ratelimit import quota_headers
 from bayesian_fields_service.api.result_zip import zip_stream
 from bayesian_fields_service.api.schemas import (
     Artifact,
@@ -41,6 +42,18 @@ from bayesian_fields_service.jobs.validation import JobAsk
 
 router = APIRouter(prefix="/v1", tags=["jobs"])
 
+#: The quota headers a submission's answer carries where it stored jobs (`api.ratelimit`).
+QUOTA_HEADERS: dict[str, Any] = {
+    "RateLimit-Policy": {
+        "schema": {"type": "string"},
+        "description": 'The tenant\'s job quota: `"jobs";q=<unfinished jobs allowed>` (IETF httpapi draft)',
+    },
+    "RateLimit": {
+        "schema": {"type": "string"},
+        "description": 'What is left of it after this request: `"jobs";r=<jobs>` (`;t=<s>` on a 429)',
+    },
+}
+
 
 @router.post(
     "/jobs",
@@ -53,8 +66,13 @@ router = APIRouter(prefix="/v1", tags=["jobs"])
             "model": JobAccepted,
             "description": "The earlier job of this Idempotency-Key (created: false)",
         },
+        202: {"description": "The new job", "headers": QUOTA_HEADERS},
         409: {"model": Problem, "description": "The scene is not ready"},
-        429: {"model": Problem, "description": "The tenant's waiting bound is full; see Retry-After"},
+        429: {
+            "model": Problem,
+            "description": "The tenant's waiting bound is full; see Retry-After",
+            "headers": QUOTA_HEADERS,
+        },
     },
 )
 def submit_job(
@@ -73,10 +91,13 @@ def submit_job(
 ) -> JobAccepted:
     ask = JobAsk(body.scene_id, body.tasks, body.parameters, body.model_profile, body.priority,
                  body.callback_url, idempotency_key or None)  # fmt: skip
-    record, created = state.service.submit_job(tenant, ask)
-    if not created:
+    submitted = state.service.submit_job(tenant, ask)
+    if not submitted.created:
         response.status_code = status.HTTP_200_OK
-    return JobAccepted(id=record.id, state=record.state, created=created)
+    if submitted.quota is not None:
+        response.headers.update(quota_headers(submitted.quota))
+    record = submitted.record
+    return JobAccepted(id=record.id, state=record.state, created=submitted.created)
 
 
 @router.get(
@@ -190,8 +211,13 @@ def cancel_job(job_id: str, tenant: Tenant, state: State) -> JobRecord:
 _BATCH_ERRORS: dict[int | str, dict[str, Any]] = {
     **BODY_ERRORS,
     200: {"model": BatchStatus, "description": "The earlier batch of this Idempotency-Key (created: 0)"},
+    202: {"description": "The new batch", "headers": QUOTA_HEADERS},
     409: {"model": Problem, "description": "A scene is not ready"},
-    429: {"model": Problem, "description": "Past the tenant's waiting bound; see Retry-After"},
+    429: {
+        "model": Problem,
+        "description": "Past the tenant's waiting bound; see Retry-After",
+        "headers": QUOTA_HEADERS,
+    },
 }
 
 
@@ -243,7 +269,10 @@ def _submit_batch(state: AppState, tenant: str, raw: bytes, idempotency_key: str
     else:
         answer = _status_of(submitted.batch, submitted.jobs, created=submitted.created)
         code = status.HTTP_202_ACCEPTED
-    return Response(answer.model_dump_json(), status_code=code, media_type="application/json")
+    headers = quota_headers(submitted.quota) if submitted.quota is not None else None
+    return Response(
+        answer.model_dump_json(), status_code=code, media_type="application/json", headers=headers
+    )
 
 
 def _status_of(batch: BatchRecord, jobs: Sequence[JobRecord | None], *, created: int = 0,

@@ -22,6 +22,7 @@ from tests.integration.fixtures.redis_server import RedisServer
 from tests.integration.fixtures.s3_server import S3Server
 from tests.integration.fixtures.services import ApiServer, build_service_env
 from tests.services.conftest import scene_form
+from tests.services.support.problems import check_problem, raw_problem
 
 pytestmark = pytest.mark.integration
 
@@ -100,6 +101,7 @@ def test_a_dripped_body_gets_408_and_a_closed_connection_within_the_deadline(dea
     assert b"connection: close" in out["answer"].lower()
     assert b"BFIELDS_API_BODY_TIMEOUT_S" in out["answer"]
     assert out["closed_after_s"] < DEADLINE_S + SLACK_S, out["closed_after_s"]
+    check_problem(*raw_problem(out["answer"]), 408, "request-timeout", "/v1/batches")  # the one error body
 
 
 def test_many_dripping_clients_are_all_cut_and_others_are_answered_meanwhile(deadline_api: ApiServer) -> None:

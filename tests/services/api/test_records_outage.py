@@ -18,6 +18,7 @@ import pytest
 from tests.integration.fixtures.private_postgres import PrivatePostgres
 from tests.integration.fixtures.services import ApiServer
 from tests.services.conftest import scene_form
+from tests.services.support.problems import assert_problem
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(240)]
 
@@ -63,7 +64,7 @@ def test_a_stopped_database_is_a_503_with_retry_after_and_the_api_recovers_by_it
         for name, resp in _requests(client, job_id, scene_id).items():
             assert resp.status_code == 503, (name, resp.status_code, resp.text)
             assert resp.headers["Retry-After"] == RETRY_AFTER, name
-            detail = resp.json()["detail"]
+            detail = assert_problem(resp, 503, "database-unavailable")["detail"]
             assert "records database (PostgreSQL) is unreachable" in detail and "\n" not in detail, detail
             assert "127.0.0.1" not in detail and str(private_pg.port) not in detail, detail  # no internals
         assert time.monotonic() - t0 < 30  # answered in seconds, not hung on TCP timeouts

@@ -28,6 +28,7 @@ from tests.integration.fixtures.redis_server import RedisServer
 from tests.integration.fixtures.s3_server import S3Server
 from tests.integration.fixtures.services import ApiServer, build_service_env
 from tests.services.conftest import scene_form
+from tests.services.support.problems import assert_problem
 
 pytestmark = pytest.mark.integration
 
@@ -135,7 +136,14 @@ def test_a_busy_tenant_waits_in_its_own_queue_and_past_it_gets_429(fair_api: Api
             refused = httpx.get(f"{api.base_url}/v1/jobs", headers=headers, timeout=WAIT_S)
             assert refused.status_code == 429, refused.text
             assert refused.headers["Retry-After"] == str(RETRY_AFTER_S)
-            assert "BFIELDS_API_TENANT_CONCURRENCY" in refused.json()["detail"]
+            assert (
+                "BFIELDS_API_TENANT_CONCURRENCY" in assert_problem(refused, 429, "too-many-at-once")["detail"]
+            )
+            assert (
+                refused.headers["RateLimit-Policy"]
+                == f'"concurrency";q={CONCURRENCY + QUEUE};qu="concurrent-requests"'
+            )
+            assert refused.headers["RateLimit"] == f'"concurrency";r=0;t={RETRY_AFTER_S}'
         assert _gauge(api, "bfields_api_tenant_refused_total", "tenant-a") == 2
 
         # no key, a bad key: no tenant's request (401, never 429); health is never limited

@@ -21,6 +21,7 @@ from bayesian_fields_service.api.tenant_rate import TenantRate
 from tests.integration.fixtures.redis_server import RedisServer
 from tests.integration.fixtures.s3_server import S3Server
 from tests.integration.fixtures.services import ApiServer, build_service_env
+from tests.services.support.problems import assert_problem
 
 RATE = 0.5  # tokens a second: one request every 2 s sustained
 BURST = 6
@@ -138,7 +139,7 @@ def test_past_its_burst_a_tenant_waits_its_turn_then_gets_429_while_another_is_s
         assert refused.status_code == 429, refused.text
         wait_s = int(refused.headers["Retry-After"])
         assert 1 <= wait_s <= round(2 / RATE - DELAY_S)
-        assert "BFIELDS_API_TENANT_RATE" in refused.json()["detail"]
+        assert "BFIELDS_API_TENANT_RATE" in assert_problem(refused, 429, "too-many-requests")["detail"]
         assert _remaining(refused) == 0
 
         # the other tenant's bucket is its own; no key is no tenant's (401, never 429)

@@ -4,7 +4,9 @@ A suite has one or two absent tasks per scene and tasks of one scene share one m
 resampling unit is the scene, as for Table 1's scene-level intervals (`bootstrap.py`): a drawn
 scene brings all its tasks and each share is recomputed as a ratio of sums over the drawn scenes.
 Two shares, at one threshold: absent tasks answered "not found" (the rule's purpose) and present
-tasks left unanswered (its cost; a present task with no candidate at all counts as lost).
+tasks left unanswered (its cost; a present task with no candidate at all counts as lost), and
+beside them the part of the cost the threshold makes: present tasks with a candidate that it
+rejects, of the present tasks with a candidate (the others are unanswered at any threshold).
 """
 
 from __future__ import annotations
@@ -49,13 +51,15 @@ class NotFoundShares:
     scenes: int
     absent_not_found: Share
     present_lost: Share
+    present_lost_to_threshold: Share
 
 
 def _per_scene(outcomes: Sequence[TaskOutcome], threshold: float | None) -> tuple[list[str], np.ndarray]:
-    """(scene names, (scenes, 4) counts: absent, absent not found, present, present lost)."""
+    """(scene names, (scenes, 6) counts: absent, absent not found, present, present lost,
+    present with a candidate, those of them the threshold rejects)."""
     names = sorted({o.scene for o in outcomes})
     index = {name: i for i, name in enumerate(names)}
-    counts = np.zeros((len(names), 4))
+    counts = np.zeros((len(names), 6))
     for o in outcomes:
         nf = is_not_found(o.score, threshold)
         row = counts[index[o.scene]]
@@ -65,6 +69,9 @@ def _per_scene(outcomes: Sequence[TaskOutcome], threshold: float | None) -> tupl
         else:
             row[2] += 1
             row[3] += nf
+            if not is_not_found(o.score, None):  # it has a candidate
+                row[4] += 1
+                row[5] += nf
     return names, counts
 
 
@@ -85,13 +92,14 @@ def not_found_shares(
     names, counts = _per_scene(outcomes, threshold)
     if not names:
         empty = Share(0, 0, float("nan"), float("nan"))
-        return NotFoundShares(threshold, 0, empty, empty)
+        return NotFoundShares(threshold, 0, empty, empty, empty)
     draws = np.random.default_rng(seed).integers(0, len(names), size=(samples, len(names)))
     return NotFoundShares(
         threshold,
         len(names),
         _share(counts[:, 1], counts[:, 0], draws),
         _share(counts[:, 3], counts[:, 2], draws),
+        _share(counts[:, 5], counts[:, 4], draws),
     )
 
 
@@ -100,5 +108,6 @@ def format_shares(shares: NotFoundShares, label: str) -> str:
     shown = "None (rule off)" if shares.threshold is None else f"{shares.threshold:.4f}"
     return (
         f"  {label} {shown}: absent answered 'not found' {shares.absent_not_found}; present lost "
-        f"{shares.present_lost} (95%, bootstrap over the {shares.scenes} scenes)"
+        f"{shares.present_lost}, of which the threshold rejects {shares.present_lost_to_threshold} "
+        f"of the present tasks with a candidate (95%, bootstrap over the {shares.scenes} scenes)"
     )

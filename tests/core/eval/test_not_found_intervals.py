@@ -23,6 +23,10 @@ def test_the_shares_count_by_hand() -> None:
     assert (shares.absent_not_found.hits, shares.absent_not_found.total) == (2, 3)
     # present: 0.5 < 0.8 is lost
     assert (shares.present_lost.hits, shares.present_lost.total) == (1, 5)
+    assert (shares.present_lost_to_threshold.hits, shares.present_lost_to_threshold.total) == (1, 5)
+    unanswered = not_found_shares([*outcomes, *_scene("s3", [], [None])], 0.8)  # no candidate at all
+    assert (unanswered.present_lost.hits, unanswered.present_lost.total) == (2, 6)
+    assert (unanswered.present_lost_to_threshold.hits, unanswered.present_lost_to_threshold.total) == (1, 5)
     assert shares.scenes == 2
     assert shares.absent_not_found.low <= 2 / 3 <= shares.absent_not_found.high
     off = not_found_shares(outcomes, None)  # rule off: only the task without a candidate

@@ -38,8 +38,10 @@ runs agree. What this leaves out: with noise, a real CLIP's errors are partly sh
 of one object (here they would be independent per view).
 
 `bfields calibrate` in this regime recovers the paper's likelihoods within `REALISTIC_TOLERANCE`
-on the scenes the statistics come from; on other scenes the class means move with the scene's
-tasks (docs/research/eval-world-decision.md gives the measured figures).
+on the scenes the statistics come from (it prints them); on other scenes the class means move with
+the scene's tasks (docs/research/eval-world-decision.md gives the measured figures). The file it
+writes keeps the regime's likelihoods and the 'not found' threshold fitted in their margins
+(`REALISTIC_CALIBRATION`, issue 46).
 """
 
 from __future__ import annotations

@@ -48,7 +48,8 @@ class CalibrationRequest(BaseModel):
         "strong",
         description=(
             "With scenes: 'strong' scores the encoder as it is; 'realistic' the evaluation's "
-            "weak-evidence embeddings (eval/regime.py), to check them against the paper's likelihoods."
+            "weak-evidence embeddings (eval/regime.py): the likelihoods they give are printed, and "
+            "the file keeps the regime's own with the threshold fitted in their margins."
         ),
     )
     keep_likelihoods: Path | None = Field(

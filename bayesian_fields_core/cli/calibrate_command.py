@@ -5,7 +5,9 @@ from __future__ import annotations
 
 import argparse
 
+from bayesian_fields_core.cli.arguments import int_at_least
 from bayesian_fields_core.cli.eval_command import regime_name
+from bayesian_fields_core.errors import InputError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -36,6 +38,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         "weak-evidence embeddings (`bfields eval --regime`), to check them against the paper's "
         "likelihoods and fit that regime's 'not found' threshold",
     )
+    cal.add_argument(
+        "--absent-tasks",
+        type=int_at_least(0),
+        help="with --scene: extra absent tasks per scene, by the suite's rule for absent tasks, "
+        "to fit the 'not found' threshold against (default 6; 0 = the scenes' own tasks only)",
+    )
+    cal.add_argument("--cache", metavar="DIR", help="with --scene: keep the perception cache in DIR")
     cal.add_argument("--out", required=True, help="calibration JSON to write")
     cal.set_defaults(func=run)
 
@@ -45,6 +54,10 @@ def run(args: argparse.Namespace) -> int:
     from bayesian_fields_core.eval.calibration.fit import CalibrationRequest, calibrate
     from bayesian_fields_core.objects.not_found import SCORE_MEANING
 
+    if args.scores is not None and (args.absent_tasks is not None or args.cache is not None):
+        raise InputError(
+            "--absent-tasks and --cache go with --scene (a score file has no tasks)", source="calibrate"
+        )
     request = CalibrationRequest(
         out=args.out,
         scores=args.scores,
@@ -55,6 +68,8 @@ def run(args: argparse.Namespace) -> int:
         model_id=args.model_id,
         keep_likelihoods=args.keep_likelihoods,
         regime=args.regime,
+        cache=args.cache,
+        **({} if args.absent_tasks is None else {"absent_tasks": args.absent_tasks}),
     )
     cal = calibrate(request)
     print(

@@ -34,6 +34,7 @@ class TaskOutcome:
     num_gt: int = 0
     strict: int = 0
     relaxed: int = 0
+    scene: str = ""  # the resampling unit of the shares' intervals (`not_found_intervals.py`)
 
 
 @dataclass(frozen=True)
@@ -66,7 +67,7 @@ class NotFoundStats:
 
 
 def task_outcomes(
-    tasks: Sequence[str], scores: ClioScores, best_scores: Mapping[str, float | None]
+    tasks: Sequence[str], scores: ClioScores, best_scores: Mapping[str, float | None], scene: str = ""
 ) -> list[TaskOutcome]:
     """Outcomes of every task of one scene: present ones (in `scores.per_task`) with their
     detections, the others absent. `best_scores` maps a task to its best candidate's rule score."""
@@ -75,9 +76,9 @@ def task_outcomes(
         ts = scores.per_task.get(task)
         score = best_scores.get(task)
         if ts is None:
-            out.append(TaskOutcome(task, True, score))
+            out.append(TaskOutcome(task, True, score, scene=scene))
         else:
-            out.append(TaskOutcome(task, False, score, ts.num_gt, ts.strict, ts.relaxed))
+            out.append(TaskOutcome(task, False, score, ts.num_gt, ts.strict, ts.relaxed, scene=scene))
     return out
 
 

@@ -38,8 +38,10 @@ runs agree. What this leaves out: with noise, a real CLIP's errors are partly sh
 of one object (here they would be independent per view).
 
 `bfields calibrate` in this regime recovers the paper's likelihoods within `REALISTIC_TOLERANCE`
-on the scenes the statistics come from; on other scenes the class means move with the scene's
-tasks (docs/research/eval-world-decision.md gives the measured figures).
+on the scenes the statistics come from (it prints them); on other scenes the class means move with
+the scene's tasks (docs/research/eval-world-decision.md gives the measured figures). The file it
+writes keeps the regime's likelihoods and the 'not found' threshold fitted in their margins
+(`REALISTIC_CALIBRATION`, issue 46).
 """
 
 from __future__ import annotations
@@ -66,6 +68,13 @@ SCENE_STATISTICS = Path(__file__).with_name("tiny_clip_scene_statistics.json")
 """The bundled tiny CLIP's likelihoods on suite masks: `bfields calibrate --scene` on the public
 scenes tabletop-a and tabletop-b (all frames, absent-task negatives). For another encoder the
 profile's own calibration is the source (fit it with `bfields calibrate --scene`)."""
+
+REALISTIC_CALIBRATION = Path(__file__).with_name("tiny_clip_realistic_calibration.json")
+"""The realistic regime's calibration of the bundled tiny CLIP: its 'not found' threshold
+(`answer_min_peak`, with the fit's counts and curve), fitted by `bfields calibrate --scene ...
+--regime realistic --out` this file on both suites' public scenes with extra absent tasks
+(docs/research/not-found-decision.md). Its `model_id` is the wrapped encoder's, so a change of
+the scene statistics or the seed (a new `WeakEvidenceEncoder`) makes it refused, not misapplied."""
 
 REGIME_SEED = 33
 """Seeds the realistic regime's per-view noise (with each mask embedding's bytes)."""
@@ -193,20 +202,41 @@ class RegimeModels(Models):
 
     @property
     def calibration(self) -> Calibration | None:
-        """The target likelihoods, recorded for the wrapped encoder, with no fitted 'not found'
-        threshold: `bfields calibrate --scene --regime realistic` on the public scenes the
-        statistics come from finds none to fit (their one absent task with an answer peaks above
-        a present task's answer), so the pipeline's distribution threshold applies
-        (docs/research/eval-world-decision.md, "The 'not found' threshold")."""
+        """The target likelihoods, recorded for the wrapped encoder, with the regime's fitted 'not
+        found' threshold (`REALISTIC_CALIBRATION`) when that file was fitted for this very
+        wrapped encoder; without it the pipeline's distribution threshold applies (as before
+        issue 46: docs/research/eval-world-decision.md, "The 'not found' threshold")."""
         if self._regime_calibration is None:
+            model_id = str(self.encoder.model_id)
+            fitted = regime_threshold(model_id, self.target)
             self._regime_calibration = Calibration(
-                model_id=str(self.encoder.model_id), mu0=self.target.mu0, mu1=self.target.mu1, s=self.target.s
+                model_id=model_id,
+                mu0=self.target.mu0,
+                mu1=self.target.mu1,
+                s=self.target.s,
+                answer_min_peak=None if fitted is None else fitted.answer_min_peak,
+                not_found_fit=None if fitted is None else fitted.not_found_fit,
             )
         return self._regime_calibration
 
     @property
     def model_ids(self) -> dict[str, str]:
         return {**super().model_ids, "encoder": str(self.encoder.model_id), "regime": "realistic"}
+
+
+def regime_threshold(
+    model_id: str, target: Likelihoods = PAPER_LIKELIHOODS, path: Path | None = None
+) -> Calibration | None:
+    """The regime's fitted calibration when `path` (default `REALISTIC_CALIBRATION`) holds one
+    for `model_id` (the wrapped encoder) with the `target` likelihoods; None otherwise (another
+    encoder, other statistics, or no file: the distribution threshold applies)."""
+    path = REALISTIC_CALIBRATION if path is None else path
+    if not path.is_file():
+        return None
+    cal = load_calibration(path)
+    if cal.model_id != model_id or (cal.mu0, cal.mu1, cal.s) != (target.mu0, target.mu1, target.s):
+        return None
+    return cal
 
 
 def _source_statistics(base: Models) -> Calibration:

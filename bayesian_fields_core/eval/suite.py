@@ -21,10 +21,11 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
+from bayesian_fields_core.calibration.model import distribution_min_peak
 from bayesian_fields_core.eval.baselines import BaselineParams, clio_style, semantic_gaussians
 from bayesian_fields_core.eval.bootstrap import paired_differences, score_intervals
 from bayesian_fields_core.eval.breakdown import (
@@ -44,6 +45,7 @@ from bayesian_fields_core.eval.clio import (
 from bayesian_fields_core.eval.clio_code import CLIO_CODE_LABEL, clio_code_metrics, scene_mean
 from bayesian_fields_core.eval.lerf import LerfScores, format_lerf_table
 from bayesian_fields_core.eval.lerf_views import DEFAULT_VIEWS, LerfViews, prepare_views, score_map
+from bayesian_fields_core.eval.not_found_intervals import format_shares, not_found_shares
 from bayesian_fields_core.eval.not_found_tradeoff import (
     TaskOutcome,
     best_threshold,
@@ -60,7 +62,7 @@ from bayesian_fields_core.job.factories import Job, local_job
 from bayesian_fields_core.job.pipeline import run_job
 from bayesian_fields_core.job.task_list import load_tasks
 from bayesian_fields_core.objects.clustering import ObjectMap
-from bayesian_fields_core.objects.not_found import resolve_answer_min_peak
+from bayesian_fields_core.objects.not_found import SCORE_MEANING, resolve_answer_min_peak
 from bayesian_fields_core.params import PipelineParams
 from bayesian_fields_core.perception.models import Models, load_models
 from bayesian_fields_core.results.reader import read_result
@@ -78,6 +80,9 @@ METHOD_ROWS: dict[str, dict[str, Any]] = {
         "aib_conditionals": _OTHER_CONDITIONALS
     },
 }
+RowSet = Literal["all", "full"]
+ROW_SETS: tuple[RowSet, ...] = ("all", "full")
+"""Which rows `bfields eval --rows` runs: every row, or the full method alone."""
 SEMANTIC_GAUSSIANS = "Semantic Gaussians-style (avg. embeddings, best label)"
 CLIO = "Clio-style (AIB on cosine, Clio's rows)"
 
@@ -209,8 +214,10 @@ def evaluate_scene(
     base_params: dict[str, Any] | None = None,
     lerf_views: int = DEFAULT_VIEWS,
     log: Callable[[str], None] = print,
+    rows_shown: RowSet = "all",
 ) -> SceneEvaluation:
-    """All rows of both tables for one scene; `lerf_views=0` skips the LeRF protocol."""
+    """All rows of both tables for one scene; `lerf_views=0` skips the LeRF protocol;
+    `rows_shown="full"` runs only the full method (`ROW_SETS`)."""
     gt_per_task = {t: sum(1 for g in case.ground_truth if g.task == t) for t in case.tasks}
     top_k = max(5, max(gt_per_task.values(), default=1))
     cache_prefix = f"scenes/{case.name}/cache/"
@@ -223,7 +230,8 @@ def evaluate_scene(
     perceive_s = 0.0
     visibility_s = 0.0
     full_job: Job | None = None
-    for row, overrides in METHOD_ROWS.items():
+    method_rows = METHOD_ROWS if rows_shown == "all" else {FULL: METHOD_ROWS[FULL]}
+    for row, overrides in method_rows.items():
         # The first row checks the scene's alignment; the other rows run on the very same scene.
         # Previews off: the tables never look at them, and rendering them would add to every row.
         checked = {} if full_job is None else {"alignment_check": False}
@@ -260,12 +268,16 @@ def evaluate_scene(
         )
         breakdown[row] = task_breakdowns(case.name, case.tasks, estimates, case.ground_truth, case.instances)
         best = {task: objs[0].peak if objs else None for task, objs in result.selections.items()}
-        not_found[row] = task_outcomes(case.tasks, rows[row], best)
+        not_found[row] = task_outcomes(case.tasks, rows[row], best, scene=case.name)
         if views is not None:
             lerf[row] = score_map(views, case.tasks, result.object_ids, result.task_scores)
         log(_row_line(case.name, row, rows[row], lerf.get(row)))
 
     assert full_job is not None
+    if rows_shown == "full":
+        return SceneEvaluation(
+            clio=rows, lerf=lerf, not_found=not_found, breakdown=breakdown, clio_code=code_rows
+        )
     text = models.encoder.encode_texts(case.tasks).astype(np.float32)
     full, full_scene = full_job.spec, full_job.scene
     likelihood = resolve_likelihood(full.params, models.calibration)
@@ -312,13 +324,15 @@ def run_suite(
     suite: str = "tabletop",
     breakdown: bool = False,
     regime: Regime = DEFAULT_REGIME,
+    rows_shown: RowSet = "all",
 ) -> dict[str, ClioScores]:
     """Generate the suite, evaluate every row on every scene, print the pooled Table 1, the
     "not found" columns and, unless `lerf_views=0`, the LeRF table. `seeds` evaluates on held-out
     re-seeded scenes; `not_found_curve` adds the rule's threshold trade-off curve; `suite` names
     the suite ("tabletop", or "capture": handheld-capture effects, `synthetic/capture.py`);
     `breakdown` adds why each method row missed GT objects (`breakdown.py`), per task for the full
-    method; `regime` is the perception regime (`regime.py`), the same for every row."""
+    method; `regime` is the perception regime (`regime.py`), the same for every row; `rows_shown`
+    "full" runs the full method only (the "not found" answer and Table 1's first row, quickly)."""
     models = regime_models(load_models(profile), regime)
     print(describe(models, regime))
     cases = prepare_scenes(suite_dir, n_scenes, seeds, suite)
@@ -329,7 +343,9 @@ def run_suite(
     causes: dict[str, list[TaskBreakdown]] = {}
     for case in cases:
         print(f"scene {case.name}: {len(case.tasks)} tasks, {len(case.ground_truth)} GT objects")
-        scene_eval = evaluate_scene(case, models, out_dir, base_params=base_params, lerf_views=lerf_views)
+        scene_eval = evaluate_scene(
+            case, models, out_dir, base_params=base_params, lerf_views=lerf_views, rows_shown=rows_shown
+        )
         for row, scores in scene_eval.clio.items():
             per_row.setdefault(row, []).append(scores)
         for row, scores in scene_eval.clio_code.items():
@@ -360,6 +376,7 @@ def run_suite(
     print()
     print_intervals(pooled, scene_groups(per_row[FULL]), markdown=markdown)
     print_not_found(outcomes, run_threshold(base_params, models), markdown=markdown, curve=not_found_curve)
+    print_not_found_shares(outcomes.get(FULL, []), base_params, models)
     if breakdown:
         print_breakdown(causes, markdown=markdown)
     if lerf_rows:
@@ -387,8 +404,12 @@ def print_intervals(pooled: dict[str, ClioScores], groups: dict[str, str], *, ma
         print(format_interval_table(intervals, markdown=markdown))
         print()
     pairs = [(FULL, row) for row in pooled if row != FULL] + [
-        (row, AVERAGING) for row in pooled if row not in (AVERAGING, SEMANTIC_GAUSSIANS, CLIO)
+        (row, AVERAGING)
+        for row in pooled
+        if AVERAGING in pooled and row not in (AVERAGING, SEMANTIC_GAUSSIANS, CLIO)
     ]
+    if not pairs:  # one row (`--rows full`): nothing to pair
+        return
     print(
         f"Paired differences a - b (95%), bootstrap over the {n_tasks} tasks | over the {n_scenes} "
         "scenes (* = the interval excludes 0):"
@@ -421,6 +442,38 @@ def run_threshold(base_params: dict[str, Any] | None, models: Models) -> float |
     return resolve_answer_min_peak(
         params.answer_min_peak, models.calibration, resolve_likelihood(params, models.calibration)
     )
+
+
+def threshold_source(base_params: dict[str, Any] | None, models: Models) -> str:
+    """Where the run's `answer_min_peak` comes from, in words (`run_threshold`)."""
+    value = PipelineParams.model_validate(base_params or {}).answer_min_peak
+    if value != "calibrated":
+        return "given as a parameter"
+    if getattr(models.calibration, "answer_min_peak", None) is not None:
+        return "fitted by `bfields calibrate --scene` for this model and regime"
+    return "the distribution threshold: no threshold fitted for this model and regime"
+
+
+def print_not_found_shares(
+    outcomes: list[TaskOutcome], base_params: dict[str, Any] | None, models: Models
+) -> None:
+    """The full method's shares with scene-level intervals at the run's threshold (and at the
+    distribution threshold beside it, when the run's is another): issue 46's answer."""
+    if not outcomes:
+        return
+    threshold = run_threshold(base_params, models)
+    print()
+    print(f"'Not found', full method, with 95% intervals resampling scenes ({SCORE_MEANING}):")
+    print(
+        format_shares(
+            not_found_shares(outcomes, threshold),
+            f"the run's threshold ({threshold_source(base_params, models)})",
+        )
+    )
+    cal = models.calibration
+    if cal is not None and cal.answer_min_peak is not None:
+        fallback = distribution_min_peak(cal.mu0, cal.mu1, cal.s)
+        print(format_shares(not_found_shares(outcomes, fallback), "the distribution threshold"))
 
 
 def print_not_found(

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import csv
 import json
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -27,8 +28,8 @@ from bayesian_fields_core.calibration.model import (
     save_calibration,
 )
 from bayesian_fields_core.errors import InputError
-from bayesian_fields_core.eval.calibration.ground_truth import Negatives
-from bayesian_fields_core.eval.regime import Regime
+from bayesian_fields_core.eval.calibration.ground_truth import EXTRA_ABSENT_TASKS, Negatives
+from bayesian_fields_core.eval.regime import PAPER_LIKELIHOODS, Regime
 
 
 class CalibrationRequest(BaseModel):
@@ -47,7 +48,8 @@ class CalibrationRequest(BaseModel):
         "strong",
         description=(
             "With scenes: 'strong' scores the encoder as it is; 'realistic' the evaluation's "
-            "weak-evidence embeddings (eval/regime.py), to check them against the paper's likelihoods."
+            "weak-evidence embeddings (eval/regime.py): the likelihoods they give are printed, and "
+            "the file keeps the regime's own with the threshold fitted in their margins."
         ),
     )
     keep_likelihoods: Path | None = Field(
@@ -56,6 +58,17 @@ class CalibrationRequest(BaseModel):
             "With scenes: keep mu0 / mu1 / s of this calibration file (fitted elsewhere, e.g. on "
             "crops) and fit only the 'not found' threshold in its margins."
         ),
+    )
+    absent_tasks: int = Field(
+        EXTRA_ABSENT_TASKS,
+        ge=0,
+        description=(
+            "With scenes: extra absent tasks per scene (the suite's rule for absent tasks), whose "
+            "first answers the 'not found' threshold is fitted against."
+        ),
+    )
+    cache: Path | None = Field(
+        None, description="With scenes: perception cache folder kept between calls (default: temporary)."
     )
 
     def check(self) -> None:
@@ -107,8 +120,9 @@ def read_score_file(path: Path) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(pos), np.asarray(neg)
 
 
-def calibrate(request: CalibrationRequest) -> Calibration:
-    """Fit and write the calibration `request` describes; returns it."""
+def calibrate(request: CalibrationRequest, log: Callable[[str], None] = print) -> Calibration:
+    """Fit and write the calibration `request` describes; returns it. `log` says what the
+    scenes gave where the file keeps other likelihoods (the realistic regime)."""
     request.check()
     if request.scores is not None:
         pos, neg = read_score_file(request.scores)
@@ -123,6 +137,8 @@ def calibrate(request: CalibrationRequest) -> Calibration:
             max_frames=request.max_frames,
             negatives=request.negatives,
             regime=request.regime,
+            extra_absent=request.absent_tasks,
+            cache_dir=request.cache,
         )
         model_id = request.model_id or encoder_id
         if request.keep_likelihoods is not None:
@@ -130,6 +146,25 @@ def calibrate(request: CalibrationRequest) -> Calibration:
             cal = kept.model_copy(update={"answer_min_peak": None, "not_found_fit": None})
         else:
             cal = fit_calibration(labels.positive, labels.negative, model_id)
+        if request.regime == "realistic":
+            # The regime fuses with its target likelihoods whatever these scenes give: the
+            # threshold is fitted, and stored, in the margins every run of the regime computes.
+            log(f"likelihoods these scenes give: mu0={cal.mu0:.4f} mu1={cal.mu1:.4f} s={cal.s:.4f}")
+            cal = regime_calibration(cal)
         cal = fit_answer_min_peak(labels.peaks, cal)
     save_calibration(request.out, cal)
     return cal
+
+
+def regime_calibration(fitted: Calibration) -> Calibration:
+    """`fitted`'s counts with the realistic regime's likelihoods (`PAPER_LIKELIHOODS`)."""
+    target = PAPER_LIKELIHOODS
+    return fitted.model_copy(
+        update={
+            "mu0": target.mu0,
+            "mu1": target.mu1,
+            "s": target.s,
+            "answer_min_peak": None,
+            "not_found_fit": None,
+        }
+    )

@@ -27,7 +27,8 @@ import numpy as np
 
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.eval.regime import Regime, regime_models
-from bayesian_fields_core.eval.synthetic import load_ground_truth
+from bayesian_fields_core.eval.synthetic import GroundTruth, load_ground_truth
+from bayesian_fields_core.eval.synthetic.tasks import extra_absent_tasks
 from bayesian_fields_core.fusion.likelihood import resolve_likelihood
 from bayesian_fields_core.job.artifacts import RESULT_PREFIX
 from bayesian_fields_core.job.factories import Job, local_job
@@ -38,6 +39,11 @@ from bayesian_fields_core.perception.models import load_models
 from bayesian_fields_core.results.reader import read_result
 
 Negatives = Literal["absent", "unrelated"]
+
+EXTRA_ABSENT_TASKS = 6
+"""Absent tasks `bfields calibrate --scene` adds to each scene by default (`--absent-tasks`): the
+suites hold one or two per scene, too few to fit the 'not found' threshold against
+(docs/research/not-found-decision.md)."""
 
 POSITIVE_OVERLAP = 0.5
 """Share of a mask's visible Gaussians inside a task's GT objects that makes a positive pair."""
@@ -86,6 +92,20 @@ class SceneLabels:
     peaks: list[TaskPeak] = field(default_factory=list)
 
 
+def scene_absent_tasks(gt: GroundTruth, n: int) -> list[str]:
+    """`n` extra absent tasks for a scene with ground truth, by the suite's rule for absent tasks
+    (`extra_absent_tasks`), seeded by the scene's seed (0 when its gt.json records none) and
+    drawn from the kinds its layout uses (else those of its objects)."""
+    if n <= 0:
+        return []
+    objects = [i for i in gt.instances if i.category == "object" and i.colour is not None]
+    held = {(str(i.colour), i.kind) for i in objects}
+    kinds = list(gt.spec.get("kinds") or sorted({i.kind for i in objects}))
+    if not kinds:
+        return []
+    return extra_absent_tasks(int(gt.spec.get("seed", 0)), kinds, held, gt.task_texts, n)
+
+
 def scene_scores(
     scene_dir: Path,
     models: Any,
@@ -93,28 +113,31 @@ def scene_scores(
     positive_overlap: float,
     max_frames: int | None = None,
     negatives: Negatives = "absent",
+    extra_absent: int = 0,
+    cache_dir: Path | None = None,
 ) -> SceneLabels:
     """Positive and negative scores of one scene, and its tasks' first-answer peaks (the
-    pipeline's own stages, perceive -> fuse -> cluster at the default parameters)."""
+    pipeline's own stages, perceive -> fuse -> cluster at the default parameters).
+
+    `extra_absent` more absent tasks (`scene_absent_tasks`) add negatives and first-answer peaks
+    of absent tasks: the scene's own tasks are answered by a run with exactly those tasks (as
+    every run of the scene answers them), the extra ones by a second run with the scene's tasks
+    and the extra ones together (the perception and visibility caches are shared)."""
     gt = load_ground_truth(scene_dir)
-    tasks = gt.task_texts
-    if not tasks:
+    own = gt.task_texts
+    if not own:
         raise InputError("ground truth lists no tasks", source=str(scene_dir / "gt.json"))
-    absent = np.array([not task.objects for task in gt.tasks])
+    extra = scene_absent_tasks(gt, extra_absent)
+    tasks = own + extra
+    absent = np.array([not task.objects for task in gt.tasks] + [True] * len(extra))
     relevant = np.zeros((len(gt.instance_ids), len(tasks)), dtype=bool)
     for t, task in enumerate(gt.tasks):
         ids = [o.instance_id for o in task.objects]
         relevant[:, t] = np.isin(gt.instance_ids, ids)
 
-    job = local_job(
-        scene_dir,
-        work_dir / "job",
-        work_dir / "cache",
-        tasks,
-        PipelineParams(max_frames=max_frames, answer_min_peak=None),
-        models,
-        cache_prefix="scene/cache/",
-    )
+    params = PipelineParams(max_frames=max_frames, answer_min_peak=None)
+    cache_root = work_dir / "cache" if cache_dir is None else cache_dir
+    job = local_job(scene_dir, work_dir / "job", cache_root, own, params, models, cache_prefix="scene/cache/")
     cache, keys = job.spec.cache_store, job.scene.keys
     run_stage("perceive", job)
     run_stage("fuse", job)  # computes and caches the per-frame mask-to-Gaussian associations
@@ -143,11 +166,14 @@ def scene_scores(
             is_neg = seen[:, None] & absent[None, :]
         pos.append(scores[is_pos])
         neg.append(scores[is_neg])
-    return SceneLabels(
-        np.concatenate(pos or [np.zeros(0)]),
-        np.concatenate(neg or [np.zeros(0)]),
-        first_answer_peaks(job, [not task.objects for task in gt.tasks]),
-    )
+    peaks = first_answer_peaks(job, [not task.objects for task in gt.tasks])
+    if extra:
+        with_extra = local_job(
+            scene_dir, work_dir / "job-absent", cache_root, tasks, params, models, cache_prefix="scene/cache/"
+        )
+        run_stage("fuse", with_extra)
+        peaks += first_answer_peaks(with_extra, [False] * len(own) + [True] * len(extra))[len(own) :]
+    return SceneLabels(np.concatenate(pos or [np.zeros(0)]), np.concatenate(neg or [np.zeros(0)]), peaks)
 
 
 def first_answer_peaks(job: Job, absent: list[bool]) -> list[TaskPeak]:
@@ -175,9 +201,13 @@ def collect_scores(
     max_frames: int | None = None,
     negatives: Negatives = "absent",
     regime: Regime = "strong",
+    extra_absent: int = 0,
+    cache_dir: Path | None = None,
 ) -> tuple[SceneLabels, str]:
     """(the scenes' labels pooled, encoder model id) over scenes with ground truth; `regime`
-    "realistic" scores the evaluation's weak-evidence embeddings (`eval/regime.py`)."""
+    "realistic" scores the evaluation's weak-evidence embeddings (`eval/regime.py`);
+    `extra_absent` more absent tasks per scene (`scene_scores`); `cache_dir` keeps the
+    perception cache between calls (default: a temporary one)."""
     if not 0.0 < positive_overlap <= 1.0:
         raise InputError(f"positive_overlap must be in (0, 1], got {positive_overlap}")
     models = regime_models(load_models(profile), regime)
@@ -186,7 +216,14 @@ def collect_scores(
         for n, scene_dir in enumerate(scene_dirs):
             scenes.append(
                 scene_scores(
-                    Path(scene_dir), models, Path(tmp) / str(n), positive_overlap, max_frames, negatives
+                    Path(scene_dir),
+                    models,
+                    Path(tmp) / str(n),
+                    positive_overlap,
+                    max_frames,
+                    negatives,
+                    extra_absent=extra_absent,
+                    cache_dir=cache_dir,
                 )
             )
     pooled = SceneLabels(

@@ -8,6 +8,7 @@ and absent tasks name something the scene does not hold, whose scores calibrate 
 from __future__ import annotations
 
 from collections import defaultdict
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -75,14 +76,47 @@ def make_tasks(spec: SceneSpec, instances: list[Instance], rng: np.random.Genera
     ]
     coarse = [coarse[i] for i in rng.permutation(len(coarse))[: spec.max_coarse_tasks]]
 
-    # Absent: prefer a colour the scene never uses, so the task is unrelated to every object.
-    unused = [c for c in COLOURS if c not in by_colour]
     absent: list[TaskSpec] = []
     for _ in range(spec.n_absent_tasks):
-        kind = str(rng.choice(list(spec.kinds)))
-        colours = unused or [c for c in COLOURS if (c, kind) not in by_pair]
-        colour = str(rng.choice(colours))
-        text = fine_task_text(colour, kind, 1)
-        if all(t.text != text for t in absent):
+        text = absent_task_text(rng, spec.kinds, set(by_pair))
+        if text is not None and all(t.text != text for t in absent):
             absent.append(TaskSpec(text, "absent", ()))
     return fine + coarse + absent
+
+
+def absent_task_text(
+    rng: np.random.Generator, kinds: Sequence[str], held: set[tuple[str, str]]
+) -> str | None:
+    """One absent task by the suite's rule: a kind of the layout, in a colour the scene never uses
+    (so the task is unrelated to every object), else a colour that kind does not come in here
+    (None when the drawn kind comes in every colour). `held` is the scene's (colour, kind) pairs."""
+    used = {c for c, _ in held}
+    unused = [c for c in COLOURS if c not in used]
+    kind = str(rng.choice(list(kinds)))
+    colours = unused or [c for c in COLOURS if (c, kind) not in held]
+    return fine_task_text(str(rng.choice(colours)), kind, 1) if colours else None
+
+
+EXTRA_ABSENT_SEED = 4646
+"""Mixed with a scene's seed to draw its extra absent tasks (`extra_absent_tasks`): a stream of
+its own, so the scene (frames, objects, its own tasks) stays exactly as generated."""
+
+
+def extra_absent_tasks(
+    scene_seed: int, kinds: Sequence[str], held: set[tuple[str, str]], existing: Sequence[str], n: int
+) -> list[str]:
+    """`n` more absent tasks for a generated scene (fewer only when the vocabulary runs out), by
+    the suite's own rule (`absent_task_text`), none equal to a task in `existing`. Fitting the
+    'not found' threshold needs more absent tasks than the suite's one or two per scene
+    (`bfields calibrate --absent-tasks`, docs/research/not-found-decision.md)."""
+    rng = np.random.default_rng([int(scene_seed), EXTRA_ABSENT_SEED])
+    taken = set(existing)
+    out: list[str] = []
+    for _ in range(50 * max(n, 1)):
+        if len(out) == n:
+            break
+        text = absent_task_text(rng, kinds, held)
+        if text is not None and text not in taken:
+            taken.add(text)
+            out.append(text)
+    return out

@@ -11,8 +11,9 @@ import pytest
 import bayesian_fields_core
 from bayesian_fields_core.calibration.model import MAX_PRESENT_LOSS, Calibration, distribution_min_peak
 from bayesian_fields_core.cli.main import main
-from bayesian_fields_core.eval.calibration.ground_truth import TaskPeak, label_masks
+from bayesian_fields_core.eval.calibration.ground_truth import TaskPeak, label_masks, scene_absent_tasks
 from bayesian_fields_core.eval.calibration.not_found_fit import fit_answer_min_peak
+from bayesian_fields_core.eval.synthetic import load_ground_truth
 from bayesian_fields_core.objects.not_found import resolve_answer_min_peak
 
 SAMPLE = Path(__file__).resolve().parents[3] / "samples" / "tabletop"
@@ -149,6 +150,7 @@ def test_calibrate_fits_the_threshold_on_the_sample_keeping_the_likelihoods(
     kept = Path(bayesian_fields_core.__file__).parent / "models" / "tiny-clip" / "calibration.json"
     out = tmp_path / "cal.json"
     args = ["calibrate", "--scene", str(SAMPLE), "--max-frames", "8", "--keep-likelihoods", str(kept)]
+    args += ["--absent-tasks", "0"]  # the scene's own tasks only
     assert main([*args, "--out", str(out)]) == 0
     printed = capsys.readouterr().out
     assert "answer_min_peak" in printed and "trade-off" in printed
@@ -179,3 +181,53 @@ def test_calibrate_fits_the_threshold_on_the_sample_keeping_the_likelihoods(
         == 2
     )
     assert "--keep-likelihoods goes with --scene" in capsys.readouterr().err
+
+
+# ---- extra absent tasks and the realistic regime's threshold (issue 46) -------------------------
+
+
+def test_extra_absent_tasks_of_the_sample_name_nothing_it_holds() -> None:
+    gt = load_ground_truth(SAMPLE)
+    held = {(str(i.colour), i.kind) for i in gt.instances if i.category == "object"}
+    extra = scene_absent_tasks(gt, 6)
+    assert len(extra) == 6 and not set(extra) & set(gt.task_texts)
+    assert not any(f" {c} {k}" in t for t in extra for c, k in held)
+    assert scene_absent_tasks(gt, 6) == extra and scene_absent_tasks(gt, 0) == []
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(900)
+def test_calibrate_in_the_realistic_regime_stores_the_threshold_the_regime_uses(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """`bfields calibrate --regime realistic` end to end on the sample with extra absent tasks: the
+    file keeps the regime's likelihoods (the margins every run of the regime computes), counts the
+    extra absent tasks in its fit, and is what the regime then applies."""
+    from bayesian_fields_core.eval import regime
+    from bayesian_fields_core.eval.regime import PAPER_LIKELIHOODS, RegimeModels
+    from bayesian_fields_core.perception.models import load_models
+
+    out = tmp_path / "realistic.json"
+    args = ["calibrate", "--scene", str(SAMPLE), "--max-frames", "4", "--regime", "realistic"]
+    assert main([*args, "--absent-tasks", "3", "--cache", str(tmp_path / "cache"), "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "likelihoods these scenes give" in printed
+    cal = json.loads(out.read_text())
+    assert "weak-evidence" in cal["model_id"]
+    target = PAPER_LIKELIHOODS
+    assert (cal["mu0"], cal["mu1"], cal["s"]) == (target.mu0, target.mu1, target.s)
+    fit = cal["not_found_fit"]
+    assert fit is not None, printed
+    assert fit["absent_tasks"] > 1  # the sample's own absent task alone has at most one answer
+    monkeypatch.setattr(regime, "REALISTIC_CALIBRATION", out)
+    used = RegimeModels(load_models()).calibration
+    assert used is not None and used.answer_min_peak == cal["answer_min_peak"]
+
+
+def test_absent_tasks_and_cache_go_with_scenes(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    scores = tmp_path / "s.json"
+    scores.write_text('{"positive": [0.3, 0.28], "negative": [0.2, 0.19]}')
+    args = ["calibrate", "--scores", str(scores), "--model-id", "m@1", "--out", str(tmp_path / "c.json")]
+    assert main([*args, "--absent-tasks", "3"]) == 2
+    assert "--absent-tasks and --cache go with --scene" in capsys.readouterr().err
+    assert not (tmp_path / "c.json").exists()

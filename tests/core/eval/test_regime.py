@@ -8,11 +8,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bayesian_fields_core.calibration.model import fit_calibration, load_calibration
+from bayesian_fields_core.calibration.model import (
+    Calibration,
+    distribution_min_peak,
+    fit_calibration,
+    load_calibration,
+    save_calibration,
+)
 from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.eval.calibration.ground_truth import collect_scores
 from bayesian_fields_core.eval.regime import (
     PAPER_LIKELIHOODS,
+    REALISTIC_CALIBRATION,
     REALISTIC_TOLERANCE,
     SCENE_STATISTICS,
     Likelihoods,
@@ -96,3 +103,56 @@ def test_calibrating_in_the_realistic_regime_gives_the_mapped_likelihoods() -> N
     assert realistic.mu1 == pytest.approx(m.scale * strong.mu1 + m.offset, abs=1e-4)
     assert realistic.s == pytest.approx(m.scale * strong.s, abs=1e-4)
     assert 0.1 < realistic.mu0 < realistic.mu1 < 0.4  # a real CLIP's small range
+
+
+# ---- the regime's fitted "not found" threshold (issue 46) ---------------------------------------
+
+
+def _write(path: Path, model_id: str, threshold: float, mu0: float = 0.20) -> Path:
+    cal = Calibration(model_id=model_id, mu0=mu0, mu1=0.27, s=0.035, answer_min_peak=threshold)
+    save_calibration(path, cal)
+    return path
+
+
+def test_the_regime_reads_its_threshold_from_one_file(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """`RegimeModels.calibration` carries the threshold the regime's calibration file holds for
+    this very wrapped encoder, and the evaluation applies it; a file for another encoder or other
+    likelihoods is not applied (the distribution threshold is)."""
+    from bayesian_fields_core.eval import regime
+    from bayesian_fields_core.eval.suite import run_threshold, threshold_source
+
+    base = load_models()
+    wrapped_id = str(RegimeModels(base).encoder.model_id)
+    fallback = distribution_min_peak(0.20, 0.27, 0.035)
+    for path, expected in (
+        (_write(tmp_path / "ok.json", wrapped_id, 0.77), 0.77),
+        (_write(tmp_path / "other.json", "tiny-clip@000000000000+weak-evidence@x", 0.77), None),
+        (_write(tmp_path / "shifted.json", wrapped_id, 0.77, mu0=0.21), None),
+        (tmp_path / "missing.json", None),
+    ):
+        monkeypatch.setattr(regime, "REALISTIC_CALIBRATION", path)
+        models = RegimeModels(base)
+        assert models.calibration is not None and models.calibration.answer_min_peak == expected, path
+        assert (models.calibration.mu0, models.calibration.mu1, models.calibration.s) == (0.20, 0.27, 0.035)
+        used = run_threshold(None, models)
+        assert used == pytest.approx(fallback if expected is None else expected)
+        assert ("fitted by" in threshold_source(None, models)) == (expected is not None)
+        assert run_threshold({"answer_min_peak": 0.5}, models) == 0.5  # a parameter still wins
+
+
+def test_the_bundled_regime_threshold_is_for_todays_regime() -> None:
+    """The committed fit (docs/research/not-found-decision.md) is for the wrapped encoder the
+    regime builds today: a change of the scene statistics or the regime's seed makes this fail
+    rather than silently dropping the threshold."""
+    stored = load_calibration(REALISTIC_CALIBRATION)
+    models = RegimeModels(load_models())
+    assert stored.model_id == str(models.encoder.model_id)
+    assert models.calibration is not None and stored.answer_min_peak is not None
+    assert models.calibration.answer_min_peak == stored.answer_min_peak
+    fit = stored.not_found_fit
+    assert (
+        fit is not None and fit.absent_tasks >= 20 and fit.present_tasks >= 100
+    )  # ten scenes with extra absent tasks
+    assert fit.present_lost <= fit.max_present_loss

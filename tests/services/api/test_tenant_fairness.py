@@ -13,7 +13,6 @@ only on what was answered before what.
 from __future__ import annotations
 
 import re
-import secrets
 import select
 import socket
 import time
@@ -24,10 +23,9 @@ from pathlib import Path
 import httpx
 import pytest
 
-from tests.integration.fixtures.redis_server import RedisServer
-from tests.integration.fixtures.s3_server import S3Server
-from tests.integration.fixtures.services import ApiServer, build_service_env
+from tests.integration.fixtures.services import ApiServer
 from tests.services.conftest import scene_form
+from tests.services.support.lone_api import lone_api
 from tests.services.support.problems import assert_problem
 
 pytestmark = pytest.mark.integration
@@ -41,26 +39,17 @@ WAIT_S = 30.0  # the longest any step may take on a loaded machine (a generous b
 
 @pytest.fixture(scope="module")
 def fair_api(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ApiServer]:
-    tmp = tmp_path_factory.mktemp("tenant-fairness")
-    redis_server = RedisServer(tmp / "redis").start()
-    s3 = S3Server(tmp / "s3").start()
-    keys = {t: f"key-{t}-" + secrets.token_urlsafe(12) for t in ("tenant-a", "tenant-b")}
-    extra = {
+    settings = {
         "BFIELDS_API_TENANT_CONCURRENCY": str(CONCURRENCY),
         "BFIELDS_API_TENANT_QUEUE": str(QUEUE),
         "BFIELDS_API_TENANT_STREAMS": str(STREAMS),
         "BFIELDS_EVENTS_POLL_S": "0.2",  # a closed stream is noticed (and its slot freed) soon
         "BFIELDS_RETRY_AFTER_S": str(RETRY_AFTER_S),
         "BFIELDS_METRICS_PER_TENANT": "true",
-        "BFIELDS_API_BULK_LANE": "false",
         "BFIELDS_API_BODY_TIMEOUT_S": "300",  # the held bodies below must not meet the body deadline
     }
-    env = build_service_env(tmp / "env", redis_server.url(), s3.env(), keys, extra)
-    api = ApiServer(env=env, log_dir=tmp / "api", keys=keys, control=False).start()
-    yield api
-    api.stop()
-    s3.stop()
-    redis_server.stop()
+    with lone_api(tmp_path_factory.mktemp("tenant-fairness"), settings) as api:
+        yield api
 
 
 class HeldPost:

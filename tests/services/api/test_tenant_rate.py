@@ -9,7 +9,6 @@ than the bucket refills (RATE tokens a second), so the refusal must come within 
 from __future__ import annotations
 
 import re
-import secrets
 import time
 from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
@@ -18,9 +17,8 @@ import httpx
 import pytest
 
 from bayesian_fields_service.api.tenant_rate import TenantRate
-from tests.integration.fixtures.redis_server import RedisServer
-from tests.integration.fixtures.s3_server import S3Server
-from tests.integration.fixtures.services import ApiServer, build_service_env
+from tests.integration.fixtures.services import ApiServer
+from tests.services.support.lone_api import lone_api
 from tests.services.support.problems import assert_problem
 
 RATE = 0.5  # tokens a second: one request every 2 s sustained
@@ -86,23 +84,14 @@ def test_the_table_forgets_refilled_buckets_of_many_tenants() -> None:
 
 @pytest.fixture(scope="module")
 def rated_api(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ApiServer]:
-    tmp = tmp_path_factory.mktemp("tenant-rate")
-    redis_server = RedisServer(tmp / "redis").start()
-    s3 = S3Server(tmp / "s3").start()
-    keys = {t: f"key-{t}-" + secrets.token_urlsafe(12) for t in ("tenant-a", "tenant-b")}
-    extra = {
+    settings = {
         "BFIELDS_API_TENANT_RATE": str(RATE),
         "BFIELDS_API_TENANT_BURST": str(BURST),
         "BFIELDS_API_TENANT_RATE_DELAY_S": str(DELAY_S),
         "BFIELDS_METRICS_PER_TENANT": "true",
-        "BFIELDS_API_BULK_LANE": "false",
     }
-    env = build_service_env(tmp / "env", redis_server.url(), s3.env(), keys, extra)
-    api = ApiServer(env=env, log_dir=tmp / "api", keys=keys, control=False).start()
-    yield api
-    api.stop()
-    s3.stop()
-    redis_server.stop()
+    with lone_api(tmp_path_factory.mktemp("tenant-rate"), settings) as api:
+        yield api
 
 
 def _remaining(resp: httpx.Response) -> int:

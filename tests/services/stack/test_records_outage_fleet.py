@@ -20,12 +20,10 @@ import httpx
 import pytest
 
 from tests.integration.fixtures.private_postgres import PrivatePostgres, postgres_bin
-from tests.integration.fixtures.redis_server import RedisServer
 from tests.integration.fixtures.s3_server import S3Server
-from tests.integration.fixtures.services import ApiServer, WorkerPool, build_service_env
-from tests.services.conftest import SERVICE_ENV
-from tests.services.support.callback_receivers import Receiver
+from tests.integration.fixtures.services import ApiServer
 
+from .fleet_stack import fleet_stack, submit_fleet
 from .test_redis_disposable import TERMINAL, _states
 from .test_workers import PARAMS, TASKS, _upload, _wait_for
 
@@ -83,87 +81,62 @@ def test_a_fleet_survives_a_records_database_outage_with_callbacks_and_usage_exa
     tmp_path: Path, s3_server: S3Server, test_api_keys: dict[str, str], worker_env: dict[str, str],
     scene_dir: Path, private_pg: PrivatePostgres,
 ) -> None:  # fmt: skip
-    receiver = Receiver("ok")
-    redis_srv = RedisServer(tmp_path / "redis", appendonly=False).start()
-    settings = {"BFIELDS_CALLBACK_SECRET": "test-secret", "BFIELDS_CALLBACK_ALLOW_PRIVATE": "true",
-                "BFIELDS_CALLBACK_POLL_S": "0.2", "BFIELDS_DISPATCH_INTERVAL_S": "0.2",
-                "BFIELDS_DATABASE_URL": private_pg.url()}  # fmt: skip
-    env = build_service_env(
-        tmp_path / "env",
-        redis_srv.url(),
-        s3_server.env(),
-        test_api_keys,
-        {**SERVICE_ENV, **worker_env, **settings},
-    )
-    apis = [
-        ApiServer(env=env, log_dir=tmp_path / f"api{i}", keys=dict(test_api_keys)).start() for i in range(2)
-    ]
-    pool = WorkerPool(broker_url=redis_srv.url(), env=env, log_dir=tmp_path / "workers")
     watcher: Watcher | None = None
-    try:
-        pool.start("gpu")
-        pool.start("cpu")
-        scene_id = _upload(apis[0], scene_dir)
-        with apis[0].client("tenant-a") as a, apis[1].client("tenant-a") as b:
-            batch = a.post("/v1/batches", json={
-                "scene_ids": [scene_id], "task_lists": [[f"{TASKS[0]} {i}"] for i in range(FLEET)],
-                "parameters": PARAMS, "callback_url": receiver.url("/batch"),
-            })  # fmt: skip
-            assert batch.status_code == 202 and batch.json()["created"] == FLEET, batch.text
-            batch_id = batch.json()["id"]
-            singles = []
-            for i in range(SINGLES):
-                resp = b.post("/v1/jobs", json={"scene_id": scene_id, "tasks": [f"{TASKS[1]} {i}"],
-                                                "parameters": PARAMS, "callback_url": receiver.url(f"/job/{i}")})  # fmt: skip
-                assert resp.status_code == 202, resp.text
-                singles.append(resp.json()["id"])
+    with fleet_stack(tmp_path, s3_server, test_api_keys, worker_env,
+                     {"BFIELDS_DATABASE_URL": private_pg.url()}) as stack:  # fmt: skip
+        try:
+            apis, receiver = stack.apis, stack.receiver
+            scene_id = _upload(apis[0], scene_dir)
+            with apis[0].client("tenant-a") as a, apis[1].client("tenant-a") as b:
+                batch_id = submit_fleet(a, scene_id, receiver, FLEET)
+                singles = []
+                for i in range(SINGLES):
+                    resp = b.post("/v1/jobs", json={"scene_id": scene_id, "tasks": [f"{TASKS[1]} {i}"],
+                                                    "parameters": PARAMS, "callback_url": receiver.url(f"/job/{i}")})  # fmt: skip
+                    assert resp.status_code == 202, resp.text
+                    singles.append(resp.json()["id"])
 
-            def succeeded() -> int:
-                return int(_json(b, f"/v1/batches/{batch_id}")["counts"].get("succeeded", 0))
+                def succeeded() -> int:
+                    return int(_json(b, f"/v1/batches/{batch_id}")["counts"].get("succeeded", 0))
 
-            _wait_for(lambda: succeeded() >= 3 or None, 300, "3 jobs of the fleet")
-            watcher = Watcher(
-                apis[1], [f"/v1/batches/{batch_id}", f"/v1/jobs/{singles[-1]}", "/v1/jobs?limit=5"]
-            )
-            watcher.thread.start()
-            private_pg.stop()  # every process loses the records at once
-            time.sleep(OUTAGE_S)
-            private_pg.start()
-            _wait_for(lambda: all(_json(b, f"/v1/jobs/{j}")["state"] in TERMINAL for j in singles) or None,
+                _wait_for(lambda: succeeded() >= 3 or None, 300, "3 jobs of the fleet")
+                watcher = Watcher(
+                    apis[1], [f"/v1/batches/{batch_id}", f"/v1/jobs/{singles[-1]}", "/v1/jobs?limit=5"]
+                )
+                watcher.thread.start()
+                private_pg.stop()  # every process loses the records at once
+                time.sleep(OUTAGE_S)
+                private_pg.start()
+                _wait_for(lambda: all(_json(b, f"/v1/jobs/{j}")["state"] in TERMINAL for j in singles) or None,
                       300, "every single job to end")  # fmt: skip
-            lost_at = succeeded()
-            _wait_for(lambda: succeeded() >= lost_at + 5 or None, 300, "5 more jobs after the outage")
-            watcher.stop.set()
-            watcher.thread.join(15)
-            cancel = b.post(f"/v1/batches/{batch_id}/cancel")  # the rest: most of them still waiting
-            assert cancel.status_code == 202, cancel.text
-            _wait_for(lambda: _json(b, f"/v1/batches/{batch_id}")["finished"] or None, 300,
+                lost_at = succeeded()
+                _wait_for(lambda: succeeded() >= lost_at + 5 or None, 300, "5 more jobs after the outage")
+                watcher.stop.set()
+                watcher.thread.join(15)
+                cancel = b.post(f"/v1/batches/{batch_id}/cancel")  # the rest: most of them still waiting
+                assert cancel.status_code == 202, cancel.text
+                _wait_for(lambda: _json(b, f"/v1/batches/{batch_id}")["finished"] or None, 300,
                       "every job of the fleet to end")  # fmt: skip
-            jobs = _states(a, batch_id)
-            single_jobs = [a.get(f"/v1/jobs/{j}").json() for j in singles]
-            usage = a.get("/v1/usage").json()["total"]
-        states = Counter(j["state"] for j in jobs.values())
-        print(f"\nfleet of {FLEET} + {SINGLES} through a {OUTAGE_S} s records outage: {dict(states)}; "
+                jobs = _states(a, batch_id)
+                single_jobs = [a.get(f"/v1/jobs/{j}").json() for j in singles]
+                usage = a.get("/v1/usage").json()["total"]
+            states = Counter(j["state"] for j in jobs.values())
+            print(f"\nfleet of {FLEET} + {SINGLES} through a {OUTAGE_S} s records outage: {dict(states)}; "
               f"clients saw {dict(watcher.codes)}; usage {usage['jobs_by_state']}")  # fmt: skip
-        assert watcher.bad == [], watcher.bad[:10]
-        assert watcher.codes[503] > 0, "the outage was never seen by a client"
-        assert len(jobs) == FLEET and set(states) <= TERMINAL, states
-        assert [j["state"] for j in single_jobs] == ["succeeded"] * SINGLES, single_jobs
-        ran = [j for j in [*jobs.values(), *single_jobs] if j["state"] == "succeeded"]
-        assert all(j["stage_runs"] == 3 for j in ran), [
-            (j["id"], j["stage_runs"]) for j in ran if j["stage_runs"] != 3
-        ]
-        ends = Counter(j["state"] for j in [*jobs.values(), *single_jobs])
-        assert usage["jobs"] == FLEET + SINGLES and usage["jobs_by_state"] == dict(ends), usage
-        _wait_for(lambda: len(receiver.snapshot()) >= SINGLES + 1 or None, 60, "every callback")
-        time.sleep(2.0)  # and no second one
-        hits = Counter(hit.event_id for hit in receiver.snapshot())
-        assert len(hits) == SINGLES + 1 and set(hits.values()) == {1}, hits
-    finally:
-        if watcher is not None:
-            watcher.stop.set()
-        pool.stop_all()
-        for api in apis:
-            api.stop()
-        redis_srv.stop()
-        receiver.close()
+            assert watcher.bad == [], watcher.bad[:10]
+            assert watcher.codes[503] > 0, "the outage was never seen by a client"
+            assert len(jobs) == FLEET and set(states) <= TERMINAL, states
+            assert [j["state"] for j in single_jobs] == ["succeeded"] * SINGLES, single_jobs
+            ran = [j for j in [*jobs.values(), *single_jobs] if j["state"] == "succeeded"]
+            assert all(j["stage_runs"] == 3 for j in ran), [
+                (j["id"], j["stage_runs"]) for j in ran if j["stage_runs"] != 3
+            ]
+            ends = Counter(j["state"] for j in [*jobs.values(), *single_jobs])
+            assert usage["jobs"] == FLEET + SINGLES and usage["jobs_by_state"] == dict(ends), usage
+            _wait_for(lambda: len(receiver.snapshot()) >= SINGLES + 1 or None, 60, "every callback")
+            time.sleep(2.0)  # and no second one
+            hits = Counter(hit.event_id for hit in receiver.snapshot())
+            assert len(hits) == SINGLES + 1 and set(hits.values()) == {1}, hits
+        finally:
+            if watcher is not None:
+                watcher.stop.set()

@@ -19,13 +19,10 @@ import httpx
 import pytest
 import redis
 
-from tests.integration.fixtures.redis_server import RedisServer
 from tests.integration.fixtures.s3_server import S3Server
-from tests.integration.fixtures.services import ApiServer, WorkerPool, build_service_env
-from tests.services.conftest import SERVICE_ENV
-from tests.services.support.callback_receivers import Receiver
 
-from .test_workers import PARAMS, TASKS, _upload, _wait_for
+from .fleet_stack import fleet_stack, submit_fleet
+from .test_workers import _upload, _wait_for
 
 # Longer than the default timeout (pyproject.toml): two fleet waits of up to 300 s each, after a stack start.
 pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.timeout(900)]
@@ -55,29 +52,11 @@ def test_a_fleet_survives_losing_redis_with_callbacks_and_usage_exact(
     tmp_path: Path, s3_server: S3Server, test_api_keys: dict[str, str], worker_env: dict[str, str],
     scene_dir: Path,
 ) -> None:  # fmt: skip
-    receiver = Receiver("ok")
-    redis_srv = RedisServer(tmp_path / "redis", appendonly=False).start()
-    callbacks_on = {"BFIELDS_CALLBACK_SECRET": "test-secret", "BFIELDS_CALLBACK_ALLOW_PRIVATE": "true",
-                    "BFIELDS_CALLBACK_POLL_S": "0.2", "BFIELDS_DISPATCH_INTERVAL_S": "0.2"}  # fmt: skip
-    env = build_service_env(
-        tmp_path / "env", redis_srv.url(), s3_server.env(), test_api_keys,
-        {**SERVICE_ENV, **worker_env, **callbacks_on},
-    )  # fmt: skip
-    apis = [
-        ApiServer(env=env, log_dir=tmp_path / f"api{i}", keys=dict(test_api_keys)).start() for i in range(2)
-    ]
-    pool = WorkerPool(broker_url=redis_srv.url(), env=env, log_dir=tmp_path / "workers")
-    try:
-        pool.start("gpu")
-        pool.start("cpu")
+    with fleet_stack(tmp_path, s3_server, test_api_keys, worker_env) as stack:
+        redis_srv, apis, receiver = stack.redis, stack.apis, stack.receiver
         scene_id = _upload(apis[0], scene_dir)
         with apis[0].client("tenant-a") as a, apis[1].client("tenant-a") as b:
-            batch = a.post("/v1/batches", json={
-                "scene_ids": [scene_id], "task_lists": [[f"{TASKS[0]} {i}"] for i in range(FLEET)],
-                "parameters": PARAMS, "callback_url": receiver.url("/batch"),
-            })  # fmt: skip
-            assert batch.status_code == 202 and batch.json()["created"] == FLEET, batch.text
-            batch_id = batch.json()["id"]
+            batch_id = submit_fleet(a, scene_id, receiver, FLEET)
 
             def succeeded() -> int:
                 return int(
@@ -113,9 +92,3 @@ def test_a_fleet_survives_losing_redis_with_callbacks_and_usage_exact(
         time.sleep(2.0)  # and no second one
         hits = receiver.snapshot()
         assert len(hits) == 1 and hits[0].event_id.startswith(f"batch:{batch_id}:finished:"), hits
-    finally:
-        pool.stop_all()
-        for api in apis:
-            api.stop()
-        redis_srv.stop()
-        receiver.close()

@@ -5,14 +5,22 @@ the tracer provider is process-global."""
 
 from __future__ import annotations
 
+import gzip
+import http.server
 import json
 import os
 import subprocess
 import sys
 import textwrap
+import threading
 from pathlib import Path
+from typing import Any
 
 import pytest
+from opentelemetry.proto.collector.trace.v1.trace_service_pb2 import (
+    ExportTraceServiceRequest,
+    ExportTraceServiceResponse,
+)
 
 from bayesian_fields_service.observability import tracing
 
@@ -80,3 +88,57 @@ def test_a_span_from_a_stored_traceparent_joins_its_trace(tmp_path: Path) -> Non
     assert outer["attributes"] == {"bfields.job_id": "j_1", "bfields.stages": "perceive,fuse,cluster"}
     assert inner["attributes"] == {"bfields.frames": 4} and outer["service"] == "bfields-control"
     assert out.strip() == f"00-{'ab' * 16}-{inner['span_id']}-01"
+
+
+class _OtlpReceiver(http.server.BaseHTTPRequestHandler):
+    """An OTLP/HTTP trace endpoint: keeps each request's path, headers and decoded body."""
+
+    received: list[tuple[str, str, ExportTraceServiceRequest]] = []
+
+    def do_POST(self) -> None:  # noqa: N802 (http.server's name)
+        body = self.rfile.read(int(self.headers["Content-Length"]))
+        if self.headers.get("Content-Encoding") == "gzip":
+            body = gzip.decompress(body)
+        request = ExportTraceServiceRequest()
+        request.ParseFromString(body)
+        self.received.append((self.path, self.headers.get("Content-Type", ""), request))
+        self.send_response(200)
+        self.send_header("Content-Type", "application/x-protobuf")
+        self.end_headers()
+        self.wfile.write(ExportTraceServiceResponse().SerializeToString())
+
+    def log_message(self, format: str, *args: Any) -> None:  # noqa: A002 (the base class's name)
+        """Quiet: the test reads what arrived."""
+
+
+@pytest.mark.slow
+def test_the_standard_otlp_endpoint_receives_the_job_spans_over_http() -> None:
+    """`OTEL_EXPORTER_OTLP_ENDPOINT` alone turns tracing on and the SDK's OTLP/HTTP exporter posts
+    the spans (batched, flushed at exit) to a real HTTP receiver, as protobuf, with the trace kept."""
+    _OtlpReceiver.received = []
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), _OtlpReceiver)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    parent = "00-" + "ef" * 16 + "-" + "12" * 8 + "-01"
+    try:
+        _python(
+            f"""
+            from bayesian_fields_service.config.settings import get_settings
+            from bayesian_fields_service.observability import tracing
+            assert tracing.configure(get_settings(), "worker") is True
+            with tracing.job_span("stage fuse", {{"bfields.job_id": "j_9"}}, "{parent}") as span:
+                span.set_attributes({{"bfields.masks": 77}})
+            """,
+            {"OTEL_EXPORTER_OTLP_ENDPOINT": f"http://127.0.0.1:{server.server_address[1]}"},
+        )
+    finally:
+        server.shutdown()
+    assert [(path, kind) for path, kind, _ in _OtlpReceiver.received] == [
+        ("/v1/traces", "application/x-protobuf")
+    ]
+    (resource_spans,) = _OtlpReceiver.received[0][2].resource_spans
+    service = {a.key: a.value.string_value for a in resource_spans.resource.attributes}["service.name"]
+    (span,) = [s for scope in resource_spans.scope_spans for s in scope.spans]
+    assert service == "bfields-worker" and span.name == "stage fuse"
+    assert span.trace_id.hex() == "ef" * 16 and span.parent_span_id.hex() == "12" * 8
+    attributes = {a.key: a.value for a in span.attributes}
+    assert attributes["bfields.job_id"].string_value == "j_9" and attributes["bfields.masks"].int_value == 77

@@ -57,11 +57,16 @@ def _patch(x: tuple[float, float], y: tuple[float, float], z: float, colour: tup
 
 def _join(*parts: Gaussians) -> tuple[Gaussians, np.ndarray]:
     """The parts as one splat, and (N,) each Gaussian's part index."""
+
+    def cat(name: str) -> np.ndarray:
+        return np.concatenate([getattr(p, name) for p in parts])
+
     joined = Gaussians(
-        **{
-            name: np.concatenate([getattr(p, name) for p in parts])
-            for name in ("means", "log_scales", "quats", "opacity_logits", "sh")
-        }
+        means=cat("means"),
+        log_scales=cat("log_scales"),
+        quats=cat("quats"),
+        opacity_logits=cat("opacity_logits"),
+        sh=cat("sh"),
     )
     return joined, np.concatenate([np.full(len(p), i) for i, p in enumerate(parts)])
 
@@ -124,9 +129,9 @@ def test_the_crop_keeps_only_the_objects_rendered_pixels() -> None:
     )
     ids = np.where(parts == 2, -1, parts)
     frame = _frame("front", _pose(np.eye(3), (0.0, 0.0, 0.0)))
-    image = to_uint8(
-        GaussianRenderer(splat, backend="torch").render(K, frame.world_to_camera, SIZE, SIZE).rgb
-    )
+    rgb = GaussianRenderer(splat, backend="torch").render(K, frame.world_to_camera, SIZE, SIZE).rgb
+    assert rgb is not None
+    image = to_uint8(rgb)
     id_image = IdImageRenderer(splat, ids).render(K, frame.world_to_camera, SIZE, SIZE)
     crop = object_crop(image, id_image == 0)
     assert crop is not None and crop.shape[0] == crop.shape[1] < SIZE

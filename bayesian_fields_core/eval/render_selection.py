@@ -7,15 +7,18 @@ on highest cosine score to a text embedding of the task". Here, as docs/research
 fixes it, the map is the full method's (same fusion, primitives, clustering, kNN filter) and only
 the selection differs:
 
-1. visibility (`visible_counts`): in every training frame, the Gaussians the fuse stage counts as
-   visible (centre in the image, in front of the camera, not occluded against the rendered depth:
-   `fusion.visibility.mask_associations` with every pixel labelled), counted per object;
+1. visibility (`visible_counts`): in every training frame, the Gaussians the fuse stage found
+   visible (centre in the image, in front of the camera, not occluded against the rendered
+   depth): its cached pairs, read back (every Gaussian on a pixel some mask covers; the
+   segmenters label nearly every pixel), or, when the cache lacks a frame, the same test with
+   every pixel labelled (`visible_gaussians`), counted per object;
 2. best view (`best_views`): for each object the frame with the most visible Gaussians of it
    (ties: the earliest frame); an object no frame sees is not selectable;
 3. crop (`object_crops`): that frame rendered from the splat, the object's pixels kept (its
-   rendered footprint: the pixels whose dominant Gaussians are the object's, so occluders cut it),
-   the rest black, cropped to the footprint's box as perception crops a segment
-   (`perception.crops.mask_crops`, padding and square window as there);
+   rendered footprint: where the object's Gaussians rendered alone are opaque and not behind the
+   whole splat's depth, so occluders cut it, `object_footprint`), the rest black, cropped to the
+   footprint's box as perception crops a segment (`perception.crops.mask_crops`, padding and
+   square window as there);
 4. ranking (`rank_by_cosine`): every crop embedded with the run's image encoder (in the realistic
    regime its wrapped encoder, so the scores go through the regime's transform like the masks'),
    and each task takes its `n` objects of highest cosine to the task's text embedding, `n` being
@@ -33,13 +36,14 @@ from typing import Any
 import numpy as np
 import torch
 
-from bayesian_fields_core.eval.synthetic.id_images import IdImageRenderer
 from bayesian_fields_core.fusion.visibility import centre_columns, mask_associations
 from bayesian_fields_core.geometry.obb import OrientedBox
+from bayesian_fields_core.job.store import get_arrays
 from bayesian_fields_core.objects.clustering import object_geometry, remove_floaters
 from bayesian_fields_core.params import PipelineParams
 from bayesian_fields_core.perception.crops import mask_crops
 from bayesian_fields_core.perception.encoder import Encoder
+from bayesian_fields_core.render import GaussianRenderer
 from bayesian_fields_core.scene.types import Gaussians
 
 
@@ -115,28 +119,58 @@ def object_crop(image: np.ndarray, footprint: np.ndarray) -> np.ndarray | None:
     return mask_crops(image, labels, background="black")[0]
 
 
+def object_footprint(
+    object_alpha: np.ndarray,
+    object_depth: np.ndarray,
+    scene_depth: np.ndarray,
+    *,
+    depth_tolerance: float,
+    relative_tolerance: float,
+    min_alpha: float = 0.5,
+) -> np.ndarray:
+    """(H, W) bool: the pixels an object covers in the full render, occluders cut away.
+
+    object_alpha / object_depth: (H, W) the object's Gaussians rendered alone (opacity, median
+    depth); scene_depth: (H, W) the whole splat's median depth from the same camera. A pixel is
+    the object's where the object alone is opaque (`min_alpha`) and nothing renders in front of
+    it: its depth agrees with the scene's within the visibility test's tolerances.
+    """
+    tolerance = depth_tolerance + relative_tolerance * scene_depth
+    return (object_alpha >= min_alpha) & (scene_depth > 0) & (object_depth <= scene_depth + tolerance)
+
+
 def object_crops(
     gaussians: Gaussians,
     object_ids: np.ndarray,
     frames: Sequence[Any],
     best: np.ndarray,
-    images: Sequence[np.ndarray],
+    render: Any,
+    *,
+    depth_tolerance: float,
+    relative_tolerance: float,
 ) -> dict[int, np.ndarray]:
     """Object id -> its crop from its best frame (`object_crop`), for every object with one.
 
-    images: (H, W, 3) uint8 renders of `frames` from the splat (`render.GaussianRenderer`). Each
-    best frame's id image is rendered once: an id image of the map's objects (`IdImageRenderer`: per pixel the object whose Gaussians
-    dominate it, so an occluded part is not the object's), whose pixels equal to an object are its
-    rendered footprint. An object whose footprint is empty (too small or fully covered) has no crop.
+    render(gaussians | None, frame) -> `RenderOutput`: the splat's renderer (None: the whole splat,
+    else those Gaussians alone). Each best frame is rendered once in colour (the image and the
+    scene depth), and each object alone in that frame for its footprint (`object_footprint`); an
+    object whose footprint is empty (too small, or covered by others) has no crop.
     """
-    ids = IdImageRenderer(gaussians, object_ids)
     crops: dict[int, np.ndarray] = {}
     for f in np.unique(best[best >= 0]):
         frame = frames[int(f)]
-        image = images[int(f)]
-        id_image = ids.render(frame.K, frame.world_to_camera, frame.width, frame.height)
+        scene = render(None, frame)
+        image = to_uint8(scene.rgb)
         for obj in np.flatnonzero(best == f):
-            crop = object_crop(image, id_image == obj)
+            alone = render(gaussians.subset(object_ids == obj), frame)
+            footprint = object_footprint(
+                alone.alpha,
+                alone.median_depth,
+                scene.median_depth,
+                depth_tolerance=depth_tolerance,
+                relative_tolerance=relative_tolerance,
+            )
+            crop = object_crop(image, footprint)
             if crop is not None:
                 crops[int(obj)] = crop
     return crops
@@ -208,28 +242,43 @@ def pe_selection(
         sorted({o.object_id for objs in result.selections.values() for o in objs}), dtype=np.int64
     )
     ids = filtered_objects(means, result.object_ids, already, num_objects, params)
-    frames = [frame for _, frame in scene.selected_frames]
+    indexed = list(scene.selected_frames)
+    frames = [frame for _, frame in indexed]
     renderer = LazyRenderer(scene, device)
     centres = centre_columns(means, device)
-    visible, images = [], []
-    for frame in frames:  # one render per frame: its colours kept for the crops, its depth for visibility
-        rgb, expected, median, _ = renderer().render_tensors(
-            frame.K, frame.world_to_camera, frame.width, frame.height
-        )
-        images.append(to_uint8(rgb.cpu().numpy()))
-        depth = {"median": median, "expected": expected}.get(params.depth_source)
+    visible = []
+    for index, frame in indexed:  # the fuse stage's cached pairs (its renders), else its test again
+        key = scene.keys.visibility_key(index)
+        if spec.cache_store.exists(key):
+            visible.append(get_arrays(spec.cache_store, key)["gaussian_ids"].astype(np.int64))
+            continue
         visible.append(
             visible_gaussians(
                 centres,
                 frame,
-                frame_depth(params, renderer, frame) if depth is None else depth,
+                frame_depth(params, renderer, frame),
                 depth_tolerance=scene.lengths.depth_tolerance,
                 relative_tolerance=params.depth_tolerance_relative,
                 near=scene.lengths.visibility_near,
             )
         )
     best = best_views(visible_counts(ids, visible, num_objects))
-    crops = object_crops(scene.loaded.gaussians, ids, frames, best, images)
+
+    def render(part: Gaussians | None, frame: Any) -> Any:
+        if part is None:
+            return renderer().render(frame.K, frame.world_to_camera, frame.width, frame.height)
+        alone = GaussianRenderer(part, device=device, near_plane=scene.lengths.render_near)
+        return alone.render(frame.K, frame.world_to_camera, frame.width, frame.height)
+
+    crops = object_crops(
+        scene.loaded.gaussians,
+        ids,
+        frames,
+        best,
+        render,
+        depth_tolerance=scene.lengths.depth_tolerance,
+        relative_tolerance=params.depth_tolerance_relative,
+    )
     answers = [len(result.selections.get(task, [])) for task in tasks]
     ranked, _ = rank_by_cosine(encoder, crops, text, answers)
     chosen = np.array(sorted({o for objs in ranked for o in objs}), dtype=np.int64)

@@ -221,27 +221,18 @@ def filtered_objects(
     return ids
 
 
-def pe_selection(
-    spec: Any, scene: Any, result: Any, encoder: Encoder, text: np.ndarray, device: str = "cpu"
-) -> PeSelection:
-    """The w/o PE row's selection on the full method's map.
+def rendered_crops(
+    spec: Any, scene: Any, ids: np.ndarray, num_objects: int, device: str = "cpu"
+) -> dict[int, np.ndarray]:
+    """Object id -> the crop of its best view (steps 1-3), for the map `ids` (N,) of `num_objects`.
 
-    spec / scene: the full row's job (`JobSpec`, `JobScene`): its parameters (depth source and
-    tolerances, kNN filter), its splat and its training frames (`selected_frames`, as fused).
-    result: the full row's `Result` (its object ids and each task's number of answers).
-    text: (T, D) the tasks' text embeddings from `encoder`, in `spec.tasks` order.
-    Boxes are in the cameras' frame (where the map is computed and the GT lives).
+    spec / scene: a job that has run (`JobSpec`, `JobScene`): its parameters (depth source and
+    tolerances), splat, training frames (`selected_frames`, as fused) and visibility cache.
     """
     from bayesian_fields_core.stages.fuse import LazyRenderer, frame_depth
 
     params: PipelineParams = spec.params
-    tasks = list(spec.tasks)
     means = np.asarray(scene.loaded.gaussians.means)
-    num_objects = int(result.num_objects)
-    already = np.array(
-        sorted({o.object_id for objs in result.selections.values() for o in objs}), dtype=np.int64
-    )
-    ids = filtered_objects(means, result.object_ids, already, num_objects, params)
     indexed = list(scene.selected_frames)
     frames = [frame for _, frame in indexed]
     renderer = LazyRenderer(scene, device)
@@ -270,7 +261,7 @@ def pe_selection(
         alone = GaussianRenderer(part, device=device, near_plane=scene.lengths.render_near)
         return alone.render(frame.K, frame.world_to_camera, frame.width, frame.height)
 
-    crops = object_crops(
+    return object_crops(
         scene.loaded.gaussians,
         ids,
         frames,
@@ -279,6 +270,28 @@ def pe_selection(
         depth_tolerance=scene.lengths.depth_tolerance,
         relative_tolerance=params.depth_tolerance_relative,
     )
+
+
+def pe_selection(
+    spec: Any, scene: Any, result: Any, encoder: Encoder, text: np.ndarray, device: str = "cpu"
+) -> PeSelection:
+    """The w/o PE row's selection on the full method's map.
+
+    spec / scene: the full row's job (`JobSpec`, `JobScene`): its parameters (depth source and
+    tolerances, kNN filter), its splat and its training frames (`selected_frames`, as fused).
+    result: the full row's `Result` (its object ids and each task's number of answers).
+    text: (T, D) the tasks' text embeddings from `encoder`, in `spec.tasks` order.
+    Boxes are in the cameras' frame (where the map is computed and the GT lives).
+    """
+    params: PipelineParams = spec.params
+    tasks = list(spec.tasks)
+    means = np.asarray(scene.loaded.gaussians.means)
+    num_objects = int(result.num_objects)
+    already = np.array(
+        sorted({o.object_id for objs in result.selections.values() for o in objs}), dtype=np.int64
+    )
+    ids = filtered_objects(means, result.object_ids, already, num_objects, params)
+    crops = rendered_crops(spec, scene, ids, num_objects, device)
     answers = [len(result.selections.get(task, [])) for task in tasks]
     ranked, _ = rank_by_cosine(encoder, crops, text, answers)
     chosen = np.array(sorted({o for objs in ranked for o in objs}), dtype=np.int64)

@@ -122,7 +122,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--rows",
         type=_row_set,
         default="all",
-        help="which rows to run: all (Table 1: the method, its ablations and the baselines) or full "
+        help="which rows to run: all (Table 1: the method, its ablations, w/o PE among them, and the baselines) or full "
         "(the full method alone: its scores and the 'not found' answer, in a fraction of the time)",
     )
     ev.add_argument(

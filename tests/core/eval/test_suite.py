@@ -14,6 +14,7 @@ from bayesian_fields_core.eval.suite import (
     FULL,
     METHOD_ROWS,
     SEMANTIC_GAUSSIANS,
+    WITHOUT_PE,
     SceneCase,
     evaluate_scene,
 )
@@ -52,7 +53,7 @@ def test_every_row_is_scored_on_the_same_perception(small_case: SceneCase, tmp_p
     lines: list[str] = []
     evaluation = evaluate_scene(small_case, models, tmp_path, lerf_views=2, log=lines.append)
     rows = evaluation.clio
-    assert set(rows) == {*METHOD_ROWS, SEMANTIC_GAUSSIANS, CLIO}
+    assert set(rows) == {*METHOD_ROWS, WITHOUT_PE, SEMANTIC_GAUSSIANS, CLIO}
     n_gt = len(small_case.ground_truth)
     for name, scores in rows.items():
         assert scores.num_gt == n_gt, name
@@ -69,7 +70,7 @@ def test_every_row_is_scored_on_the_same_perception(small_case: SceneCase, tmp_p
         assert 0.0 <= code.strict_osr <= code.relaxed_osr <= 1.0, name
     # Perception ran once (one cache) and every method row wrote its own result.
     assert len(list((tmp_path / "cache").rglob("*.npz"))) > 0
-    assert len(lines) == len(rows)
+    assert len(lines) == len(rows) + 1  # a line per row, and one with the w/o PE row's own cost
     # The same maps scored by the LeRF protocol on two rendered views.
     assert set(evaluation.lerf) == set(rows)
     for name, lerf in evaluation.lerf.items():

@@ -19,6 +19,7 @@ from PIL import Image
 from bayesian_fields_core.eval.synthetic.builder import build_scene
 from bayesian_fields_core.eval.synthetic.cameras import capture_frames
 from bayesian_fields_core.eval.synthetic.ground_truth import write_ground_truth
+from bayesian_fields_core.eval.synthetic.outliers import outlier_views
 from bayesian_fields_core.eval.synthetic.spec import SceneSpec
 from bayesian_fields_core.eval.synthetic.tasks import make_tasks
 from bayesian_fields_core.render import GaussianRenderer
@@ -57,5 +58,6 @@ def generate_scene(out_dir: str | Path, spec: SceneSpec | None = None, *, device
     write_colmap_text(out / "sparse" / "0", frames)
     doc = {"tasks": [{"task": t.text, "granularity": t.granularity} for t in tasks]}
     (out / "tasks.yaml").write_text(yaml.safe_dump(doc, sort_keys=False))
-    write_ground_truth(out, scene, tasks)
+    views = [v.to_json() for v in outlier_views(spec, scene, len(frames))]
+    write_ground_truth(out, scene, tasks, views)
     return out

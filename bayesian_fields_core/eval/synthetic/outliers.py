@@ -7,16 +7,15 @@ probabilities". `SceneSpec.outlier_share` = S replaces ``round(S * n_frames)`` f
 capture by such views of the scene's task objects (the answers of its present tasks), the three
 kinds in equal parts:
 
-- **near**: the camera `NEAR_GAP` (m) from the object's outermost surface point in its
-  direction, looking at that point, so the object overfills the frame and the image shows a few
-  centimetres of its surface;
+- **near**: the camera `NEAR_GAP` (m) outside the object's surface, looking at its centre, so
+  the object overfills the frame and the image shows a few centimetres of its surface;
 - **far**: the camera in the room's corner farthest from the object (at least
   `FAR_MIN_DISTANCE` from its centre), so the object spans a few pixels (about 10 at 320 px:
   the room's walls, which the renderer draws, bound how far a camera can stand);
 - **occluded**: the camera just behind one of the scene's occluders (`capture.occluder_pieces`)
   on the line to the object, shifted sideways so that only a sliver of the object's width
-  (`OCCLUDED_VISIBLE`) shows past the occluder's rendered edge; the ray to the object's centre
-  meets the occluder as rendered (its box grown by `OCCLUDER_BLUR`).
+  (`OCCLUDED_VISIBLE`) shows past the occluder's rendered edge (its box grown by
+  `OCCLUDER_BLUR`); the ray to the object's centre meets that grown box.
 
 Which frames, which kind, which object and every pose draw from their own stream ([seed, 5]), so
 the other frames keep their poses, and scene, objects and tasks do not change; S = 0 replaces
@@ -44,13 +43,15 @@ NEAR_GAP = (0.02, 0.04)
 of horizontal field of view the frame spans 2.3 to 4.6 cm of surface there."""
 FAR_MIN_DISTANCE = 2.2
 """A far view's camera stands at least this far (m) from its object's centre."""
-OCCLUDED_VISIBLE = (0.2, 0.4)
+OCCLUDED_VISIBLE = (0.2, 0.45)
 """Range of the share of the object's angular width left visible beside the occluder."""
-OCCLUDER_GAP = (0.3, 0.6)
+OCCLUDER_GAP = (0.2, 0.45)
 """Range (m) of the distance from the occluder's back face to the camera in an occluded view."""
-OCCLUDER_BLUR = 0.05
+OCCLUDER_BLUR = 0.035
 """Margin (m) added to an occluder's box on each side when judging what it hides: its Gaussians
-(about 1.4 cm wide) render as soft discs reaching past the box, more so close to the camera."""
+(1.4 to 2.2 cm wide) render as soft discs reaching past the box (measured in id renders of the
+capture scenes: with this margin the geometric share left visible is an upper bound of the
+rendered one)."""
 _STREAM = 5  # the dial's seeded stream: [seed, 5]
 
 
@@ -107,16 +108,22 @@ def ray_hits_box(origin: np.ndarray, target: np.ndarray, inst: Instance) -> bool
     return True
 
 
-def _near_pose(points: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """A camera NEAR_GAP from the object's outermost surface point in a random direction slightly
-    above horizontal, looking at that point; points: (n, 3) the object's Gaussian centres."""
+def _near_pose(points: np.ndarray, centre: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """A camera NEAR_GAP outside the object's surface where a ray from its centre (in a random
+    direction slightly above horizontal) leaves it, looking back at the centre.
+
+    points: (n, 3) the object's Gaussian centres; centre: (3,) its box centre. The surface point
+    is the farthest of the points within 15 degrees of the ray (a cone's slope, not its rim)."""
     azimuth, elevation = rng.uniform(0, 2 * np.pi), np.deg2rad(rng.uniform(5.0, 35.0))
     direction = np.array(
         [np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth), np.sin(elevation)]
     )
-    surface = points[int(np.argmax(points @ direction))]
-    eye = surface + rng.uniform(*NEAR_GAP) * direction
-    return look_at(eye, surface)
+    offsets = points - centre
+    along = offsets @ direction
+    near_ray = along > np.cos(np.deg2rad(15.0)) * np.linalg.norm(offsets, axis=1)
+    reach = float(along[near_ray].max()) if near_ray.any() else float(along.max())
+    eye = centre + (reach + rng.uniform(*NEAR_GAP)) * direction
+    return look_at(eye, centre)
 
 
 def _far_pose(inst: Instance, spec: SceneSpec, rng: np.random.Generator) -> np.ndarray:
@@ -186,7 +193,7 @@ def _occluded_pose(
         depth = float(np.sum(np.abs(occ.rotation.T @ u) * occ.extents / 2))
         base = through + (depth + gap) * u
         best: tuple[float, np.ndarray] | None = None
-        for shift in np.linspace(0.0, 0.4, 81):
+        for shift in np.linspace(0.0, 0.4, 161):
             eye = base + side * shift * perp
             if not np.all(np.abs(eye[:2]) <= half_room):
                 continue
@@ -231,7 +238,7 @@ def outlier_views(spec: SceneSpec, scene: SyntheticScene, n_frames: int) -> list
         for step in range(len(order)):
             inst = order[(k + step) % len(order)]
             if kind == "near":
-                pose = _near_pose(scene.gaussians.means[scene.instance_ids == inst.id], rng)
+                pose = _near_pose(scene.gaussians.means[scene.instance_ids == inst.id], inst.center, rng)
             elif kind == "far":
                 pose = _far_pose(inst, spec, rng)
             else:

@@ -202,7 +202,9 @@ def prepare_scenes(
     for spec in specs:
         folder = suite_dir / spec.name
         if not (folder / "gt.json").is_file():
-            generate_scene(folder, spec)
+            # With the dial on, the frames it leaves are those of the scene without it.
+            base = suite_dir / spec.name.rsplit("-o", 1)[0] if spec.outlier_share > 0 else None
+            generate_scene(folder, spec, images_from=base)
         cases.append(
             SceneCase(
                 name=spec.name,

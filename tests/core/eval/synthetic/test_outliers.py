@@ -119,3 +119,27 @@ def test_eval_outliers_arguments_are_checked(capsys: pytest.CaptureFixture[str],
     args = ["eval", "--scene", str(tmp_path), "--gt", str(tmp_path / "gt.yaml"), "--outliers", "0.3"]
     assert main(args) == 2
     assert "does not go with --scene" in capsys.readouterr().err
+
+
+def test_a_dial_scene_copies_the_frames_it_did_not_replace(tmp_path: Path) -> None:
+    from bayesian_fields_core.eval.synthetic.generate import generate_scene
+
+    tiny = {**LIGHT, "width": 64, "height": 48, "n_frames": 6}
+    base_spec = suite_specs(suite="capture")[0].model_copy(update=tiny)
+    spec = with_outliers(base_spec, 0.5)
+    base = generate_scene(tmp_path / base_spec.name, base_spec)
+    copied = generate_scene(tmp_path / spec.name, spec, images_from=base)
+    fresh = generate_scene(tmp_path / "fresh", spec)
+    replaced = {v.index for v in outlier_views(spec, build_scene(spec), spec.n_frames)}
+    assert len(replaced) == 3
+    for i in range(spec.n_frames):
+        name = f"images/frame_{i:05d}.png"
+        assert (copied / name).read_bytes() == (fresh / name).read_bytes()  # copying = rendering
+        assert ((copied / name).read_bytes() == (base / name).read_bytes()) == (i not in replaced)
+    assert (copied / "gt.json").read_text() == (fresh / "gt.json").read_text()
+    # Another scene's folder is not a source.
+    other = with_outliers(base_spec.model_copy(update={"seed": 1}), 0.5)
+    generate_scene(tmp_path / "other", other, images_from=base)
+    assert (tmp_path / "other/images/frame_00000.png").read_bytes() != (
+        base / "images/frame_00000.png"
+    ).read_bytes()

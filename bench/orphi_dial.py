@@ -25,6 +25,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 from bayesian_fields_core.eval.bootstrap import paired_differences
 from bayesian_fields_core.eval.clio import ClioScores
@@ -45,7 +46,7 @@ METRICS = ("strict_osr", "relaxed_osr", "iou")
 class _Tee(io.TextIOBase):
     """Writes to the terminal and to a log file."""
 
-    def __init__(self, *streams: io.TextIOBase) -> None:
+    def __init__(self, *streams: Any) -> None:
         self.streams = streams
 
     def write(self, text: str) -> int:
@@ -72,17 +73,17 @@ def differences(per_row: dict[str, list[ClioScores]]) -> dict[str, dict[str, flo
     }
 
 
-def run_share(share: float, args: argparse.Namespace, models: object) -> dict:
+def run_share(share: float, args: argparse.Namespace, models: Any) -> dict[str, Any]:
     cases = prepare_scenes(args.suite_dir, args.scenes, suite="capture", outliers=share)
     geo: dict[str, list[ClioScores]] = {}
     code: dict[str, list[ClioScores]] = {}
     for case in cases:
         print(f"scene {case.name}: {len(case.tasks)} tasks, {len(case.ground_truth)} GT objects")
-        ev = evaluate_scene(case, models, args.runs, lerf_views=0, rows_shown="orphi")  # type: ignore[arg-type]
+        ev = evaluate_scene(case, models, args.runs, lerf_views=0, rows_shown="orphi")
         for row in (FULL, ORPHI):
             geo.setdefault(row, []).append(ev.clio[row])
             code.setdefault(row, []).append(ev.clio_code[row])
-    out = {
+    out: dict[str, Any] = {
         "share": share,
         "scenes": [c.name for c in cases],
         "pairs": pool_scores(geo[FULL]).num_gt,
@@ -119,11 +120,11 @@ def main() -> None:
         with (
             open(args.out / f"dial-{share:g}.txt", "w") as log,
             contextlib.redirect_stdout(_Tee(sys.stdout, log)),
-        ):  # type: ignore[type-var]
+        ):
             print(
                 f"bench/orphi_dial.py --shares {share:g} --scenes {args.scenes} (commit {commit}; realistic regime)"
             )
-            print(describe(models, "realistic"))  # type: ignore[arg-type]
+            print(describe(models, "realistic"))
             results[f"{share:g}"] = run_share(share, args, models) | {"commit": commit}
             print(f"{time.time() - start:.0f} s")
         path.write_text(json.dumps(results, indent=1, sort_keys=True))

@@ -102,17 +102,17 @@ def scene_records(case: Any, models: Any, runs: Path, cache: Path) -> tuple[list
         if view is not None and not (owner == view["instance_id"]).any():
             unmasked[view["kind"]] += 1
         for m in np.flatnonzero(owner >= 0):
-            obj = int(owner[m])
-            if obj not in own_tasks:
+            inst_id = int(owner[m])
+            if inst_id not in own_tasks:
                 continue
             if view is None:
                 group = "ordinary"
-            elif obj == view["instance_id"]:
+            elif inst_id == view["instance_id"]:
                 group = view["kind"]
             else:
                 continue  # another object seen in an outlier frame: neither group
-            own = sorted(own_tasks[obj])
-            other = [t for t in range(len(tasks)) if t not in own_tasks[obj]]
+            own = sorted(own_tasks[inst_id])
+            other = [t for t in range(len(tasks)) if t not in own_tasks[inst_id]]
             records.append(
                 {
                     "scene": case.name,
@@ -154,6 +154,7 @@ def main() -> None:
     )
     args = parser.parse_args()
     models = regime_models(load_models(None), "realistic")
+    assert models.calibration is not None  # the realistic regime sets its likelihoods
     mu0, mu1 = models.calibration.mu0, models.calibration.mu1
     cases = prepare_scenes(args.suite_dir, args.scenes, suite="capture", outliers=args.share)
     records: list[dict] = []

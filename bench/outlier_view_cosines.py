@@ -70,7 +70,7 @@ def scene_records(case: Any, models: Any, runs: Path, cache: Path) -> tuple[list
     )
     job = local_job(
         case.folder, runs / case.name, cache, case.tasks, params, models,
-        cache_prefix=f"scenes/{case.name}/cache/",
+        cache_prefix=f"scenes/{case.cache_name or case.name}/cache/",
     )  # fmt: skip
     run_job(job, force=True)
     spec, scene = job.spec, job.scene

@@ -111,6 +111,9 @@ class SceneCase:
     tasks: list[str]
     ground_truth: list[GTObject]
     instances: list[SceneInstance] = field(default_factory=list)  # objects and clutter
+    cache_name: str = ""
+    """The cache folder's scene name when not `name`: a dial scene shares its base scene's cache
+    (perception is keyed by image content, so the frames the dial left hit it)."""
 
 
 def estimates_from_selection(
@@ -196,18 +199,18 @@ def prepare_scenes(
 
     if outliers > 0 and suite != "capture":
         raise InputError(f"the outlier dial is for the capture suite, not {suite!r}", source="eval")
-    specs = suite_specs(seeds, suite=suite) if seeds else suite_specs(suite=suite)[:n_scenes]
-    specs = [with_outliers(spec, outliers) for spec in specs]
+    bases = suite_specs(seeds, suite=suite) if seeds else suite_specs(suite=suite)[:n_scenes]
     cases = []
-    for spec in specs:
+    for base in bases:
+        spec = with_outliers(base, outliers)
         folder = suite_dir / spec.name
         if not (folder / "gt.json").is_file():
             # With the dial on, the frames it leaves are those of the scene without it.
-            base = suite_dir / spec.name.rsplit("-o", 1)[0] if spec.outlier_share > 0 else None
-            generate_scene(folder, spec, images_from=base)
+            generate_scene(folder, spec, images_from=suite_dir / base.name if spec is not base else None)
         cases.append(
             SceneCase(
                 name=spec.name,
+                cache_name=base.name,
                 folder=folder,
                 tasks=load_tasks(folder / "tasks.yaml"),
                 ground_truth=load_clio_boxes(folder),
@@ -235,7 +238,7 @@ def evaluate_scene(
     `rows_shown="full"` runs only the full method, "orphi" it and w/o OR-phi (`ROW_SETS`)."""
     gt_per_task = {t: sum(1 for g in case.ground_truth if g.task == t) for t in case.tasks}
     top_k = max(5, max(gt_per_task.values(), default=1))
-    cache_prefix = f"scenes/{case.name}/cache/"
+    cache_prefix = f"scenes/{case.cache_name or case.name}/cache/"
     rows: dict[str, ClioScores] = {}
     code_rows: dict[str, ClioScores] = {}
     lerf: dict[str, LerfScores] = {}

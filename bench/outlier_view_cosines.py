@@ -2,7 +2,7 @@
 the sweep is read; docs/research/ablation-decision.md.)
 
 On public capture scenes with the dial at S > 0, realistic regime, the full method's run (the
-perception cache of the sweep is reused): every mask of a frame is given to the GT instance
+sweep's own, bench/orphi_dial.py, read from its run folder; run afresh only where missing): every mask of a frame is given to the GT instance
 holding >= 50 % of the Gaussians associated with it (as bench/no_candidate_trace.py does). For
 masks of task objects (answers of a present task):
 
@@ -17,7 +17,8 @@ Cosines are the regime's (`eval/regime.py`), beside its likelihoods' mu0 / mu1. 
 tuned against the sweep's result.
 
 Usage: PYTHONPATH=$PWD python bench/outlier_view_cosines.py --share 0.45 --scenes 10 \\
-    --suite-dir bench/_generated/suite-dial --cache bench/_generated/dial-runs/cache \\
+    --suite-dir bench/_generated/suite-dial --runs bench/_generated/dial-runs \\
+    --cache bench/_generated/dial-runs/cache \\
     --out bench/results/ablation-20261207/outlier-view-cosines
 """
 
@@ -34,7 +35,7 @@ from typing import Any
 import numpy as np
 
 from bayesian_fields_core.eval.regime import regime_models
-from bayesian_fields_core.eval.suite import prepare_scenes
+from bayesian_fields_core.eval.suite import FULL, _slug, prepare_scenes
 from bayesian_fields_core.eval.synthetic.ground_truth import load_ground_truth
 from bayesian_fields_core.job.artifacts import ACCEPTED_KEY
 from bayesian_fields_core.job.factories import local_job
@@ -68,12 +69,17 @@ def scene_records(case: Any, models: Any, runs: Path, cache: Path) -> tuple[list
     params = PipelineParams.model_validate(
         {"previews": False, "top_k": max(5, max(gt_per_task.values(), default=1))} | {"answer_min_peak": None}
     )
+    # The sweep's own full-method run when it is there (same folder as `evaluate_scene` writes),
+    # else a fresh one on the shared perception cache.
     job = local_job(
-        case.folder, runs / case.name, cache, case.tasks, params, models,
+        case.folder, runs / case.name / _slug(FULL), cache, case.tasks, params, models,
         cache_prefix=f"scenes/{case.cache_name or case.name}/cache/",
     )  # fmt: skip
-    run_job(job, force=True)
     spec, scene = job.spec, job.scene
+    try:
+        get_arrays(spec.store, spec.key(ACCEPTED_KEY))
+    except Exception:  # noqa: BLE001 - not run yet
+        run_job(job, force=True)
     gt = load_ground_truth(case.folder)
     doc = json.loads((case.folder / "gt.json").read_text())
     views = {f"frame_{v['frame']:05d}.png": v for v in doc.get("outlier_views", [])}
@@ -147,7 +153,7 @@ def main() -> None:
     parser.add_argument("--share", type=float, default=0.45)
     parser.add_argument("--scenes", type=int, default=10)
     parser.add_argument("--suite-dir", type=Path, default=Path("bench/_generated/suite-dial"))
-    parser.add_argument("--runs", type=Path, default=Path("bench/_generated/dial-cos-runs"))
+    parser.add_argument("--runs", type=Path, default=Path("bench/_generated/dial-runs"))
     parser.add_argument("--cache", type=Path, default=Path("bench/_generated/dial-runs/cache"))
     parser.add_argument(
         "--out", type=Path, default=Path("bench/results/ablation-20261207/outlier-view-cosines")

@@ -60,7 +60,7 @@ def differences(per_row: dict[str, list[ClioScores]]) -> dict[str, dict[str, flo
     """Full minus w/o OR-phi per metric: pooled values and the scene-level paired interval."""
     pooled = {row: pool_scores(scores) for row, scores in per_row.items()}
     groups = scene_groups(per_row[FULL])
-    diff = paired_differences(pooled[FULL], pooled[ORPHI], groups=groups)
+    diff = paired_differences(pooled[FULL], pooled[ORPHI], groups=groups, metrics=METRICS)
     return {
         m: {
             "full": getattr(pooled[FULL], m),

@@ -82,7 +82,7 @@ def scene_records(case: Any, models: Any, runs: Path, cache: Path) -> tuple[list
         run_job(job, force=True)
     gt = load_ground_truth(case.folder)
     doc = json.loads((case.folder / "gt.json").read_text())
-    views = {f"frame_{v['frame']:05d}.png": v for v in doc.get("outlier_views", [])}
+    views = {f"frame_{v['frame']:05d}": v for v in doc.get("outlier_views", [])}
     tasks = list(case.tasks)
     own_tasks: dict[int, set[int]] = {}
     for t, task in enumerate(tasks):
@@ -95,8 +95,7 @@ def scene_records(case: Any, models: Any, runs: Path, cache: Path) -> tuple[list
     records: list[dict] = []
     unmasked = dict.fromkeys(GROUPS[1:], 0)
     for n, index in enumerate(acc["frame_indices"]):
-        name = frames[int(index)].name
-        view = views.get(name)
+        view = views.get(Path(frames[int(index)].name).stem)
         vis = get_arrays(spec.cache_store, scene.keys.visibility_key(int(index)))
         n_masks = int(acc["mask_counts"][n])
         owner = _owners(

@@ -25,8 +25,15 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--json", type=Path, default=Path("bench/results/ablation-20261207/orphi-dial.json"))
     parser.add_argument("--out", type=Path, default=Path("docs/research/orphi-dial.png"))
+    parser.add_argument(
+        "--more",
+        type=Path,
+        default=Path("bench/results/ablation-20261207/ten-scenes/orphi-dial.json"),
+        help="a second run of the sweep on more scenes (drawn as its own series when present)",
+    )
     args = parser.parse_args()
     results = json.loads(args.json.read_text())
+    more = json.loads(args.more.read_text()) if args.more.is_file() else {}
     shares = sorted(results, key=float)
     x = [float(s) for s in shares]
     fig, axes = plt.subplots(1, len(METRICS), figsize=(9, 3.6), sharex=True)
@@ -37,6 +44,15 @@ def main() -> None:
             err = [[v["diff"] - v["low"] for v in d], [v["high"] - v["diff"] for v in d]]
             offset = (k - 0.5) * 0.012
             ax.errorbar([v + offset for v in x], mean, yerr=err, fmt="o-", capsize=4, label=name)
+        if more:
+            m_shares = sorted(more, key=float)
+            d = [more[s]["geometric"][metric] for s in m_shares]
+            err = [[v["diff"] - v["low"] for v in d], [v["high"] - v["diff"] for v in d]]
+            n_more = len(more[m_shares[0]]["scenes"])
+            ax.errorbar(
+                [float(s) + 0.02 for s in m_shares], [v["diff"] for v in d], yerr=err, fmt="s",
+                capsize=4, color="black", label=f"geometric, {n_more} scenes",
+            )  # fmt: skip
         ax.axhline(0.0, color="grey", linewidth=0.8)
         ax.set_xlabel("share S of outlier views")
         ax.set_ylabel(f"full minus w/o OR-phi, {label}")

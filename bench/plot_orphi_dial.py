@@ -61,7 +61,8 @@ def main() -> None:
     axes[0].legend(fontsize=8)
     n = len(results[shares[0]]["scenes"])
     fig.suptitle(
-        f"OR-phi as the outlier views rise: {n} public capture scenes, realistic regime (95 % scene bootstrap)",
+        f"OR-phi as the outlier views rise: {n} public capture scenes (circles), realistic regime, "
+        "95 % scene-level paired bootstrap",
         fontsize=9,
     )
     fig.tight_layout()

@@ -52,6 +52,17 @@ def _suite_seeds(text: str) -> list[int]:
     return seeds
 
 
+def _share(text: str) -> float:
+    """argparse type: a share in [0, 1] (the outlier dial's `SceneSpec.outlier_share`)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number in [0, 1], got {text!r}") from None
+    if not 0.0 <= value <= 1.0:
+        raise argparse.ArgumentTypeError(f"must be in [0, 1], got {value:g}")
+    return value
+
+
 def _row_set(text: str) -> str:
     """argparse type: one of the row sets (`eval.suite.ROW_SETS`), read when used."""
     from bayesian_fields_core.eval.suite import ROW_SETS
@@ -107,6 +118,15 @@ def register(sub: argparse._SubParsersAction) -> None:
         "replaces --scenes)",
     )
     ev.add_argument(
+        "--outliers",
+        type=_share,
+        default=0.0,
+        metavar="S",
+        help="the outlier dial (capture suite only): replace this share of each scene's frames by "
+        "near, far and occluded views of its task objects, in equal parts (0 = the suite as it is; "
+        "scenes with S > 0 are named <scene>-o<percent>)",
+    )
+    ev.add_argument(
         "--regime",
         type=regime_name,
         help="perception regime of the suite: realistic (default: each view as weak as a real CLIP's, "
@@ -122,8 +142,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--rows",
         type=_row_set,
         default="all",
-        help="which rows to run: all (Table 1: the method, its ablations, w/o PE among them, and the baselines) or full "
-        "(the full method alone: its scores and the 'not found' answer, in a fraction of the time)",
+        help="which rows to run: all (Table 1: the method, its ablations, w/o PE among them, and the baselines), "
+        "full (the full method alone: its scores and the 'not found' answer, in a fraction of the time) or "
+        "orphi (the full method and w/o OR-phi: the outlier dial's pair)",
     )
     ev.add_argument(
         "--breakdown",
@@ -158,6 +179,10 @@ def run(args: argparse.Namespace) -> int:
         return _clio_scene(args, base_params)
     if args.transform is not None or args.transform_key is not None:
         raise InputError("--transform and --transform-key go with --scene DIR --gt FILE", source="eval")
+    if args.outliers > 0 and args.suite != "capture":
+        raise InputError(
+            "--outliers is for --suite capture (tabletop scenes have no occluders)", source="eval"
+        )
     from bayesian_fields_core.eval.regime import DEFAULT_REGIME
     from bayesian_fields_core.eval.suite import run_suite
 
@@ -175,6 +200,7 @@ def run(args: argparse.Namespace) -> int:
         breakdown=args.breakdown,
         regime=args.regime or DEFAULT_REGIME,
         rows_shown=args.rows,
+        outliers=args.outliers,
     )
     return 0
 
@@ -187,6 +213,8 @@ def _clio_scene(args: argparse.Namespace, base_params: dict[str, object] | None)
         raise InputError("--scene DIR and --gt FILE go together", source="eval")
     if args.seeds is not None:
         raise InputError("--seeds selects suite scenes; it does not go with --scene", source="eval")
+    if args.outliers > 0:
+        raise InputError("--outliers makes suite scenes; it does not go with --scene", source="eval")
     if args.regime is not None:
         raise InputError(
             "--regime changes the suite's tiny CLIP; a --scene is scored with its profile's own encoder",

@@ -81,16 +81,19 @@ def paired_differences(
     level: float = 0.95,
     seed: int = 0,
     groups: Mapping[str, str] | None = None,
+    metrics: tuple[str, ...] = ("strict_osr", "iou"),
 ) -> dict[str, Difference]:
-    """Strict-osR and IoU of `a` minus `b`, each with a paired bootstrap interval over tasks, or
-    over the scenes `groups` assigns the tasks to (the same draw for both rows)."""
+    """Strict-osR and IoU (or the `metrics` named, of strict_osr, relaxed_osr, iou) of `a` minus
+    `b`, each with a paired bootstrap interval over tasks, or over the scenes `groups` assigns the
+    tasks to (the same draw for both rows)."""
     keys = sorted(a.per_task)
     ua = _resampling_units(_units(a, keys), keys, groups)
     ub = _resampling_units(_units(b, keys), keys, groups)
     draws = _draws(len(ua), samples, seed)
     gt = ua[draws, 3].sum(axis=1)
     out: dict[str, Difference] = {}
-    for name, col in (("strict_osr", 0), ("iou", 2)):
+    columns = {"strict_osr": 0, "relaxed_osr": 1, "iou": 2}
+    for name, col in ((m, columns[m]) for m in metrics):
         diff = (ua[draws, col].sum(axis=1) - ub[draws, col].sum(axis=1)) / gt
         point = (ua[:, col].sum() - ub[:, col].sum()) / ua[:, 3].sum()
         tail = (1 - level) / 2

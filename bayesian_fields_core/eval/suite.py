@@ -29,6 +29,7 @@ from typing import Any, Literal
 import numpy as np
 
 from bayesian_fields_core.calibration.model import distribution_min_peak
+from bayesian_fields_core.errors import InputError
 from bayesian_fields_core.eval.baselines import BaselineParams, clio_style, semantic_gaussians
 from bayesian_fields_core.eval.bootstrap import paired_differences, score_intervals
 from bayesian_fields_core.eval.breakdown import (
@@ -74,10 +75,11 @@ from bayesian_fields_core.results.reader import read_result
 
 FULL = "Bayesian Fields (ours)"
 AVERAGING = "  averaging instead of Bayes"
+ORPHI = "  w/o OR-phi"
 _OTHER_CONDITIONALS = "fused" if PipelineParams().aib_conditionals == "per_view" else "per_view"
 METHOD_ROWS: dict[str, dict[str, Any]] = {
     FULL: {},
-    "  w/o OR-phi": {"outlier_rejection": False},
+    ORPHI: {"outlier_rejection": False},
     "  w/o kNN filter": {"knn_filter": False},
     AVERAGING: {"fusion": "average"},
     # the clustering's other conditionals (issue 23): 'fused' is the paper's, 'per_view' the fix
@@ -89,9 +91,10 @@ WITHOUT_PE = "  w/o PE (cosine of a rendered view)"
 """The paper's "PE" ablation (`render_selection.py`): the full row's map, each task's answers
 ranked by the cosine of a rendered view of each object instead of by probability; run after the
 method rows from the full row's map, so it is not in `METHOD_ROWS` (those are pipeline runs)."""
-RowSet = Literal["all", "full"]
-ROW_SETS: tuple[RowSet, ...] = ("all", "full")
-"""Which rows `bfields eval --rows` runs: every row, or the full method alone."""
+RowSet = Literal["all", "full", "orphi"]
+ROW_SETS: tuple[RowSet, ...] = ("all", "full", "orphi")
+"""Which rows `bfields eval --rows` runs: every row (w/o PE included), the full method alone, or
+the full method and w/o OR-phi (the outlier dial's pair, docs/research/ablation-decision.md)."""
 SEMANTIC_GAUSSIANS = "Semantic Gaussians-style (avg. embeddings, best label)"
 CLIO = "Clio-style (AIB on cosine, Clio's rows)"
 
@@ -117,6 +120,9 @@ class SceneCase:
     tasks: list[str]
     ground_truth: list[GTObject]
     instances: list[SceneInstance] = field(default_factory=list)  # objects and clutter
+    cache_name: str = ""
+    """The cache folder's scene name when not `name`: a dial scene shares its base scene's cache
+    (perception is keyed by image content, so the frames the dial left hit it)."""
 
 
 def estimates_from_selection(
@@ -180,28 +186,40 @@ def pool_scores(per_scene: list[ClioScores]) -> ClioScores:
 
 
 def prepare_scenes(
-    suite_dir: Path, n_scenes: int, seeds: Sequence[int] | None = None, suite: str = "tabletop"
+    suite_dir: Path,
+    n_scenes: int,
+    seeds: Sequence[int] | None = None,
+    suite: str = "tabletop",
+    outliers: float = 0.0,
 ) -> list[SceneCase]:
     """Generate (once; cached on disk) the named suite's scenes and read their tasks and GT.
 
-    With `seeds`, the re-seeded held-out variants of the first ``len(seeds)`` scenes instead."""
+    With `seeds`, the re-seeded held-out variants of the first ``len(seeds)`` scenes instead;
+    `outliers` sets the outlier dial (`synthetic/outliers.py`; capture suite only), renaming
+    the scenes when above 0."""
     from bayesian_fields_core.eval.synthetic import (
         generate_scene,
         load_clio_boxes,
         load_ground_truth,
         suite_specs,
     )
+    from bayesian_fields_core.eval.synthetic.outliers import with_outliers
     from bayesian_fields_core.geometry.obb import OrientedBox
 
-    specs = suite_specs(seeds, suite=suite) if seeds else suite_specs(suite=suite)[:n_scenes]
+    if outliers > 0 and suite != "capture":
+        raise InputError(f"the outlier dial is for the capture suite, not {suite!r}", source="eval")
+    bases = suite_specs(seeds, suite=suite) if seeds else suite_specs(suite=suite)[:n_scenes]
     cases = []
-    for spec in specs:
+    for base in bases:
+        spec = with_outliers(base, outliers)
         folder = suite_dir / spec.name
         if not (folder / "gt.json").is_file():
-            generate_scene(folder, spec)
+            # With the dial on, the frames it leaves are those of the scene without it.
+            generate_scene(folder, spec, images_from=suite_dir / base.name if spec is not base else None)
         cases.append(
             SceneCase(
                 name=spec.name,
+                cache_name=base.name,
                 folder=folder,
                 tasks=load_tasks(folder / "tasks.yaml"),
                 ground_truth=load_clio_boxes(folder),
@@ -226,10 +244,10 @@ def evaluate_scene(
     rows_shown: RowSet = "all",
 ) -> SceneEvaluation:
     """All rows of both tables for one scene; `lerf_views=0` skips the LeRF protocol;
-    `rows_shown="full"` runs only the full method (`ROW_SETS`)."""
+    `rows_shown="full"` runs only the full method, "orphi" it and w/o OR-phi (`ROW_SETS`)."""
     gt_per_task = {t: sum(1 for g in case.ground_truth if g.task == t) for t in case.tasks}
     top_k = max(5, max(gt_per_task.values(), default=1))
-    cache_prefix = f"scenes/{case.name}/cache/"
+    cache_prefix = f"scenes/{case.cache_name or case.name}/cache/"
     rows: dict[str, ClioScores] = {}
     code_rows: dict[str, ClioScores] = {}
     lerf: dict[str, LerfScores] = {}
@@ -241,7 +259,8 @@ def evaluate_scene(
     full_job: Job | None = None
     full_result: Result | None = None
     full_seconds = 0.0
-    method_rows = METHOD_ROWS if rows_shown == "all" else {FULL: METHOD_ROWS[FULL]}
+    shown = {"all": list(METHOD_ROWS), "full": [FULL], "orphi": [FULL, ORPHI]}[rows_shown]
+    method_rows = {row: METHOD_ROWS[row] for row in shown}
     for row, overrides in method_rows.items():
         # The first row checks the scene's alignment; the other rows run on the very same scene.
         # Previews off: the tables never look at them, and rendering them would add to every row.
@@ -287,7 +306,7 @@ def evaluate_scene(
         log(_row_line(case.name, row, rows[row], lerf.get(row)))
 
     assert full_job is not None and full_result is not None
-    if rows_shown == "full":
+    if rows_shown != "all":
         return SceneEvaluation(
             clio=rows, lerf=lerf, not_found=not_found, breakdown=breakdown, clio_code=code_rows
         )
@@ -361,6 +380,7 @@ def run_suite(
     breakdown: bool = False,
     regime: Regime = DEFAULT_REGIME,
     rows_shown: RowSet = "all",
+    outliers: float = 0.0,
 ) -> dict[str, ClioScores]:
     """Generate the suite, evaluate every row on every scene, print the pooled Table 1, the
     "not found" columns and, unless `lerf_views=0`, the LeRF table. `seeds` evaluates on held-out
@@ -368,10 +388,11 @@ def run_suite(
     the suite ("tabletop", or "capture": handheld-capture effects, `synthetic/capture.py`);
     `breakdown` adds why each method row missed GT objects (`breakdown.py`), per task for the full
     method; `regime` is the perception regime (`regime.py`), the same for every row; `rows_shown`
-    "full" runs the full method only (the "not found" answer and Table 1's first row, quickly)."""
+    "full" runs the full method only (the "not found" answer and Table 1's first row, quickly);
+    `outliers` is the outlier dial's share (capture suite; `synthetic/outliers.py`)."""
     models = regime_models(load_models(profile), regime)
     print(describe(models, regime))
-    cases = prepare_scenes(suite_dir, n_scenes, seeds, suite)
+    cases = prepare_scenes(suite_dir, n_scenes, seeds, suite, outliers)
     per_row: dict[str, list[ClioScores]] = {}
     code_per_row: dict[str, list[ClioScores]] = {}
     lerf_rows: dict[str, dict[str, LerfScores]] = {}
@@ -396,7 +417,8 @@ def run_suite(
     print()
     kind = "held-out" if seeds else "public"
     print(
-        f"Synthetic suite {suite!r} ({kind} seeds): {len(cases)} scenes "
+        f"Synthetic suite {suite!r} ({kind} seeds{f', outlier share {outliers:g}' if outliers else ''}): "
+        f"{len(cases)} scenes "
         f"({', '.join(c.name for c in cases)}), {pooled[FULL].num_gt} (task, GT object) pairs"
     )
     print(f"Geometric scoring (the project's: oriented containment, pooled over the pairs), regime {regime}:")

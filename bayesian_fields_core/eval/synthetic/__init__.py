@@ -16,11 +16,17 @@ from bayesian_fields_core.eval.synthetic.pieces import Instance, SyntheticScene
 from bayesian_fields_core.eval.synthetic.spec import SceneSpec, suite_specs
 
 
-def generate_scene(out_dir: str | Path, spec: SceneSpec | None = None, *, device: str = "cpu") -> Path:
+def generate_scene(
+    out_dir: str | Path,
+    spec: SceneSpec | None = None,
+    *,
+    device: str = "cpu",
+    images_from: str | Path | None = None,
+) -> Path:
     """See `generate.generate_scene` (imported lazily: it pulls in the renderer and torch)."""
     from bayesian_fields_core.eval.synthetic.generate import generate_scene as _generate
 
-    return _generate(out_dir, spec, device=device)
+    return _generate(out_dir, spec, device=device, images_from=images_from)
 
 
 def load_clio_boxes(folder: str | Path) -> list:

@@ -43,12 +43,14 @@ def orbit_frames(
 
 
 def capture_frames(spec: SceneSpec, scene: SyntheticScene, prefix: str = "frame") -> list[Frame]:
-    """The scene's cameras: the orbit (default) or a handheld walk, then the border cuts.
+    """The scene's cameras: the orbit (default) or a handheld walk, then the border cuts, then
+    the outlier dial's views (`outliers.py`).
 
     Each draws from its own seeded stream ([seed, 1] as before for the path, [seed, 4] for the
-    cuts), so a default spec's cameras are the same as before the capture effects existed.
+    cuts, [seed, 5] for the outliers), so a default spec's cameras are the same as before the
+    capture effects existed.
     """
-    from bayesian_fields_core.eval.synthetic import capture  # noqa: PLC0415
+    from bayesian_fields_core.eval.synthetic import capture, outliers  # noqa: PLC0415
 
     rng = np.random.default_rng([spec.seed, 1])
     if spec.trajectory == "walk":
@@ -56,4 +58,5 @@ def capture_frames(spec: SceneSpec, scene: SyntheticScene, prefix: str = "frame"
     else:
         frames = orbit_frames(spec, scene.table_top_center, rng, prefix)
     capture.cut_at_border(frames, spec, scene, np.random.default_rng([spec.seed, 4]))
+    outliers.apply_outliers(frames, outliers.outlier_views(spec, scene, len(frames)))
     return frames

@@ -85,8 +85,12 @@ def _instance_json(instance: Instance) -> dict:
     } | label
 
 
-def write_ground_truth(folder: Path, scene: SyntheticScene, tasks: list[TaskSpec]) -> None:
-    """Write gt.json and gt_gaussians.npz into folder."""
+def write_ground_truth(
+    folder: Path, scene: SyntheticScene, tasks: list[TaskSpec], outlier_views: list[dict] | None = None
+) -> None:
+    """Write gt.json and gt_gaussians.npz into folder; `outlier_views` (the dial's replaced frames,
+    `outliers.OutlierView.to_json`) go in only when there are some, so other scenes' files keep
+    their bytes."""
     by_id = {i.id: i for i in scene.instances}
     doc = {
         "format": FORMAT,
@@ -106,6 +110,8 @@ def write_ground_truth(folder: Path, scene: SyntheticScene, tasks: list[TaskSpec
             for t in tasks
         ],
     }
+    if outlier_views:
+        doc["outlier_views"] = outlier_views
     (folder / GT_JSON).write_text(json.dumps(doc, indent=1))
     dtype = np.min_scalar_type(max(len(scene.instances) - 1, 0))
     np.savez_compressed(folder / GT_ARRAYS, instance_ids=scene.instance_ids.astype(dtype))

@@ -90,6 +90,13 @@ class SceneSpec(BaseModel):
         50.0, gt=0, lt=90, description="the label reads as its colour within this angle of its normal"
     )
     label_size: float = Field(0.03, gt=0, description="half side of the label per unit object size (m)")
+    outlier_share: float = Field(
+        0.0,
+        ge=0,
+        le=1,
+        description="share of frames replaced by near, far and occluded views of task objects "
+        "(the outlier dial, synthetic/outliers.py)",
+    )
 
     @model_validator(mode="after")
     def _check(self) -> SceneSpec:
@@ -108,6 +115,8 @@ class SceneSpec(BaseModel):
             raise ValueError("n_labelled > 0 needs sh_degree >= 1 (the label's colour is view-dependent)")
         if not 0 < self.walk_distance[0] < self.walk_distance[1]:
             raise ValueError("walk_distance must be (near, far) with 0 < near < far")
+        if self.outlier_share > 0 and self.n_occluders < 1:
+            raise ValueError("outlier_share > 0 needs n_occluders >= 1 (its occluded views stand behind one)")
         return self
 
     def ground_truth_dump(self) -> dict:
@@ -132,6 +141,7 @@ CAPTURE_FIELDS: tuple[str, ...] = (
     "n_labelled",
     "label_half_angle_deg",
     "label_size",
+    "outlier_share",
 )
 SUITE_SIZE = 5
 """Scene layouts per suite (clutter, camera path, object counts)."""

@@ -98,3 +98,15 @@ def test_the_suite_prints_task_and_scene_intervals_side_by_side(capsys: pytest.C
     by_task, by_scene = line.split("tasks:")[1].split("| scenes:")
     assert by_task.strip().startswith("strict +0.750") and by_scene.strip().startswith("strict +0.750")
     assert str(paired_differences(full, averaging, groups=groups)["strict_osr"]) in by_scene
+
+
+def test_relaxed_is_paired_when_asked() -> None:
+    """`metrics` adds Relaxed-osR (the dial's sweep): its point value by hand, Strict unchanged."""
+    gt = [2, 2, 2]
+    a, b = _scores([1, 2, 2], [0.5, 1.0, 1.0], gt), _scores([1, 1, 0], [0.5, 0.5, 0.0], gt)
+    a.per_task["t0"] = TaskScores(num_gt=2, strict=1, relaxed=2, iou_sum=0.5)
+    diff = paired_differences(a, b, metrics=("strict_osr", "relaxed_osr"))
+    assert set(diff) == {"strict_osr", "relaxed_osr"}
+    assert diff["strict_osr"].mean == pytest.approx(3 / 6)
+    assert diff["relaxed_osr"].mean == pytest.approx(4 / 6)
+    assert set(paired_differences(a, b)) == {"strict_osr", "iou"}

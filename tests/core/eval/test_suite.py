@@ -97,3 +97,15 @@ def test_lerf_scores_a_perfect_map_one_and_a_wrong_one_low(small_case: SceneCase
     wrong = score_map(views, small_case.tasks, gt.instance_ids, np.roll(truth, 1, axis=1))
     assert wrong.num_queries == perfect.num_queries
     assert wrong.miou < 0.3
+
+
+def test_the_orphi_row_set_runs_the_full_method_and_w_o_or_phi(small_case: SceneCase, tmp_path: Path) -> None:
+    """`--rows orphi` (the outlier dial's pair): exactly those two rows, on the same perception."""
+    from bayesian_fields_core.eval.suite import ORPHI
+
+    lines: list[str] = []
+    evaluation = evaluate_scene(
+        small_case, load_models(None), tmp_path, lerf_views=0, log=lines.append, rows_shown="orphi"
+    )
+    assert set(evaluation.clio) == set(evaluation.clio_code) == {FULL, ORPHI}
+    assert len(lines) == 2 and "w/o OR-phi" in lines[1]

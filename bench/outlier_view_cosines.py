@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 
 from bayesian_fields_core.eval.regime import regime_models
-from bayesian_fields_core.eval.suite import FULL, _slug, prepare_scenes
+from bayesian_fields_core.eval.suite import FULL, prepare_scenes, row_folder_name
 from bayesian_fields_core.eval.synthetic.ground_truth import load_ground_truth
 from bayesian_fields_core.job.artifacts import ACCEPTED_KEY
 from bayesian_fields_core.job.factories import local_job
@@ -72,7 +72,7 @@ def scene_records(case: Any, models: Any, runs: Path, cache: Path) -> tuple[list
     # The sweep's own full-method run when it is there (same folder as `evaluate_scene` writes),
     # else a fresh one on the shared perception cache.
     job = local_job(
-        case.folder, runs / case.name / _slug(FULL), cache, case.tasks, params, models,
+        case.folder, runs / case.name / row_folder_name(FULL), cache, case.tasks, params, models,
         cache_prefix=f"scenes/{case.cache_name or case.name}/cache/",
     )  # fmt: skip
     spec, scene = job.spec, job.scene

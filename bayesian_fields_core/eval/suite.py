@@ -272,7 +272,7 @@ def evaluate_scene(
             | {"answer_min_peak": None}
         )
         job = local_job(
-            case.folder, out_dir / case.name / _slug(row), out_dir / "cache", case.tasks, params, models,
+            case.folder, out_dir / case.name / row_folder_name(row), out_dir / "cache", case.tasks, params, models,
             cache_prefix=cache_prefix,
         )  # fmt: skip
         store = job.spec.store
@@ -559,5 +559,7 @@ def print_not_found(
         )
 
 
-def _slug(name: str) -> str:
+def row_folder_name(name: str) -> str:
+    """The folder a row's run is written to under a scene's output (lower-case, dashes): bench
+    scripts that read a row's run find it by the same rule."""
     return "".join(c if c.isalnum() else "-" for c in name.strip().lower()).strip("-")

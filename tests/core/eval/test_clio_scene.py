@@ -15,7 +15,7 @@ from scipy.spatial.transform import Rotation
 from bayesian_fields_core.cli.main import main
 from bayesian_fields_core.eval.clio import clio_metrics
 from bayesian_fields_core.eval.clio_scene import clio_case
-from bayesian_fields_core.eval.suite import FULL, _slug, estimates_from_selection
+from bayesian_fields_core.eval.suite import FULL, estimates_from_selection, row_folder_name
 from bayesian_fields_core.eval.synthetic import generate_scene, load_clio_boxes, load_ground_truth
 from bayesian_fields_core.eval.synthetic.spec import SceneSpec
 from bayesian_fields_core.geometry.obb import OrientedBox
@@ -136,7 +136,7 @@ def test_bfields_eval_scene_prints_table_1_with_the_native_metrics(
     assert "Table 1 on clio-small" in text and "paired bootstrap" in text and '"Not found" answers' in text
     # The full row's printed Strict / Relaxed / IoU equal the metrics of its map against the
     # native gt.json (scene frame, no transform involved).
-    result = read_result(LocalStore(out / "clio-small" / _slug(FULL)), RESULT_PREFIX)
+    result = read_result(LocalStore(out / "clio-small" / row_folder_name(FULL)), RESULT_PREFIX)
     tasks = load_tasks(scene / "tasks.yaml")
     selection = {
         t: [(o.object_id, o.capture_box or o.box) for o in objs] for t, objs in result.selections.items()
@@ -163,7 +163,7 @@ def test_not_found_answers_come_from_the_pipeline_and_match_the_eval_rule(
     the evaluation's post-hoc rule says; previews and the summary carry it."""
     scene, _, _ = clio_scene
     _, out = evaluated
-    store = LocalStore(out / "clio-small" / _slug(FULL))
+    store = LocalStore(out / "clio-small" / row_folder_name(FULL))
     before = read_result(store, RESULT_PREFIX)
     peaks = {t: objs[0].peak for t, objs in before.selections.items() if objs}
     # The eval ran with the rule off: the only unanswered tasks are those no object qualifies for
@@ -177,7 +177,7 @@ def test_not_found_answers_come_from_the_pipeline_and_match_the_eval_rule(
     )
     job = local_job(
         scene,
-        out / "clio-small" / _slug(FULL),
+        out / "clio-small" / row_folder_name(FULL),
         out / "cache",
         before.tasks,
         params,
@@ -202,7 +202,7 @@ def test_not_found_answers_come_from_the_pipeline_and_match_the_eval_rule(
             ]
     summary_previews = read_result(store, RESULT_PREFIX)  # previews rendered for every task
     assert summary_previews.tasks == before.tasks
-    assert len(list((out / "clio-small" / _slug(FULL) / "result" / "previews").glob("task_*.png"))) == len(
+    assert len(list((out / "clio-small" / row_folder_name(FULL) / "result" / "previews").glob("task_*.png"))) == len(
         before.tasks
     )
 
